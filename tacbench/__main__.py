@@ -1,0 +1,3 @@
+from tacbench.cli import main
+
+main()

@@ -1,0 +1,10 @@
+"""The one exception type for user mistakes.
+
+Anything a user can fix (an unknown env, q <= 0, a run directory from another config) raises
+:class:`TacbenchError` with a message that says what to do. The CLI prints the message without
+a traceback and exits with status 2; library callers catch it like any exception.
+"""
+
+
+class TacbenchError(Exception):
+    """A mistake the user can fix; the message says how."""
