@@ -10,6 +10,12 @@ from tacbench import __version__
 from tacbench.errors import TacbenchError
 
 
+class _UserError(click.ClickException):
+    """A :class:`TacbenchError` as click shows it: ``Error: <message>``, exit status 2."""
+
+    exit_code = 2
+
+
 class _Group(click.Group):
     """A click group that turns :class:`TacbenchError` into a clean message and exit status 2."""
 
@@ -17,9 +23,7 @@ class _Group(click.Group):
         try:
             return super().invoke(ctx)
         except TacbenchError as err:
-            exc = click.ClickException(str(err))
-            exc.exit_code = 2
-            raise exc from None
+            raise _UserError(str(err)) from None
 
 
 @click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})

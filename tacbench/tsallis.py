@@ -163,20 +163,20 @@ def _steep_solution(y: Array, q: float) -> tuple[Array, Array]:
     There ``pi_a = (c_a - m)_+^(1/(q-1))`` with ``c = (q-1) y`` and one unknown level m, but a
     small supported pi_a needs ``c_a - m`` to far more digits than m carries. So the support is
     found first, from the breakpoints ``m = c_(k)`` of the sorted c (binary search on k), and then
-    the smallest supported probability s is bisected on: ``pi_(j) = (c_(j) - c_(K) + s^(q-1))^(1/(q-1))``
-    is then accurate for every supported arm.
+    the smallest supported probability s is bisected on; every supported arm's
+    ``pi_(j) = (c_(j) - c_(K) + s^(q-1))^(1/(q-1))`` is then accurate.
     """
     expo = 1.0 / (q - 1.0)
     c = -np.sort(-(q - 1.0) * y, axis=-1)
     n = c.shape[-1]
 
-    def mass_at_breakpoint(k: Array) -> Array:
+    def mass_at_breakpoint(k: npt.NDArray[np.intp]) -> Array:
         ck = np.take_along_axis(c, k, axis=-1)
         with np.errstate(invalid="ignore"):
             gaps = np.where(c > ck, c - ck, 0.0)
         return np.sum(gaps**expo, axis=-1, keepdims=True)
 
-    lo = np.zeros(c.shape[:-1] + (1,), dtype=np.intp)  # mass < 1 at c_(lo); c_(0) = max
+    lo = np.zeros((*c.shape[:-1], 1), dtype=np.intp)  # mass < 1 at c_(lo); c_(0) = max
     hi = np.full_like(lo, n)  # mass >= 1 at c_(hi), or hi = n (no such breakpoint)
     while np.any(hi - lo > 1):
         mid = (lo + hi) // 2

@@ -1,0 +1,230 @@
+"""Tsallis statistics: definitions, closed forms, the q-max theorem and the appendix identities."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+from scipy.optimize import brentq
+from scipy.special import logsumexp, softmax
+
+from tacbench.errors import TacbenchError
+from tacbench.tsallis import (
+    exp_q,
+    log_q,
+    log_q_of_log,
+    q_max,
+    q_potential,
+    q_softmax,
+    tsallis_entropy,
+)
+
+pytestmark = pytest.mark.unit
+
+Q_VALUES = [0.1, 0.5, 0.7, 1.0, 1.2, 1.5, 1.7, 2.0, 2.5, 3.0, 5.0, 10.0, 50.0]
+values_st = arrays(
+    np.float64,
+    st.integers(1, 12),
+    elements=st.floats(-50, 50, allow_nan=False, allow_infinity=False),
+)
+q_st = st.sampled_from(Q_VALUES) | st.floats(0.1, 50.0)
+alpha_st = st.floats(0.05, 5.0)
+
+
+def test_exp_and_log_follow_the_paper_convention() -> None:
+    x = np.linspace(-0.9, 3.0, 9)
+    assert np.allclose(exp_q(x, 1.0), np.exp(x))
+    assert np.allclose(exp_q(x, 2.0), np.maximum(1.0 + x, 0.0))  # [1 + (q-1) x]_+^(1/(q-1))
+    assert np.allclose(exp_q(x, 3.0), np.sqrt(np.maximum(1.0 + 2.0 * x, 0.0)))
+    p = np.linspace(0.05, 4.0, 9)
+    assert np.allclose(log_q(p, 1.0), np.log(p))
+    assert np.allclose(log_q(p, 2.0), p - 1.0)  # linear at q = 2 (paper, section 2)
+    assert np.allclose(log_q(p, 0.5), (p**-0.5 - 1.0) / -0.5)
+
+
+def test_exp_q_cuts_off_and_has_a_pole() -> None:
+    assert exp_q(-1.0, 2.0) == 0.0  # outside the support for q > 1
+    assert exp_q(-np.inf, 0.5) == 0.0
+    assert exp_q(2.0, 0.5) == np.inf  # at the pole x = 1/(1-q) for q < 1
+    assert log_q(0.0, 2.0) == -1.0 and log_q(0.0, 0.5) == -np.inf
+
+
+@pytest.mark.parametrize("q", Q_VALUES)
+def test_log_q_inverts_exp_q(q: float) -> None:
+    # where both directions are well conditioned (for large q, ln_q(p) -> -1/(q-1) as p -> 0)
+    x = np.linspace(0.1, 1.0, 19)
+    assert np.allclose(log_q(exp_q(x, q), q), x, rtol=1e-9)
+    if q <= 5.0:
+        p = np.geomspace(1e-3, 10.0, 50)
+        assert np.allclose(exp_q(log_q(p, q), q), p, rtol=1e-8)
+
+
+def test_q_logarithm_is_continuous_at_q_equal_one() -> None:
+    p = np.geomspace(1e-8, 1e3, 20)
+    assert np.allclose(log_q(p, 1.0 + 1e-12), np.log(p), rtol=1e-9, atol=1e-9)
+    assert np.allclose(exp_q(np.linspace(-5, 5, 11), 1.0 - 1e-12), np.exp(np.linspace(-5, 5, 11)))
+
+
+def test_entropy_special_cases() -> None:
+    p = np.array([0.5, 0.25, 0.25, 0.0])
+    assert np.isclose(tsallis_entropy(p, 1.0), -np.sum(p[:3] * np.log(p[:3])))
+    assert np.isclose(tsallis_entropy(p, 2.0), 1.0 - np.sum(p**2))  # sparse Tsallis entropy
+    for q in Q_VALUES:
+        uniform = np.full(5, 0.2)
+        assert np.isclose(tsallis_entropy(uniform, q), -log_q(0.2, q))  # maximum (appendix A)
+        assert tsallis_entropy(np.array([0.0, 1.0, 0.0]), q) == 0.0
+
+
+@settings(max_examples=200, deadline=None)
+@given(values_st, q_st, alpha_st)
+def test_q_softmax_is_normalised(f: np.ndarray, q: float, alpha: float) -> None:
+    pi = q_softmax(f, q, alpha)
+    assert np.all(pi >= 0.0)
+    assert abs(pi.sum() - 1.0) <= 1e-10
+
+
+@settings(max_examples=200, deadline=None)
+@given(values_st, q_st, alpha_st)
+def test_q_max_bounds_of_theorem_bound(f: np.ndarray, q: float, alpha: float) -> None:
+    """max f <= q-max f <= max f - alpha ln_q(1/|X|) (paper, theorem thm:bound)."""
+    value = q_max(f, q, alpha)
+    upper = f.max() - alpha * log_q(1.0 / f.size, q)
+    tol = 1e-9 * (1.0 + np.abs(f).max())
+    assert f.max() - tol <= value <= upper + tol
+
+
+@settings(max_examples=150, deadline=None)
+@given(values_st, q_st, alpha_st, st.integers(0, 2**32 - 1))
+def test_q_max_is_the_value_at_q_softmax_and_is_not_beaten(
+    f: np.ndarray, q: float, alpha: float, seed: int
+) -> None:
+    pi = q_softmax(f, q, alpha)
+    value = q_max(f, q, alpha)
+    objective = pi @ f + alpha * tsallis_entropy(pi, q)
+    tol = 1e-9 * (1.0 + np.abs(f).max())
+    assert abs(objective - value) <= tol
+    rng = np.random.default_rng(seed)
+    others = rng.dirichlet(np.full(f.size, 0.3), size=200)
+    others = np.vstack([others, np.eye(f.size), np.full(f.size, 1.0 / f.size)])
+    assert np.all(others @ f + alpha * tsallis_entropy(others, q) <= value + tol)
+
+
+@settings(max_examples=150, deadline=None)
+@given(values_st, st.floats(1.05, 50.0))
+def test_support_condition_of_appendix_b(f: np.ndarray, q: float) -> None:
+    """pi_a > 0 exactly where 1 + (q-1)(r_a/q - psi_q(r/q)) > 0 (appendix B, last step)."""
+    pi = q_softmax(f, q)
+    z = f / q
+    base = 1.0 + (q - 1.0) * (z - q_potential(z, q))
+    clear = np.abs(base) > 1e-9  # arms exactly at the edge may round either way
+    assert np.array_equal((pi > 0)[clear], (base > 0)[clear])
+    assert pi[np.argmax(f)] > 0
+
+
+@pytest.mark.parametrize("q", [0.3, 0.8, 1.5, 3.0, 7.0])
+def test_closed_form_value_identity_of_appendix_b(q: float) -> None:
+    """E[r] + S_q(pi) = (q-1) sum_a (r_a/q) pi_a + psi_q(r/q)."""
+    r = np.array([2.0, 2.0, 2.0, 2.0, 4.0, 4.0, 4.5, 5.0])
+    pi = q_softmax(r, q)
+    assert np.isclose(q_max(r, q), (q - 1.0) * np.sum(r / q * pi) + q_potential(r / q, q))
+
+
+def test_q_near_one_matches_softmax_and_log_sum_exp() -> None:
+    rng = np.random.default_rng(0)
+    f = rng.normal(0.0, 3.0, size=(20, 7))
+    for alpha in (0.1, 1.0, 2.0):
+        assert np.allclose(q_softmax(f, 1.0, alpha), softmax(f / alpha, axis=-1))
+        assert np.allclose(q_max(f, 1.0, alpha), alpha * logsumexp(f / alpha, axis=-1))
+        for q in (1.0 - 1e-7, 1.0 + 1e-7):
+            assert np.allclose(q_softmax(f, q, alpha), softmax(f / alpha, axis=-1), atol=1e-5)
+            assert np.allclose(q_max(f, q, alpha), alpha * logsumexp(f / alpha, axis=-1), atol=1e-5)
+    assert np.allclose(q_potential(f, 1.0), logsumexp(f, axis=-1))
+
+
+def _sparsemax_by_root_finding(z: np.ndarray) -> np.ndarray:
+    """Euclidean projection onto the simplex: [z - tau]_+ with tau from a scalar root finder."""
+    tau = brentq(lambda t: np.maximum(z - t, 0.0).sum() - 1.0, z.min() - 1.0, z.max())
+    return np.maximum(z - tau, 0.0)
+
+
+@settings(max_examples=100, deadline=None)
+@given(values_st, alpha_st)
+def test_q_two_is_sparsemax(f: np.ndarray, alpha: float) -> None:
+    expected = _sparsemax_by_root_finding(f / (2.0 * alpha))
+    assert np.allclose(q_softmax(f, 2.0, alpha), expected, atol=1e-9)
+    assert np.allclose(q_softmax(f, 2.0 + 1e-9, alpha), expected, atol=1e-6)
+
+
+def test_paper_bandit_policies_sparsify_as_q_grows() -> None:
+    r = np.array([2.0, 2.0, 2.0, 2.0, 4.0, 4.0, 4.5, 5.0])
+    support = [int(np.sum(q_softmax(r, q) > 0)) for q in (0.5, 1.0, 2.0, 10.0)]
+    assert support == [8, 8, 4, 2]
+    assert np.allclose(q_softmax(r, 2.0), [0, 0, 0, 0, 0.0625, 0.0625, 0.3125, 0.5625])
+    # q = 50: two arms, p_max^49 - p_2^49 = 49 * 0.5 / 50 (worked by hand), p_2 ~ 0.0145
+    p = q_softmax(r, 50.0)
+    assert np.isclose(p[7] ** 49 - p[6] ** 49, 49.0 * 0.5 / 50.0)
+    assert q_max(r, 50.0) >= 5.0
+
+
+def test_alpha_rescales_rewards() -> None:
+    f = np.array([0.3, -1.0, 2.0, 2.0])
+    for q in (0.5, 1.0, 2.0, 4.0):
+        assert np.isclose(q_max(f, q, 0.25), 0.25 * q_max(f / 0.25, q, 1.0))
+        assert np.allclose(q_softmax(f, q, 0.25), q_softmax(f / 0.25, q, 1.0))
+
+
+@pytest.mark.parametrize("q", Q_VALUES)
+def test_ties_minus_inf_and_huge_ranges(q: float) -> None:
+    tied = q_softmax(np.array([1.0, 1.0, 1.0]), q)
+    assert np.allclose(tied, 1.0 / 3.0)
+    masked = q_softmax(np.array([0.0, -np.inf, 0.5, -np.inf]), q)
+    assert masked[1] == 0.0 and masked[3] == 0.0 and np.isclose(masked.sum(), 1.0)
+    huge = np.array([1e300, -1e300, 0.0, 1e300])
+    assert np.allclose(q_softmax(huge, q), [0.5, 0.0, 0.0, 0.5])
+    assert np.isfinite(q_max(huge, q)) and q_max(huge, q) >= 1e300
+    tiny = np.array([1e-300, 0.0])
+    assert np.allclose(q_softmax(tiny, q), 0.5)
+
+
+def test_vectorised_over_leading_axes() -> None:
+    rng = np.random.default_rng(1)
+    f = rng.normal(size=(3, 4, 6))
+    for q in (0.5, 1.5, 3.0):
+        batched = q_softmax(f, q, 0.7)
+        rows = np.array([[q_softmax(row, q, 0.7) for row in block] for block in f])
+        assert np.allclose(batched, rows)
+        assert q_max(f, q).shape == (3, 4)
+
+
+@pytest.mark.parametrize(
+    ("call", "message"),
+    [
+        (lambda: q_max([1.0, 2.0], 0.0), "q must be"),
+        (lambda: q_max([1.0, 2.0], -1.0), "q must be"),
+        (lambda: q_softmax([1.0, 2.0], 1.5, alpha=0.0), "alpha must be"),
+        (lambda: q_softmax([1.0, np.nan], 1.5), "NaN"),
+        (lambda: q_softmax([], 1.5), "non-empty"),
+        (lambda: q_max([-np.inf, -np.inf], 1.5), "at least one finite"),
+        (lambda: q_max([np.inf, 0.0], 1.5), r"\+inf"),
+        (lambda: tsallis_entropy([0.5, 0.6], 1.5), "sum to 1"),
+        (lambda: log_q([-1.0], 1.5), "x >= 0"),
+        (lambda: exp_q(1.0, float("nan")), "q must be"),
+    ],
+)
+def test_bad_input_raises_the_project_error(call: object, message: str) -> None:
+    with pytest.raises(TacbenchError, match=message):
+        call()  # type: ignore[operator]
+
+
+@pytest.mark.parametrize("q", [0.5, 1.0, 1.5, 2.0, 5.0])
+def test_torch_log_q_of_log_matches_numpy_and_is_differentiable(q: float) -> None:
+    log_p = torch.linspace(-30.0, 5.0, 50, dtype=torch.float64, requires_grad=True)
+    out = log_q_of_log(log_p, q)
+    assert np.allclose(out.detach().numpy(), log_q(np.exp(log_p.detach().numpy()), q))
+    out.sum().backward()
+    assert log_p.grad is not None and torch.isfinite(log_p.grad).all()
+    # d ln_q(p) / d log p = p^(q-1)
+    assert torch.allclose(log_p.grad, torch.exp((q - 1.0) * log_p.detach()))
