@@ -1,0 +1,237 @@
+"""From a results directory to every table and figure of the report (nothing written here).
+
+:func:`analyse` runs the layers in order: load -> per-run scores -> tables -> curves ->
+rliable statistics -> figures, and returns them in a :class:`Report`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import cast
+
+import numpy as np
+import pandas as pd
+from matplotlib.figure import Figure
+
+from tacbench.errors import TacbenchError
+from tacbench.report import plots
+from tacbench.report.curves import run_matrix, seed_curves
+from tacbench.report.load import METRIC_SOURCES, Metric, RunSet, load_runs
+from tacbench.report.methods import (
+    BEST_Q_LABEL,
+    SAC_LABEL,
+    assign_methods,
+    method_sort_key,
+)
+from tacbench.report.paper import task_sort_key
+from tacbench.report.stats import (
+    ALL_TASKS,
+    DEFAULT_REPS,
+    aggregate_estimates,
+    improvement_over_q1,
+    per_task_estimates,
+    profile_table,
+)
+from tacbench.report.tables import (
+    DEFAULT_LAST,
+    best_q_rows,
+    best_q_table,
+    normalise,
+    run_scores,
+    summary_table,
+)
+
+FORMATS: tuple[str, ...] = ("png", "svg", "pdf")
+DEFAULT_GRID_POINTS = 200
+PROFILE_TAUS = np.linspace(0.0, 1.0, 101)
+_IDENTITY = ["algo", "env", "variant", "q", "alpha", "seed"]
+
+
+@dataclass(frozen=True)
+class ReportOptions:
+    """What to report on and how; the defaults are the CLI's (see ``docs/report.md``)."""
+
+    results: Path
+    out: Path
+    metric: str = "eval"
+    fmt: str = "png"
+    reps: int = DEFAULT_REPS
+    last: int = DEFAULT_LAST
+    grid_points: int = DEFAULT_GRID_POINTS
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.metric not in METRIC_SOURCES:
+            raise TacbenchError(
+                f"unknown metric {self.metric!r}; use one of {sorted(METRIC_SOURCES)}"
+            )
+        if self.fmt not in FORMATS:
+            raise TacbenchError(f"unknown figure format {self.fmt!r}; use one of {FORMATS}")
+        for name, minimum in (("reps", 100), ("last", 1), ("grid_points", 2)):
+            if getattr(self, name) < minimum:
+                raise TacbenchError(f"--{name.replace('_', '-')} must be at least {minimum}")
+
+
+@dataclass
+class Report:
+    """Everything the report shows; tables are DataFrames, figures matplotlib Figures."""
+
+    options: ReportOptions
+    runset: RunSet
+    scores: pd.DataFrame
+    failed: pd.DataFrame
+    summary: pd.DataFrame
+    best_q: pd.DataFrame
+    curves: pd.DataFrame
+    anchors: pd.DataFrame
+    per_task: pd.DataFrame
+    aggregate: pd.DataFrame
+    improvement: pd.DataFrame
+    profiles: pd.DataFrame
+    envs: list[str]
+    methods: list[str]
+    qs: dict[str, float]
+    figures: dict[str, Figure] = field(default_factory=dict)
+
+    @property
+    def tac_methods(self) -> list[str]:
+        """TAC methods (SAC included) in q order."""
+        return [m for m in self.methods if not math.isnan(self.qs[m])]
+
+    @property
+    def comparison_methods(self) -> list[str]:
+        """TAC at the best q, SAC, then the baselines (the paper's comparison figure)."""
+        chosen = [m for m in self.methods if math.isnan(self.qs[m]) or m.startswith(SAC_LABEL)]
+        return sorted(chosen, key=lambda m: (m != BEST_Q_LABEL, not m.startswith(SAC_LABEL)))
+
+
+def _failed_runs(runset: RunSet) -> pd.DataFrame:
+    rows = [s.identity for s in runset.skipped if s.identity is not None]
+    return pd.DataFrame(rows, columns=_IDENTITY)
+
+
+def _with_best_q(scores: pd.DataFrame, best: pd.DataFrame) -> pd.DataFrame:
+    """``scores`` plus a copy of each task's best-q (q != 1) runs labelled TAC (best q)."""
+    chosen = scores.merge(best[["env", "method"]], on=["env", "method"])
+    return pd.concat([scores, chosen.assign(method=BEST_Q_LABEL)], ignore_index=True)
+
+
+def _in_order(frame: pd.DataFrame, envs: list[str], methods: list[str]) -> pd.DataFrame:
+    """Rows by task (paper order, 'all tasks' first) then method (figure order)."""
+    ranks = {
+        "env": {e: i for i, e in enumerate([ALL_TASKS, *envs])},
+        "method": {m: i for i, m in enumerate(methods)},
+    }
+    columns = [c for c in ("env", "method") if c in frame.columns]
+    if frame.empty or not columns:
+        return frame
+    return frame.sort_values(
+        columns, key=lambda col: col.map(ranks[str(col.name)]), kind="stable"
+    ).reset_index(drop=True)
+
+
+def analyse(options: ReportOptions) -> Report:
+    """Load the runs under ``options.results`` and compute every table, statistic and figure."""
+    metric = cast(Metric, options.metric)
+    runset = load_runs(options.results, metric)
+    failed = _failed_runs(runset)
+    labels = assign_methods(pd.concat([runset.runs[_IDENTITY], failed], ignore_index=True))
+    runs = runset.runs.assign(method=labels.iloc[: len(runset.runs)].to_numpy())
+    failed = failed.assign(method=labels.iloc[len(runset.runs) :].to_numpy())
+
+    scores = runs.join(run_scores(runset.data, options.last), on="run")
+    scores["score"], anchors = normalise(scores)
+    summary = summary_table(scores, failed)
+    extended = _with_best_q(scores, best_q_rows(summary))
+
+    grids, values = run_matrix(runset.data, runs, options.grid_points, metric)
+    rows = pd.Index(runs["run"]).get_indexer(extended["run"])
+    curves = seed_curves(grids, values[rows], extended.reset_index(drop=True))
+
+    rng = np.random.default_rng(options.seed)
+    qs = {str(m): float(q) for m, q in extended.groupby("method")["q"].first().items()}
+    qs[BEST_Q_LABEL] = math.nan
+    methods = sorted(qs, key=lambda m: method_sort_key(m, qs[m]))
+    q_methods = [m for m in methods if not math.isnan(qs[m]) and qs[m] != 1.0]
+    improvement = improvement_over_q1(extended, [*q_methods, BEST_Q_LABEL], options.reps, rng)
+    envs = sorted((str(e) for e in runs["env"].unique()), key=task_sort_key)
+    methods = [m for m in methods if m in set(extended["method"])]
+    report = Report(
+        options=options,
+        runset=runset,
+        scores=scores,
+        failed=failed,
+        summary=_in_order(summary, envs, methods),
+        best_q=_in_order(best_q_table(summary, improvement), envs, methods),
+        curves=curves,
+        anchors=_in_order(anchors, envs, methods),
+        per_task=_in_order(per_task_estimates(extended, options.reps, rng), envs, methods),
+        aggregate=_in_order(aggregate_estimates(extended, options.reps, rng), envs, methods),
+        improvement=_in_order(improvement, envs, methods),
+        profiles=profile_table(extended, PROFILE_TAUS, options.reps, rng),
+        envs=envs,
+        methods=methods,
+        qs=qs,
+    )
+    report.figures = make_figures(report)
+    return report
+
+
+def make_figures(report: Report) -> dict[str, Figure]:
+    """Every figure of the report by file stem; figures without data are left out."""
+    ylabel = "evaluation return" if report.options.metric == "eval" else "training return"
+    tac_envs = [
+        e for e in report.envs if e in set(report.curves.loc[report.curves["q"].notna(), "env"])
+    ]
+    figures: dict[str, Figure] = {}
+    if tac_envs:
+        figures["q_sweep"] = plots.curve_figure(
+            report.curves,
+            tac_envs,
+            report.tac_methods,
+            report.qs,
+            "Effect of the entropic index q: TAC, mean ± 1 std over seeds",
+            ylabel,
+        )
+    figures["comparison"] = plots.curve_figure(
+        report.curves,
+        report.envs,
+        report.comparison_methods,
+        report.qs,
+        "Comparison with actor-critic methods (TAC at its best q ≠ 1 per task), mean ± 1 std",
+        ylabel,
+    )
+    figures["intervals"] = plots.interval_figure(
+        report.aggregate,
+        report.methods,
+        report.qs,
+        "All tasks: normalised final score, 95 % stratified-bootstrap intervals",
+    )
+    figures["intervals_per_task"] = plots.task_interval_figure(
+        report.per_task,
+        report.envs,
+        report.methods,
+        report.qs,
+        "Per task: final return, IQM over seeds with 95 % bootstrap intervals",
+    )
+    if not report.improvement.empty:
+        panels = [p for p in [ALL_TASKS, *report.envs] if p in set(report.improvement["env"])]
+        figures["improvement"] = plots.improvement_figure(
+            report.improvement,
+            panels,
+            report.methods,
+            report.qs,
+            "Probability of improvement over q = 1 (same task, same alpha), 95 % intervals",
+        )
+    figures["profiles"] = plots.profile_figure(
+        report.profiles,
+        {
+            "TAC entropic indices": report.tac_methods,
+            "Comparison": report.comparison_methods,
+        },
+        report.qs,
+        "Performance profiles: normalised final scores of all runs, 95 % bands",
+    )
+    return figures

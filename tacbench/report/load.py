@@ -1,0 +1,278 @@
+"""Find run directories and load them into one tidy DataFrame.
+
+The report reads nothing but the run-directory contract (``docs/report.md``)::
+
+    <results>/runs/<algo>/<env>/<variant>/seed<k>/{config.json, status.json, eval.csv, train.csv}
+
+so it works on results copied from anywhere. Identity (algo, env, variant, q, alpha, seed) comes
+from ``config.json``, not from the path. Runs that failed, or whose files cannot be read, are
+skipped and listed with the reason; runs that are still going (or stopped early) are kept and
+flagged ``partial``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import pandas as pd
+
+from tacbench.errors import TacbenchError
+
+Metric = Literal["eval", "train"]
+
+METRIC_SOURCES: dict[str, tuple[str, str]] = {
+    "eval": ("eval.csv", "return_mean"),
+    "train": ("train.csv", "return"),
+}
+"""Per metric: the CSV it is read from and the column that becomes ``return``."""
+
+CONTRACT_FILES = ("config.json", "status.json", "eval.csv", "train.csv")
+STATES = ("running", "complete", "failed")
+
+RUN_COLUMNS = (
+    "run",
+    "path",
+    "algo",
+    "env",
+    "variant",
+    "q",
+    "alpha",
+    "seed",
+    "state",
+    "step_reached",
+    "total_steps",
+    "partial",
+    "rows",
+    "command",
+    "git_commit",
+    "host",
+    "created",
+    "versions",
+)
+TIDY_COLUMNS = ("run", "algo", "env", "variant", "q", "alpha", "seed", "step", "return", "wall_s")
+
+
+@dataclass(frozen=True)
+class Skipped:
+    """A run directory left out of the report, and why.
+
+    ``identity`` holds the config.json identity (algo, env, variant, q, alpha, seed) when it was
+    readable, so failed runs can be counted against their method.
+    """
+
+    path: str
+    reason: str
+    identity: dict[str, Any] | None = None
+
+
+@dataclass(frozen=True)
+class RunSet:
+    """Everything the report knows about the runs.
+
+    ``data`` is the tidy frame (columns :data:`TIDY_COLUMNS`, one row per logged point), ``runs``
+    has one row per loaded run (columns :data:`RUN_COLUMNS`), ``skipped`` lists what was left out.
+    """
+
+    data: pd.DataFrame
+    runs: pd.DataFrame
+    skipped: tuple[Skipped, ...]
+    metric: Metric
+    root: Path
+
+
+class _Unreadable(Exception):
+    """A run directory that cannot be used; the message is the reason shown to the user."""
+
+    def __init__(self, reason: str, identity: dict[str, Any] | None = None) -> None:
+        super().__init__(reason)
+        self.identity = identity
+
+
+def runs_root(results: Path) -> Path:
+    """``<results>/runs`` when it exists (the contract layout), else ``results`` itself."""
+    nested = results / "runs"
+    return nested if nested.is_dir() else results
+
+
+def find_run_dirs(root: Path) -> list[Path]:
+    """Every directory under ``root`` holding a contract file, sorted; not searched below one."""
+    found: list[Path] = []
+    for dirpath, dirnames, filenames in os.walk(root):
+        if any(name in filenames for name in CONTRACT_FILES):
+            found.append(Path(dirpath))
+            dirnames.clear()
+        else:
+            dirnames.sort()
+    return sorted(found)
+
+
+def _read_json(path: Path) -> dict[str, Any]:
+    try:
+        value = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise _Unreadable(f"{path.name} missing") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise _Unreadable(f"{path.name} unreadable: {err}") from None
+    if not isinstance(value, dict):
+        raise _Unreadable(f"{path.name} is not a JSON object")
+    return value
+
+
+def _number(value: Any) -> float:
+    """A finite float from a JSON number, NaN for null; anything else is unreadable."""
+    if value is None:
+        return math.nan
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise _Unreadable(f"config.json: expected a number or null, got {value!r}")
+    return float(value)
+
+
+def _identity(config: dict[str, Any]) -> dict[str, Any]:
+    """The run's identity and provenance from ``config.json``."""
+    for key in ("algo", "env", "variant"):
+        if not isinstance(config.get(key), str) or not config[key]:
+            raise _Unreadable(f"config.json: '{key}' missing or not a string")
+    seed = config.get("seed")
+    if isinstance(seed, bool) or not isinstance(seed, int):
+        raise _Unreadable("config.json: 'seed' missing or not an integer")
+    q, alpha = _number(config.get("q")), _number(config.get("alpha"))
+    if config["algo"] == "tac" and not q > 0:
+        raise _Unreadable("config.json: a TAC run needs a number q > 0")
+    total = config.get("total_steps")
+    versions = config.get("versions")
+    return {
+        "algo": config["algo"],
+        "env": config["env"],
+        "variant": config["variant"],
+        "q": q,
+        "alpha": alpha,
+        "seed": seed,
+        "total_steps": float(total) if isinstance(total, int) and total > 0 else math.nan,
+        "command": str(config.get("command", "")),
+        "git_commit": str(config.get("git_commit", "")),
+        "host": str(config.get("host", "")),
+        "created": str(config.get("created", "")),
+        "versions": json.dumps(versions, sort_keys=True) if isinstance(versions, dict) else "{}",
+    }
+
+
+def _status(run_dir: Path) -> tuple[str, float, str]:
+    """(state, step, reason); a missing status.json reads as state 'unknown'."""
+    if not (run_dir / "status.json").exists():
+        return "unknown", math.nan, ""
+    status = _read_json(run_dir / "status.json")
+    state = status.get("state")
+    if state not in STATES:
+        raise _Unreadable(f"status.json: unknown state {state!r}")
+    step = status.get("step")
+    step_f = (
+        float(step) if isinstance(step, int | float) and not isinstance(step, bool) else math.nan
+    )
+    return str(state), step_f, str(status.get("reason", ""))
+
+
+def _series(run_dir: Path, metric: Metric) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(step, return, wall_s) sorted by step, non-finite rows dropped, repeated steps kept last."""
+    filename, column = METRIC_SOURCES[metric]
+    path = run_dir / filename
+    if not path.exists():
+        raise _Unreadable(f"{filename} missing")
+    try:
+        frame = pd.read_csv(path, usecols=["step", "wall_s", column])
+        values = frame[["step", column, "wall_s"]].to_numpy(dtype=np.float64)
+    except pd.errors.EmptyDataError:
+        raise _Unreadable(f"{filename} is empty") from None
+    except (ValueError, pd.errors.ParserError, OSError) as err:
+        first_line = str(err).splitlines()[0] if str(err) else type(err).__name__
+        raise _Unreadable(f"{filename} unreadable: {first_line}") from None
+    values = values[np.isfinite(values[:, 0]) & np.isfinite(values[:, 1])]
+    if len(values) == 0:
+        raise _Unreadable(f"{filename} has no rows yet")
+    values = values[np.argsort(values[:, 0], kind="stable")]
+    last_of_step = np.append(values[1:, 0] != values[:-1, 0], True)
+    values = values[last_of_step]
+    return values[:, 0], values[:, 1], values[:, 2]
+
+
+def _read_run(run_dir: Path, metric: Metric) -> tuple[dict[str, Any], tuple[np.ndarray, ...]]:
+    identity = _identity(_read_json(run_dir / "config.json"))
+    state, status_step, reason = _status(run_dir)
+    if state == "failed":
+        at = "" if math.isnan(status_step) else f" at step {int(status_step)}"
+        raise _Unreadable(f"run failed{at}: {reason or 'no reason given'}", identity)
+    series = _series(run_dir, metric)
+    reached = float(np.nanmax([status_step, series[0][-1]]))
+    total = identity["total_steps"]
+    partial = state != "complete" or (not math.isnan(total) and reached < total)
+    row = {**identity, "state": state, "step_reached": reached, "partial": partial}
+    row["rows"] = len(series[0])
+    return row, series
+
+
+def load_runs(results: Path | str, metric: Metric = "eval") -> RunSet:
+    """Load every run directory under ``results`` (see :func:`runs_root`) for one metric.
+
+    Raises :class:`TacbenchError` when ``results`` does not exist, holds no run directory, or
+    holds no usable one (the message lists the reasons).
+    """
+    if metric not in METRIC_SOURCES:
+        raise TacbenchError(f"unknown metric {metric!r}; use one of {sorted(METRIC_SOURCES)}")
+    results = Path(results)
+    if not results.is_dir():
+        raise TacbenchError(
+            f"results directory {results} does not exist; pass --results pointing at the folder "
+            "that holds runs/<algo>/<env>/<variant>/seed<k>/"
+        )
+    root = runs_root(results)
+    run_dirs = find_run_dirs(root)
+    if not run_dirs:
+        raise TacbenchError(
+            f"no run directories under {root} (looked for folders holding config.json, "
+            "status.json, eval.csv or train.csv); train something with `tacbench run` first "
+            "or pass --results pointing at copied results"
+        )
+    rows: list[dict[str, Any]] = []
+    series: list[tuple[np.ndarray, ...]] = []
+    skipped: list[Skipped] = []
+    seen: dict[tuple[str, str, str, int], str] = {}
+    for run_dir in run_dirs:
+        rel = run_dir.relative_to(root).as_posix()
+        try:
+            row, run_series = _read_run(run_dir, metric)
+        except _Unreadable as err:
+            skipped.append(Skipped(rel, str(err), err.identity))
+            continue
+        key = (row["algo"], row["env"], row["variant"], row["seed"])
+        if key in seen:
+            skipped.append(
+                Skipped(rel, f"duplicate of {seen[key]} (same algo, env, variant, seed)")
+            )
+            continue
+        seen[key] = rel
+        rows.append({"run": len(rows), "path": rel, **row})
+        series.append(run_series)
+    if not rows:
+        reasons = "; ".join(f"{s.path}: {s.reason}" for s in skipped[:5])
+        raise TacbenchError(
+            f"none of the {len(skipped)} run directories under {root} could be used ({reasons}"
+            f"{'; ...' if len(skipped) > 5 else ''}); fix or remove them"
+        )
+    runs = pd.DataFrame(rows, columns=list(RUN_COLUMNS))
+    return RunSet(_tidy(runs, series), runs, tuple(skipped), metric, root)
+
+
+def _tidy(runs: pd.DataFrame, series: list[tuple[np.ndarray, ...]]) -> pd.DataFrame:
+    counts = np.array([len(s[0]) for s in series])
+    index = np.repeat(runs.index.to_numpy(), counts)
+    data = runs.loc[index, ["run", "algo", "env", "variant", "q", "alpha", "seed"]]
+    data = data.reset_index(drop=True)
+    data["step"] = np.concatenate([s[0] for s in series])
+    data["return"] = np.concatenate([s[1] for s in series])
+    data["wall_s"] = np.concatenate([s[2] for s in series])
+    return data

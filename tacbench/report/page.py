@@ -1,0 +1,277 @@
+"""The report's words and formatted tables: a :class:`Report` turned into page sections."""
+
+from __future__ import annotations
+
+import json
+import math
+from collections import Counter
+
+import pandas as pd
+
+from tacbench.report.build import Report
+from tacbench.report.render import Bullets, Code, Image, Section, Table, Text
+from tacbench.report.stats import ALL_TASKS, CONFIDENCE
+
+TITLE = "tacbench report"
+
+
+def _num(value: float, digits: int = 1) -> str:
+    return "n/a" if value is None or math.isnan(value) else f"{value:.{digits}f}"
+
+
+def _pm(mean: float, std: float, digits: int = 1) -> str:
+    return f"{_num(mean, digits)} ± {_num(std, digits)}"
+
+
+def _ci(point: float, low: float, high: float, digits: int = 2) -> str:
+    return f"{_num(point, digits)} [{_num(low, digits)}, {_num(high, digits)}]"
+
+
+def _steps(value: float) -> str:
+    return "n/a" if math.isnan(value) else f"{int(value):,}"
+
+
+def _q(value: float) -> str:
+    return "" if math.isnan(value) else f"{value:g}"
+
+
+def summary_display(report: Report) -> pd.DataFrame:
+    """The per-task table as shown: one row per task and method."""
+    s = report.summary
+    return pd.DataFrame(
+        {
+            "task": s["env"],
+            "method": s["method"],
+            "alpha": s["alpha"],
+            "seeds": s["seeds"],
+            "partial": s["partial"],
+            "failed": s["failed"],
+            "steps reached": [
+                _steps(a) if a == b else f"{_steps(a)}–{_steps(b)}"
+                for a, b in zip(s["steps_min"], s["steps_max"], strict=True)
+            ],
+            "planned": [_steps(v) for v in s["planned"]],
+            f"final (last {report.options.last})": [
+                _pm(m, d) for m, d in zip(s["final_mean"], s["final_std"], strict=True)
+            ],
+            "best": [_pm(m, d) for m, d in zip(s["best_mean"], s["best_std"], strict=True)],
+            "AUC (mean return)": [
+                _pm(m, d) for m, d in zip(s["auc_mean"], s["auc_std"], strict=True)
+            ],
+        }
+    )
+
+
+def best_q_display(report: Report) -> pd.DataFrame:
+    """The best-q table as shown."""
+    b = report.best_q
+    return pd.DataFrame(
+        {
+            "task": b["env"],
+            "best q (final)": [
+                f"{_q(q)} ({_pm(m, d)})"
+                for q, m, d in zip(b["best_q"], b["best_final"], b["best_final_std"], strict=True)
+            ],
+            "best q ≠ 1": [_q(q) for q in b["best_q_not_1"]],
+            "P(best q ≠ 1 > q = 1) [95 % CI]": [
+                _ci(p, lo, hi)
+                for p, lo, hi in zip(b["p_best_over_q1"], b["p_low"], b["p_high"], strict=True)
+            ],
+            "ranking (final return)": b["ranking"],
+            "paper's best q": b["paper_q"],
+            "its rank here": b["paper_q_rank"],
+            "agrees": b["agrees"],
+            "best in [1, 2)": b["best_in_1_2"],
+            "alpha here (paper)": [
+                f"{a} ({'n/a' if pa is None or pd.isna(pa) else f'{pa:g}'})"
+                for a, pa in zip(b["alpha"], b["paper_alpha"], strict=True)
+            ],
+            "paper says": b["paper_note"],
+        }
+    )
+
+
+def _estimates_display(frame: pd.DataFrame, first: list[str]) -> pd.DataFrame:
+    shown = frame[first].copy()
+    shown["IQM [95 % CI]"] = [
+        _ci(p, lo, hi)
+        for p, lo, hi in zip(frame["iqm"], frame["iqm_low"], frame["iqm_high"], strict=True)
+    ]
+    shown["mean [95 % CI]"] = [
+        _ci(p, lo, hi)
+        for p, lo, hi in zip(frame["mean"], frame["mean_low"], frame["mean_high"], strict=True)
+    ]
+    return shown
+
+
+def _improvement_display(report: Report) -> pd.DataFrame:
+    i = report.improvement
+    return pd.DataFrame(
+        {
+            "method": i["method"],
+            "task": i["env"],
+            "tasks": i["tasks"],
+            "P(method > q = 1) [95 % CI]": [
+                _ci(p, lo, hi) for p, lo, hi in zip(i["p"], i["low"], i["high"], strict=True)
+            ],
+        }
+    )
+
+
+def _how_to_read(report: Report) -> list[str]:
+    o = report.options
+    metric = (
+        "evaluation returns (`eval.csv`, deterministic policy; the reference code plots these)"
+        if o.metric == "eval"
+        else "training-episode returns (`train.csv`; the paper plots average training returns)"
+    )
+    return [
+        f"Metric: {metric}. Switch with `--metric {'train' if o.metric == 'eval' else 'eval'}`.",
+        f"Curves: every run is put on a grid of evenly spaced steps per task (at most "
+        f"{o.grid_points}, fewer if no run logged that many points; linear interpolation of "
+        "evaluations, per-interval averages of training episodes), "
+        "nothing is extrapolated, then seeds are averaged; the band is ± 1 sample standard "
+        "deviation over seeds. After a partial run stops, fewer seeds make up the mean.",
+        f"Final = mean of a run's last {o.last} logged returns; best = its highest logged "
+        "return; AUC = area under its return curve divided by the steps it spans (its average "
+        "return over training). Tables show mean ± std over seeds.",
+        "Normalised score (aggregates and profiles): per task, (final - lowest final of any run) "
+        "/ (highest - lowest), over every run in this report, so 0 and 1 are the worst and best "
+        "runs here; adding or removing methods moves the aggregate numbers, not the per-task "
+        "rankings or probabilities of improvement.",
+        f"IQM = mean of the middle 50 % of runs; intervals are {int(CONFIDENCE * 100)} % "
+        f"percentile intervals of a stratified bootstrap ({o.reps} replications, runs "
+        "resampled within each task), computed with rliable's estimators.",
+        "P(method > q = 1) is the chance that a random run of the method beats a random run of "
+        "TAC q = 1 with the same alpha on the same task (0.5 = no difference); an interval "
+        "that excludes 0.5 is evidence of a difference.",
+        "Performance profiles: the fraction of runs whose normalised final score exceeds tau; "
+        "a curve above another is better everywhere.",
+        "TAC (best q) takes, per task, the q ≠ 1 with the highest mean final return on these "
+        "same runs (as the paper did), so its numbers are optimistic.",
+        "Partial runs (still running or stopped before their planned steps) are included and "
+        "counted in the partial column; failed or unreadable runs are left out and listed below.",
+    ]
+
+
+def _overview(report: Report) -> list[str]:
+    runs = report.runset.runs
+    o = report.options
+    items = [
+        f"{len(runs)} runs on {len(report.envs)} tasks ({', '.join(report.envs)}) and "
+        f"{len(report.methods)} methods, from `{report.runset.root}`.",
+        f"Regenerate: `tacbench report --results {o.results} --out {o.out} --metric {o.metric} "
+        f"--format {o.fmt} --reps {o.reps} --last {o.last} --grid-points {o.grid_points}`.",
+    ]
+    if runs["partial"].any():
+        items.append(f"{int(runs['partial'].sum())} partial runs included (see Runs).")
+    if report.runset.skipped:
+        items.append(f"{len(report.runset.skipped)} run directories skipped (see Runs).")
+    return items
+
+
+def _provenance(report: Report) -> list[Table | Code | Text]:
+    runs = report.runset.runs
+    versions = Counter(runs["versions"])
+    keys = sorted({k for v in versions for k in json.loads(v)})
+    table = pd.DataFrame(
+        [{"runs": n, **json.loads(v)} for v, n in versions.most_common()], columns=["runs", *keys]
+    ).fillna("")
+    commits = Counter(runs["git_commit"])
+    hosts = Counter(runs["host"])
+    created = sorted(c for c in runs["created"] if c)
+    span = f"{created[0]} to {created[-1]}" if created else "unknown"
+    return [
+        Table(table, "Library versions recorded in config.json, with the number of runs"),
+        Text(
+            "Git commits: "
+            + ", ".join(f"`{c or 'unknown'}` ({n})" for c, n in commits.most_common())
+            + ". Hosts: "
+            + ", ".join(f"{h or 'unknown'} ({n})" for h, n in hosts.most_common())
+            + f". Runs created {span}."
+        ),
+        Code(
+            f"The {runs['command'].nunique()} distinct commands that produced the runs",
+            sorted(set(runs["command"])),
+        ),
+    ]
+
+
+def _runs_section(report: Report) -> list[Table | Text]:
+    runs = report.runset.runs
+    partial = runs[runs["partial"]]
+    blocks: list[Table | Text] = []
+    if len(partial):
+        blocks.append(
+            Table(
+                pd.DataFrame(
+                    {
+                        "run": partial["path"],
+                        "state": partial["state"],
+                        "steps reached": [_steps(v) for v in partial["step_reached"]],
+                        "planned": [_steps(v) for v in partial["total_steps"]],
+                    }
+                ),
+                "Partial runs (included)",
+            )
+        )
+    else:
+        blocks.append(Text("Every loaded run is complete."))
+    if report.runset.skipped:
+        skipped = pd.DataFrame(
+            {
+                "run directory": [s.path for s in report.runset.skipped],
+                "reason": [s.reason for s in report.runset.skipped],
+            }
+        )
+        blocks.append(Table(skipped, "Skipped run directories (left out of everything)"))
+    return blocks
+
+
+def sections(report: Report) -> list[Section]:
+    """The whole page, in order."""
+    anchors = report.anchors.assign(
+        low=[_num(v) for v in report.anchors["low"]], high=[_num(v) for v in report.anchors["high"]]
+    ).rename(columns={"env": "task", "low": "score 0 (lowest final)", "high": "score 1 (highest)"})
+    per_task = report.per_task.rename(columns={"env": "task"})
+    aggregate = _estimates_display(report.aggregate, ["method", "tasks", "runs"])
+    return [
+        Section("Overview", [Bullets(_overview(report))]),
+        Section("How to read this", [Bullets(_how_to_read(report))]),
+        Section(
+            "Effect of the entropic index",
+            [
+                Image("q_sweep", "TAC for every q: mean over seeds, shaded ± 1 std."),
+                Table(best_q_display(report), "Best q per task, compared with the paper"),
+            ],
+        ),
+        Section(
+            "Comparison with actor-critic methods",
+            [
+                Image(
+                    "comparison",
+                    "TAC at its best q ≠ 1 (blue pentagons), SAC = TAC q = 1 (red squares) "
+                    "and the baselines: mean over seeds, shaded ± 1 std.",
+                ),
+                Table(summary_display(report), "Per task and method (mean ± std over seeds)"),
+            ],
+        ),
+        Section(
+            "Statistics (rliable)",
+            [
+                Image("intervals", "Aggregate IQM and mean of normalised final scores."),
+                Table(aggregate, "Aggregate over tasks (normalised scores)"),
+                Table(anchors, "Normalisation anchors per task"),
+                Image("intervals_per_task", "Per task IQM of the final return."),
+                Table(
+                    _estimates_display(per_task, ["task", "method", "runs"]),
+                    "Per task (final return)",
+                ),
+                Image("improvement", f"P(method > q = 1); '{ALL_TASKS}' averages over tasks."),
+                Table(_improvement_display(report), "Probability of improvement over q = 1"),
+                Image("profiles", "Score distributions with 95 % bands."),
+            ],
+        ),
+        Section("Runs", _runs_section(report)),
+        Section("Provenance", _provenance(report)),
+    ]

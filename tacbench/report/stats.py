@@ -1,0 +1,224 @@
+"""rliable statistics with a vectorised stratified bootstrap.
+
+The estimators are rliable's (Agarwal et al., 2021, "Deep RL at the Edge of the Statistical
+Precipice"): the interquartile mean (IQM, 25 % trimmed mean over all runs of all tasks), the
+mean of per-task means, the probability of improvement P(X > Y) (Mann-Whitney U / (n_x n_y),
+averaged over tasks) and score-distribution performance profiles (fraction of runs scoring above
+tau). Point estimates call ``rliable.metrics`` directly.
+
+Confidence intervals are 95 % percentile intervals of a *stratified* bootstrap, as in
+``rliable.library.StratifiedBootstrap``: runs are resampled with replacement within each task
+(tasks are not resampled), and for P(X > Y) the runs of X and of Y are resampled independently
+(``StratifiedIndependentBootstrap``). rliable's own bootstrap loops over replications in Python
+through the ``arch`` package (and ``arch`` does not import next to pandas 3); here every
+replication is drawn at once as an index array, so ``reps`` replications cost one vectorised
+call. Tasks may have different numbers of runs.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import numpy as np
+import pandas as pd
+from rliable import metrics
+from scipy.stats import trim_mean
+
+DEFAULT_REPS = 2000
+"""Bootstrap replications. With 2,000 the Monte-Carlo standard deviation of each interval endpoint
+is about 1.5 % of the interval's width (measured on 10 runs per task); Efron & Tibshirani ask for
+at least 1,000 for percentile intervals, and rliable uses 2,000 for performance profiles."""
+
+CONFIDENCE = 0.95
+ALL_TASKS = "all tasks"
+"""The ``env`` value of rows aggregated over tasks."""
+Estimate = tuple[float, float, float]
+"""(point estimate, lower 95 % bound, upper 95 % bound)."""
+
+
+def _percentiles(boot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    tail = 100 * (1 - CONFIDENCE) / 2
+    low, high = np.percentile(boot, [tail, 100 - tail], axis=0)
+    return low, high
+
+
+def resample(tasks: Sequence[np.ndarray], reps: int, rng: np.random.Generator) -> list[np.ndarray]:
+    """Per task, ``reps`` resamples of its runs with replacement: arrays of shape (reps, n_task)."""
+    return [scores[rng.integers(0, len(scores), size=(reps, len(scores)))] for scores in tasks]
+
+
+def iqm(tasks: Sequence[np.ndarray]) -> np.ndarray:
+    """IQM over all runs of all tasks, per replication (arrays of shape (reps, n_task))."""
+    return np.asarray(trim_mean(np.concatenate(tasks, axis=-1), 0.25, axis=-1))
+
+
+def mean_of_means(tasks: Sequence[np.ndarray]) -> np.ndarray:
+    """Mean over tasks of the per-task mean, per replication."""
+    return np.mean([scores.mean(axis=-1) for scores in tasks], axis=0)
+
+
+AGGREGATES: dict[str, Callable[[Sequence[np.ndarray]], np.ndarray]] = {
+    "iqm": iqm,
+    "mean": mean_of_means,
+}
+
+
+def interval_estimates(
+    tasks: Sequence[np.ndarray], reps: int, rng: np.random.Generator
+) -> dict[str, Estimate]:
+    """IQM and mean with stratified-bootstrap 95 % intervals; ``tasks`` holds one array per task.
+
+    With one run per task and one task the interval is the point itself.
+    """
+    tasks = [np.asarray(scores, dtype=np.float64) for scores in tasks]
+    equal = len({len(scores) for scores in tasks}) == 1
+    matrix = np.stack(tasks, axis=1) if equal else None
+    points = {
+        "iqm": float(metrics.aggregate_iqm(matrix)) if equal else float(iqm(tasks)),
+        "mean": float(metrics.aggregate_mean(matrix)) if equal else float(mean_of_means(tasks)),
+    }
+    boot = resample(tasks, reps, rng)
+    result: dict[str, Estimate] = {}
+    for name, func in AGGREGATES.items():
+        low, high = _percentiles(func(boot))
+        result[name] = (points[name], float(low), float(high))
+    return result
+
+
+def _improvement(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """P(X > Y) + P(X = Y) / 2 over all pairs, for x (..., n_x) and y (..., n_y)."""
+    greater = (x[..., :, None] > y[..., None, :]).mean(axis=(-2, -1))
+    ties = (x[..., :, None] == y[..., None, :]).mean(axis=(-2, -1))
+    return np.asarray(greater + 0.5 * ties)
+
+
+def probability_of_improvement(
+    xs: Sequence[np.ndarray], ys: Sequence[np.ndarray], reps: int, rng: np.random.Generator
+) -> Estimate:
+    """P(X > Y) averaged over tasks, with a 95 % interval; ``xs[i]`` and ``ys[i]`` share task i.
+
+    The point estimate is ``rliable.metrics.probability_of_improvement`` when X and Y have the
+    same number of runs on every task; the pairwise count is the same quantity in general.
+    """
+    xs = [np.asarray(x, dtype=np.float64) for x in xs]
+    ys = [np.asarray(y, dtype=np.float64) for y in ys]
+    if len({len(a) for a in xs}) == 1 and len({len(b) for b in ys}) == 1:
+        point = float(
+            metrics.probability_of_improvement(np.stack(xs, axis=1), np.stack(ys, axis=1))
+        )
+    else:
+        point = float(np.mean([_improvement(x, y) for x, y in zip(xs, ys, strict=True)]))
+    boot_x, boot_y = resample(xs, reps, rng), resample(ys, reps, rng)
+    per_task = [_improvement(x, y) for x, y in zip(boot_x, boot_y, strict=True)]
+    low, high = _percentiles(np.mean(per_task, axis=0))
+    return point, float(low), float(high)
+
+
+def performance_profile(
+    tasks: Sequence[np.ndarray], taus: np.ndarray, reps: int, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Fraction of runs (of all tasks) scoring above each tau, with 95 % pointwise intervals.
+
+    As rliable's score distributions: every run weighs the same, runs resampled within tasks.
+    """
+    pooled = np.concatenate([np.asarray(t, dtype=np.float64) for t in tasks])
+    profile = (pooled[:, None] > taus[None, :]).mean(axis=0)
+    boot = np.concatenate(resample(tasks, reps, rng), axis=1)
+    low, high = _percentiles((boot[:, :, None] > taus[None, None, :]).mean(axis=1))
+    return profile, low, high
+
+
+def per_task_estimates(scores: pd.DataFrame, reps: int, rng: np.random.Generator) -> pd.DataFrame:
+    """IQM and mean of the final return over seeds, per task and method, with 95 % intervals.
+
+    ``scores`` has one row per run with columns ``env``, ``method`` and ``final``.
+    """
+    rows = []
+    for (env, method), group in scores.groupby(["env", "method"], sort=False):
+        estimates = interval_estimates([group["final"].to_numpy()], reps, rng)
+        rows.append({"env": env, "method": method, "runs": len(group), **_flat(estimates)})
+    return pd.DataFrame(rows)
+
+
+def aggregate_estimates(scores: pd.DataFrame, reps: int, rng: np.random.Generator) -> pd.DataFrame:
+    """IQM and mean of the normalised score over all tasks of each method, with 95 % intervals.
+
+    ``scores`` has one row per run with columns ``env``, ``method`` and ``score``. A method is
+    aggregated over the tasks it has runs on (column ``tasks``).
+    """
+    rows = []
+    for method, group in scores.groupby("method", sort=False):
+        tasks = [task["score"].to_numpy() for _, task in group.groupby("env")]
+        estimates = interval_estimates(tasks, reps, rng)
+        rows.append({"method": method, "tasks": len(tasks), "runs": len(group), **_flat(estimates)})
+    return pd.DataFrame(rows)
+
+
+def _flat(estimates: dict[str, Estimate]) -> dict[str, float]:
+    flat: dict[str, float] = {}
+    for name, (point, low, high) in estimates.items():
+        flat.update({name: point, f"{name}_low": low, f"{name}_high": high})
+    return flat
+
+
+def _reference_runs(scores: pd.DataFrame, env: str, alpha: float) -> np.ndarray:
+    """Final returns of the q = 1 runs on ``env`` with the same alpha (NaN matches NaN)."""
+    same = scores[(scores["env"] == env) & (scores["q"] == 1.0)]
+    same = same[same["alpha"].isna()] if np.isnan(alpha) else same[same["alpha"] == alpha]
+    return same["final"].to_numpy()
+
+
+def improvement_over_q1(
+    scores: pd.DataFrame, methods: Sequence[str], reps: int, rng: np.random.Generator
+) -> pd.DataFrame:
+    """P(method > q = 1) per task and over all tasks, with 95 % intervals.
+
+    Each TAC method is compared, task by task, with the q = 1 runs that share its alpha; tasks
+    without such runs are left out. ``env`` is ``"all tasks"`` on the aggregate rows.
+    """
+    rows = []
+    for method in methods:
+        xs, ys, envs = [], [], []
+        mine = scores[scores["method"] == method]
+        for env, group in mine.groupby("env", sort=False):
+            alphas = group["alpha"].unique()
+            reference = _reference_runs(scores, str(env), float(alphas[0]))
+            if len(alphas) != 1 or len(reference) == 0:
+                continue
+            xs.append(group["final"].to_numpy())
+            ys.append(reference)
+            envs.append(env)
+        for env, x, y in zip(envs, xs, ys, strict=True):
+            p, low, high = probability_of_improvement([x], [y], reps, rng)
+            rows.append(
+                {"method": method, "env": env, "tasks": 1, "p": p, "low": low, "high": high}
+            )
+        if len(xs) > 1:
+            p, low, high = probability_of_improvement(xs, ys, reps, rng)
+            rows.append(
+                {
+                    "method": method,
+                    "env": ALL_TASKS,
+                    "tasks": len(xs),
+                    "p": p,
+                    "low": low,
+                    "high": high,
+                }
+            )
+    return pd.DataFrame(rows, columns=["method", "env", "tasks", "p", "low", "high"])
+
+
+def profile_table(
+    scores: pd.DataFrame, taus: np.ndarray, reps: int, rng: np.random.Generator
+) -> pd.DataFrame:
+    """Score-distribution performance profile of every method over ``taus`` (normalised scores)."""
+    frames = []
+    for method, group in scores.groupby("method", sort=False):
+        tasks = [task["score"].to_numpy() for _, task in group.groupby("env")]
+        profile, low, high = performance_profile(tasks, taus, reps, rng)
+        frames.append(
+            pd.DataFrame(
+                {"method": method, "tau": taus, "fraction": profile, "low": low, "high": high}
+            )
+        )
+    return pd.concat(frames, ignore_index=True)

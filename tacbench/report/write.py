@@ -1,0 +1,77 @@
+"""Write a :class:`Report` to its output folder: figures, CSV tables, report.md, index.html."""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+import pandas as pd
+
+from tacbench.report import plots
+from tacbench.report.build import Report
+from tacbench.report.page import TITLE, best_q_display, sections, summary_display
+from tacbench.report.render import markdown_table, to_html, to_markdown
+
+HTML_FORMAT = {"png": "png", "svg": "svg", "pdf": "png"}
+"""Format each figure is embedded in index.html with (browsers do not show PDF images)."""
+
+
+def _tables(report: Report) -> dict[str, pd.DataFrame]:
+    skipped = pd.DataFrame(
+        {
+            "path": [s.path for s in report.runset.skipped],
+            "reason": [s.reason for s in report.runset.skipped],
+        }
+    )
+    return {
+        "runs": report.scores.drop(columns=["versions"]),
+        "skipped": skipped,
+        "summary": report.summary,
+        "best_q": report.best_q,
+        "curves": report.curves,
+        "normalisation": report.anchors,
+        "stats_per_task": report.per_task,
+        "stats_aggregate": report.aggregate,
+        "improvement": report.improvement,
+        "profiles": report.profiles,
+    }
+
+
+def write_report(report: Report) -> list[Path]:
+    """Write everything under ``report.options.out``; returns the files written."""
+    out = report.options.out
+    out.mkdir(parents=True, exist_ok=True)
+    written: list[Path] = []
+    for name, frame in _tables(report).items():
+        path = out / f"{name}.csv"
+        frame.to_csv(path, index=False)
+        written.append(path)
+    for name, display in {"summary": summary_display, "best_q": best_q_display}.items():
+        path = out / f"{name}.md"
+        path.write_text(markdown_table(display(report)) + "\n", encoding="utf-8")
+        written.append(path)
+
+    fmt = report.options.fmt
+    files: dict[str, str] = {}
+    images: dict[str, tuple[str, bytes]] = {}
+    for name, fig in report.figures.items():
+        path = out / f"{name}.{fmt}"
+        plots.save(fig, path)
+        written.append(path)
+        files[name] = path.name
+        kind = HTML_FORMAT[fmt]
+        if kind == fmt:
+            images[name] = (kind, path.read_bytes())
+        else:
+            buffer = io.BytesIO()
+            plots.save(fig, buffer, kind)
+            images[name] = (kind, buffer.getvalue())
+
+    page = sections(report)
+    for path, text in (
+        (out / "report.md", to_markdown(TITLE, page, files)),
+        (out / "index.html", to_html(TITLE, page, images)),
+    ):
+        path.write_text(text, encoding="utf-8")
+        written.append(path)
+    return written

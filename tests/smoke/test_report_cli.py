@@ -1,0 +1,134 @@
+"""``tacbench report`` end to end on a small generated results tree."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pandas as pd
+import pytest
+from click.testing import CliRunner
+
+from tacbench.cli import cli
+from tests.report_fixtures import synthetic_tree, write_run
+
+pytestmark = pytest.mark.smoke
+
+FIGURES = ("q_sweep", "comparison", "intervals", "intervals_per_task", "improvement", "profiles")
+
+
+@pytest.fixture(scope="module")
+def results(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    root = synthetic_tree(
+        tmp_path_factory.mktemp("results"),
+        tasks=("HalfCheetah-v4", "Hopper-v4"),
+        qs=(1.0, 1.5, 2.0),
+        baselines=("td3",),
+        seeds=3,
+        n_eval=10,
+        spread=0.1,
+    )
+    write_run(
+        root,
+        algo="tac",
+        env="Hopper-v4",
+        variant="q1.5-a0.2",
+        seed=99,
+        q=1.5,
+        alpha=0.2,
+        steps=[5000, 10000],
+        returns=[10.0, 20.0],
+        total_steps=50000,
+        state="running",
+    )
+    broken = write_run(
+        root, algo="td3", env="Hopper-v4", variant="default", seed=98, steps=[1], returns=[1.0]
+    )
+    (broken / "config.json").write_text("{")
+    return root
+
+
+def _invoke(*args: str) -> tuple[int, str]:
+    result = CliRunner().invoke(cli, ["report", *args])
+    return result.exit_code, result.output
+
+
+@pytest.fixture(scope="module")
+def report_dir(results: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("report")
+    code, output = _invoke("--results", str(results), "--out", str(out), "--reps", "200")
+    assert code == 0, output
+    assert f"wrote {out / 'index.html'}" in output
+    assert "25 runs loaded (1 partial), 1 skipped (see skipped.csv)" in output
+    return out
+
+
+def test_report_writes_every_file(report_dir: Path) -> None:
+    out = report_dir
+    for name in FIGURES:
+        assert (out / f"{name}.png").stat().st_size > 10_000
+    for table in ("runs", "skipped", "summary", "best_q", "stats_aggregate", "improvement"):
+        assert (out / f"{table}.csv").exists()
+
+    summary = pd.read_csv(out / "summary.csv")
+    partial = summary[(summary["env"] == "Hopper-v4") & (summary["method"] == "TAC q=1.5")]
+    assert partial["seeds"].item() == 4 and partial["partial"].item() == 1
+    skipped = pd.read_csv(out / "skipped.csv")
+    assert skipped["path"].tolist() == ["td3/Hopper-v4/default/seed98"]
+    assert skipped["reason"].item().startswith("config.json unreadable")
+
+    page = (out / "index.html").read_text()
+    assert page.count("data:image/png;base64,") == len(FIGURES)
+    assert 'src="http' not in page and "<link" not in page
+    assert "How to read this" in page and "evaluation returns" in page
+    assert "tacbench run --algo tac --env Hopper-v4 --variant q1.5-a0.2 --seed 99" in page
+    assert "2.13.0" in page and "td3/Hopper-v4/default/seed98" in page
+    markdown = (out / "report.md").read_text()
+    assert "![" in markdown and "(q_sweep.png)" in markdown
+    assert "| task | best q (final) |" in markdown
+
+
+def test_train_metric_and_pdf_figures(results: Path, tmp_path: Path) -> None:
+    out = tmp_path / "report"
+    args = ("--results", str(results), "--out", str(out), "--reps", "100")
+    code, output = _invoke(*args, "--metric", "train", "--format", "pdf")
+    assert code == 0, output
+    assert (out / "q_sweep.pdf").read_bytes().startswith(b"%PDF")
+    page = (out / "index.html").read_text()
+    assert page.count("data:image/png;base64,") == len(FIGURES)
+    assert "training-episode returns" in page
+
+
+def test_svg_figures_are_embedded_as_svg(results: Path, tmp_path: Path) -> None:
+    out = tmp_path / "report"
+    code, output = _invoke(
+        "--results", str(results), "--out", str(out), "--reps", "100", "--format", "svg"
+    )
+    assert code == 0, output
+    assert (out / "comparison.svg").read_text().lstrip().startswith("<?xml")
+    assert (out / "index.html").read_text().count("data:image/svg+xml;base64,") == len(FIGURES)
+
+
+def test_same_results_give_the_same_report(results: Path, report_dir: Path, tmp_path: Path) -> None:
+    code, output = _invoke("--results", str(results), "--out", str(tmp_path), "--reps", "200")
+    assert code == 0, output
+    for name in ("stats_aggregate.csv", "improvement.csv", "summary.md", "q_sweep.png"):
+        assert (tmp_path / name).read_bytes() == (report_dir / name).read_bytes()
+
+
+def test_user_errors_exit_with_status_two(tmp_path: Path) -> None:
+    code, output = _invoke("--results", str(tmp_path), "--out", str(tmp_path / "r"))
+    assert code == 2 and "no run directories under" in output and "Traceback" not in output
+    code, output = _invoke("--results", str(tmp_path / "nope"))
+    assert code == 2 and "does not exist" in output
+    write_run(tmp_path, algo="td3", env="Ant-v4", variant="d", seed=0, steps=[1], returns=[1.0])
+    code, output = _invoke("--results", str(tmp_path), "--out", str(tmp_path / "r"), "--reps", "5")
+    assert code == 2 and "--reps must be at least 100" in output
+    assert not (tmp_path / "r").exists()
+
+
+def test_config_provenance_reaches_the_page(results: Path, report_dir: Path) -> None:
+    config = json.loads((results / "runs/td3/HalfCheetah-v4/default/seed0/config.json").read_text())
+    page = (report_dir / "index.html").read_text()
+    assert config["command"] in page and config["git_commit"] in page
+    assert config["versions"]["torch"] in page

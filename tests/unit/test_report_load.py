@@ -1,0 +1,164 @@
+"""Loading run directories: the tidy frame, partial runs, and what is skipped and why."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tacbench.errors import TacbenchError
+from tacbench.report.load import TIDY_COLUMNS, find_run_dirs, load_runs
+from tests.report_fixtures import write_run
+
+pytestmark = pytest.mark.unit
+
+
+def _tac(root: Path, seed: int = 0, **kwargs: object) -> Path:
+    args: dict[str, object] = {
+        "algo": "tac",
+        "env": "Hopper-v4",
+        "variant": "q1.5-a0.2",
+        "seed": seed,
+        "q": 1.5,
+        "alpha": 0.2,
+        "steps": [100, 200, 300],
+        "returns": [1.0, 2.0, 3.0],
+    }
+    args.update(kwargs)
+    return write_run(root, **args)  # type: ignore[arg-type]
+
+
+def test_tidy_frame_has_the_contract_columns_and_values(tmp_path: Path) -> None:
+    _tac(tmp_path)
+    write_run(
+        tmp_path,
+        algo="td3",
+        env="Hopper-v4",
+        variant="default",
+        seed=3,
+        steps=[100, 200],
+        returns=[5.0, 7.0],
+    )
+    runset = load_runs(tmp_path)
+    assert tuple(runset.data.columns) == TIDY_COLUMNS
+    assert len(runset.data) == 5 and len(runset.runs) == 2 and not runset.skipped
+    td3 = runset.data[runset.data["algo"] == "td3"]
+    assert td3["return"].tolist() == [5.0, 7.0]
+    assert td3["step"].tolist() == [100.0, 200.0]
+    assert td3["wall_s"].tolist() == [1.0, 2.0]
+    assert td3["q"].isna().all() and td3["alpha"].isna().all()
+    assert set(td3["seed"]) == {3}
+    tac = runset.runs[runset.runs["algo"] == "tac"].iloc[0]
+    assert (tac["q"], tac["alpha"], tac["variant"]) == (1.5, 0.2, "q1.5-a0.2")
+    assert tac["command"].startswith("tacbench run --algo tac")
+    assert json.loads(tac["versions"])["torch"] == "2.13.0"
+    assert runset.root == tmp_path / "runs"
+
+
+def test_train_metric_reads_training_episodes(tmp_path: Path) -> None:
+    _tac(tmp_path, train=([50, 120, 130], [-1.0, 4.0, 6.0]))
+    runset = load_runs(tmp_path, metric="train")
+    assert runset.data["step"].tolist() == [50.0, 120.0, 130.0]
+    assert runset.data["return"].tolist() == [-1.0, 4.0, 6.0]
+
+
+def test_rows_are_sorted_deduplicated_and_non_finite_rows_dropped(tmp_path: Path) -> None:
+    path = _tac(tmp_path)
+    (path / "eval.csv").write_text(
+        "step,wall_s,return_mean,return_std,length_mean\n"
+        "200,2,2.0,0,1\n100,1,1.0,0,1\n200,2.5,2.5,0,1\n300,3,nan,0,1\n400,4,4.0,0,1\n"
+    )
+    runset = load_runs(tmp_path)
+    assert runset.data["step"].tolist() == [100.0, 200.0, 400.0]
+    assert runset.data["return"].tolist() == [1.0, 2.5, 4.0]
+
+
+def test_the_runs_folder_is_preferred_and_bare_trees_work(tmp_path: Path) -> None:
+    _tac(tmp_path)
+    _tac(tmp_path / "reference", seed=1)
+    assert len(load_runs(tmp_path).runs) == 1
+    bare = tmp_path / "copied"
+    _tac(bare, seed=2)
+    (bare / "runs").rename(bare / "elsewhere")
+    runset = load_runs(bare)
+    assert runset.runs["seed"].tolist() == [2]
+
+
+def test_run_dirs_are_not_searched_below(tmp_path: Path) -> None:
+    path = _tac(tmp_path)
+    _tac(path / "checkpoint", seed=9)
+    assert find_run_dirs(tmp_path / "runs") == [path]
+
+
+def test_partial_runs_are_included_and_flagged(tmp_path: Path) -> None:
+    _tac(tmp_path, seed=0, state="running", status_step=350, total_steps=1000)
+    _tac(tmp_path, seed=1, state="complete", total_steps=1000)
+    _tac(tmp_path, seed=2, state="complete", total_steps=300)
+    no_status = _tac(tmp_path, seed=3, total_steps=300)
+    (no_status / "status.json").unlink()
+    runs = load_runs(tmp_path).runs.set_index("seed")
+    assert runs.loc[0, "partial"] and runs.loc[0, "step_reached"] == 350
+    assert runs.loc[0, "state"] == "running"
+    assert runs.loc[1, "partial"] and runs.loc[1, "step_reached"] == 300
+    assert not runs.loc[2, "partial"]
+    assert runs.loc[3, "partial"] and runs.loc[3, "state"] == "unknown"
+
+
+def test_failed_unreadable_and_duplicate_runs_are_skipped_with_reasons(tmp_path: Path) -> None:
+    _tac(tmp_path, seed=0)
+    _tac(tmp_path, seed=1, state="failed", status_step=200, reason="NaN in critic loss")
+    (_tac(tmp_path, seed=2) / "config.json").write_text("{not json")
+    config = _tac(tmp_path, seed=3) / "config.json"
+    config.write_text(json.dumps({**json.loads(config.read_text()), "seed": "three"}))
+    (_tac(tmp_path, seed=4) / "eval.csv").unlink()
+    (_tac(tmp_path, seed=5) / "eval.csv").write_text("step,wall_s,return_mean\n")
+    (_tac(tmp_path, seed=6) / "eval.csv").write_text("step,reward\n1,2\n")
+    (_tac(tmp_path, seed=7) / "eval.csv").write_text("")
+    duplicate = _tac(tmp_path / "copy", seed=0).parent.parent.parent.parent.parent
+    (duplicate / "runs").rename(tmp_path / "runs" / "zz-copy")
+    config = _tac(tmp_path, seed=8) / "config.json"
+    config.write_text(json.dumps({**json.loads(config.read_text()), "q": None}))
+
+    runset = load_runs(tmp_path)
+    assert runset.runs["seed"].tolist() == [0]
+    reasons = {
+        s.path.split("/")[-1] + ("-copy" if "zz" in s.path else ""): s for s in runset.skipped
+    }
+    assert reasons["seed1"].reason == "run failed at step 200: NaN in critic loss"
+    assert reasons["seed1"].identity is not None and reasons["seed1"].identity["q"] == 1.5
+    assert reasons["seed2"].reason.startswith("config.json unreadable")
+    assert reasons["seed3"].reason == "config.json: 'seed' missing or not an integer"
+    assert reasons["seed4"].reason == "eval.csv missing"
+    assert reasons["seed5"].reason == "eval.csv has no rows yet"
+    assert reasons["seed6"].reason.startswith("eval.csv unreadable")
+    assert reasons["seed7"].reason == "eval.csv is empty"
+    assert reasons["seed8"].reason == "config.json: a TAC run needs a number q > 0"
+    assert reasons["seed0-copy"].reason.startswith("duplicate of tac/Hopper-v4/q1.5-a0.2/seed0")
+    assert len(runset.skipped) == 9
+
+
+def test_no_runs_is_a_clear_error(tmp_path: Path) -> None:
+    with pytest.raises(TacbenchError, match="does not exist"):
+        load_runs(tmp_path / "missing")
+    (tmp_path / "runs").mkdir()
+    with pytest.raises(TacbenchError, match="no run directories under"):
+        load_runs(tmp_path)
+    (_tac(tmp_path) / "eval.csv").unlink()
+    with pytest.raises(TacbenchError, match=r"none of the 1 run directories .*eval.csv missing"):
+        load_runs(tmp_path)
+
+
+def test_unknown_metric_is_a_user_error(tmp_path: Path) -> None:
+    _tac(tmp_path)
+    with pytest.raises(TacbenchError, match="unknown metric"):
+        load_runs(tmp_path, metric="test")  # type: ignore[arg-type]
+
+
+def test_step_reached_uses_the_later_of_status_and_data(tmp_path: Path) -> None:
+    _tac(tmp_path, state="running", status_step=120, total_steps=1000)
+    runs = load_runs(tmp_path).runs
+    assert runs["step_reached"].iat[0] == 300
+    assert math.isclose(float(np.asarray(runs["total_steps"])[0]), 1000.0)

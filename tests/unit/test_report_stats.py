@@ -1,0 +1,126 @@
+"""rliable estimators and the vectorised stratified bootstrap: values, strata, coverage."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+from rliable import metrics
+from scipy.stats import norm, trim_mean
+
+from tacbench.report.stats import (
+    ALL_TASKS,
+    improvement_over_q1,
+    interval_estimates,
+    performance_profile,
+    probability_of_improvement,
+    resample,
+)
+
+pytestmark = pytest.mark.unit
+
+
+def test_point_estimates_are_rliables() -> None:
+    rng = np.random.default_rng(1)
+    matrix = rng.normal(size=(7, 3))
+    estimates = interval_estimates(list(matrix.T), 200, rng)
+    assert estimates["iqm"][0] == pytest.approx(metrics.aggregate_iqm(matrix))
+    assert estimates["mean"][0] == pytest.approx(metrics.aggregate_mean(matrix))
+    other = rng.normal(0.3, 1.0, size=(5, 3))
+    p, _, _ = probability_of_improvement(list(other.T), list(matrix.T), 200, rng)
+    assert p == pytest.approx(metrics.probability_of_improvement(other, matrix))
+
+
+def test_tasks_may_have_different_run_counts() -> None:
+    tasks = [np.array([1.0, 2.0, 3.0, 4.0]), np.array([10.0, 20.0])]
+    estimates = interval_estimates(tasks, 300, np.random.default_rng(0))
+    assert estimates["iqm"][0] == pytest.approx(trim_mean(np.concatenate(tasks), 0.25))
+    assert estimates["mean"][0] == pytest.approx((2.5 + 15.0) / 2)
+    p, low, high = probability_of_improvement(
+        [np.array([5.0, 6.0]), np.array([1.0])],
+        [np.array([1.0, 2.0, 3.0]), np.array([1.0, 0.0])],
+        300,
+        np.random.default_rng(0),
+    )
+    assert p == pytest.approx((1.0 + 0.75) / 2)  # task 2: one tie and one win of two pairs
+    assert low <= p <= high
+
+
+def test_bootstrap_resamples_runs_within_each_task_only() -> None:
+    tasks = [np.array([1.0, 2.0, 3.0]), np.array([100.0, 200.0])]
+    boot = resample(tasks, 500, np.random.default_rng(0))
+    assert boot[0].shape == (500, 3) and boot[1].shape == (500, 2)
+    assert set(np.unique(boot[0])) == {1.0, 2.0, 3.0}
+    assert set(np.unique(boot[1])) == {100.0, 200.0}
+
+
+def test_degenerate_and_separated_samples() -> None:
+    rng = np.random.default_rng(0)
+    assert interval_estimates([np.array([4.0])], 100, rng)["iqm"] == (4.0, 4.0, 4.0)
+    same = [np.array([1.0, 2.0, 3.0])]
+    assert probability_of_improvement(same, same, 100, rng)[0] == 0.5
+    high = [np.array([10.0, 11.0])]
+    assert probability_of_improvement(high, same, 100, rng) == (1.0, 1.0, 1.0)
+
+
+def _coverage(estimate: str, true_value: float, mus: tuple[float, ...], trials: int) -> float:
+    rng = np.random.default_rng(12345)
+    hits = 0
+    for _ in range(trials):
+        tasks = [rng.normal(mu, 1.0, size=10) for mu in mus]
+        _, low, high = interval_estimates(tasks, 500, rng)[estimate]
+        hits += low <= true_value <= high
+    return hits / trials
+
+
+def test_mean_intervals_cover_the_true_mean_at_about_95_percent() -> None:
+    coverage = _coverage("mean", 0.5, (0.0, 0.5, 1.0), trials=300)
+    # the percentile bootstrap under-covers slightly with 10 runs per task; 300 trials -> sd 1.3 %
+    assert 0.89 <= coverage <= 0.99
+
+
+def test_iqm_intervals_cover_the_true_iqm_at_about_95_percent() -> None:
+    # a mixture symmetric about 0, so its interquartile mean is 0
+    coverage = _coverage("iqm", 0.0, (-1.0, 0.0, 1.0), trials=300)
+    assert 0.89 <= coverage <= 0.99
+
+
+def test_improvement_intervals_cover_the_true_probability() -> None:
+    rng = np.random.default_rng(7)
+    true_p = norm.cdf(0.8 / np.sqrt(2))  # P(X > Y) for X ~ N(0.8, 1), Y ~ N(0, 1)
+    hits = 0
+    trials = 200
+    for _ in range(trials):
+        xs = [rng.normal(0.8, 1.0, size=10) for _ in range(2)]
+        ys = [rng.normal(0.0, 1.0, size=10) for _ in range(2)]
+        _, low, high = probability_of_improvement(xs, ys, 500, rng)
+        hits += low <= true_p <= high
+    assert 0.88 <= hits / trials <= 0.995
+
+
+def test_performance_profile_values_and_bands() -> None:
+    tasks = [np.array([0.1, 0.5, 0.9]), np.array([0.2, 0.6])]
+    taus = np.array([0.0, 0.3, 0.55, 1.0])
+    profile, low, high = performance_profile(tasks, taus, 400, np.random.default_rng(0))
+    np.testing.assert_allclose(profile, [1.0, 0.6, 0.4, 0.0])
+    assert np.all(low <= profile) and np.all(profile <= high)
+    assert low[0] == high[0] == 1.0 and low[-1] == high[-1] == 0.0
+
+
+def test_improvement_compares_with_q1_runs_of_the_same_alpha() -> None:
+    rows = []
+    for env in ("A", "B"):
+        for q, alpha, finals in (
+            (1.0, 0.2, [1.0, 2.0]),
+            (1.0, 0.1, [50.0, 60.0]),
+            (1.5, 0.2, [3.0, 4.0]),
+        ):
+            label = "SAC" if q == 1.0 else "TAC q=1.5"
+            rows += [
+                {"env": env, "method": label, "q": q, "alpha": alpha, "final": f} for f in finals
+            ]
+    scores = pd.DataFrame(rows)
+    table = improvement_over_q1(scores, ["TAC q=1.5"], 200, np.random.default_rng(0))
+    assert table["env"].tolist() == ["A", "B", ALL_TASKS]
+    assert table["p"].tolist() == [1.0, 1.0, 1.0]
+    assert table["tasks"].tolist() == [1, 1, 2]

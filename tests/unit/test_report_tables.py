@@ -1,0 +1,207 @@
+"""Table numbers against hand-computed values; curves on the common grid; method labels."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from tacbench.report import Report, ReportOptions, analyse
+from tacbench.report.curves import on_grid, seed_curves, task_grid
+from tacbench.report.load import load_runs
+from tacbench.report.methods import (
+    BEST_Q_LABEL,
+    SAC_LABEL,
+    assign_methods,
+    method_sort_key,
+    style_of,
+)
+from tacbench.report.paper import task_name, task_sort_key
+from tacbench.report.tables import normalise, run_scores
+from tests.report_fixtures import synthetic_tree, write_run
+
+pytestmark = pytest.mark.unit
+
+
+def test_run_scores_by_hand(tmp_path: Path) -> None:
+    common = {"env": "Hopper-v4", "variant": "default", "algo": "td3"}
+    write_run(tmp_path, seed=0, steps=[10, 20, 40], returns=[1.0, 3.0, 5.0], **common)
+    write_run(tmp_path, seed=1, steps=[10], returns=[7.0], **common)
+    data = load_runs(tmp_path).data
+    scores = run_scores(data, last=2)
+    assert scores.loc[0, "final"] == pytest.approx(4.0)  # (3 + 5) / 2
+    assert scores.loc[0, "best"] == 5.0
+    # trapezoids: 10 * (1 + 3) / 2 + 20 * (3 + 5) / 2 = 100 over 30 steps
+    assert scores.loc[0, "auc"] == pytest.approx(100 / 30)
+    assert scores.loc[1].tolist() == [7.0, 7.0, 7.0]
+    assert run_scores(data, last=10).loc[0, "final"] == pytest.approx(3.0)
+
+
+def _flat_runs(root: Path, env: str, algo: str, q: float | None, levels: list[float]) -> None:
+    for seed, level in enumerate(levels):
+        write_run(
+            root,
+            algo=algo,
+            env=env,
+            variant="default" if q is None else f"q{q:g}-a0.2",
+            seed=seed,
+            q=q,
+            alpha=None if q is None else 0.2,
+            steps=[1000, 2000, 3000, 4000],
+            returns=[0.0, level / 2, level, level],
+        )
+
+
+@pytest.fixture(scope="module")
+def flat_report(tmp_path_factory: pytest.TempPathFactory) -> Report:
+    root = tmp_path_factory.mktemp("flat")
+    _flat_runs(root, "Humanoid-v4", "tac", 1.0, [100.0, 200.0, 600.0])
+    _flat_runs(root, "Humanoid-v4", "tac", 1.2, [400.0, 500.0, 600.0])
+    _flat_runs(root, "Humanoid-v4", "tac", 2.0, [300.0, 300.0, 300.0])
+    _flat_runs(root, "Humanoid-v4", "ddpg", None, [50.0, 150.0])
+    write_run(
+        root,
+        algo="ddpg",
+        env="Humanoid-v4",
+        variant="default",
+        seed=7,
+        steps=[1000],
+        returns=[0.0],
+        state="failed",
+        reason="diverged",
+    )
+    options = ReportOptions(results=root, out=root / "report", reps=200, last=2, grid_points=4)
+    return analyse(options)
+
+
+def test_summary_numbers_equal_hand_computed_ones(flat_report: Report) -> None:
+    summary = flat_report.summary.set_index("method")
+    sac = summary.loc[SAC_LABEL]
+    assert sac["seeds"] == 3 and sac["partial"] == 0 and sac["failed"] == 0
+    assert sac["final_mean"] == pytest.approx(300.0)
+    # sample std of 100, 200, 600 around 300: sqrt((200^2 + 100^2 + 300^2) / 2)
+    assert sac["final_std"] == pytest.approx(math.sqrt(70_000))
+    assert sac["best_mean"] == pytest.approx(300.0)
+    # curve 0, L/2, L, L at 1k..4k steps: area 1000 * (L/4 + 3L/4 + L) = 2000 L over 3000 steps
+    assert sac["auc_mean"] == pytest.approx(300.0 * 2 / 3)
+    assert sac["steps_min"] == 4000 and sac["planned"] == 4000
+    ddpg = summary.loc["DDPG"]
+    assert ddpg["seeds"] == 2 and ddpg["failed"] == 1
+    assert ddpg["final_mean"] == pytest.approx(100.0)
+    assert summary.loc["TAC q=2", "final_std"] == 0.0
+
+
+def test_best_q_table_ranks_and_compares_with_the_paper(flat_report: Report) -> None:
+    row = flat_report.best_q.iloc[0]
+    assert row["env"] == "Humanoid-v4"
+    assert row["best_q"] == 1.2 and row["best_final"] == pytest.approx(500.0)
+    assert row["ranking"] == "1.2 > 1 > 2"
+    assert row["paper_q"] == "1.2" and row["paper_q_rank"] == "1 of 3"
+    assert row["agrees"] == "yes" and row["best_in_1_2"] == "yes"
+    # q=1.2 finals {400, 500, 600} vs q=1 {100, 200, 600}: 6 wins and 1 tie of 9 pairs
+    assert row["p_best_over_q1"] == pytest.approx(6.5 / 9)
+
+
+def test_normalisation_anchors_are_the_task_extremes(flat_report: Report) -> None:
+    anchors = flat_report.anchors.set_index("env")
+    assert anchors.loc["Humanoid-v4"].tolist() == [50.0, 600.0]
+    scores = flat_report.scores
+    expected = (scores["final"] - 50.0) / 550.0
+    np.testing.assert_allclose(scores["score"], expected)
+    frame = pd.DataFrame({"env": ["a", "a"], "final": [3.0, 3.0]})
+    assert normalise(frame)[0].tolist() == [0.0, 0.0]
+
+
+def test_eval_curves_interpolate_without_extrapolating() -> None:
+    grid = task_grid(100.0, 4)
+    np.testing.assert_array_equal(grid, [25.0, 50.0, 75.0, 100.0])
+    out = on_grid(np.array([30.0, 70.0]), np.array([0.0, 8.0]), grid, "eval")
+    np.testing.assert_allclose(out, [np.nan, 4.0, np.nan, np.nan])
+
+
+def test_train_curves_average_episodes_per_interval_and_fill_gaps() -> None:
+    grid = task_grid(100.0, 5)  # 20, 40, 60, 80, 100
+    steps = np.array([30.0, 35.0, 90.0, 130.0])
+    out = on_grid(steps, np.array([1.0, 3.0, 8.0, 99.0]), grid, "train")
+    # (20, 40]: mean(1, 3) = 2; (40, 60] and (60, 80] empty: interpolated; (80, 100]: 8
+    np.testing.assert_allclose(out, [np.nan, 2.0, 4.0, 6.0, 8.0])
+
+
+def test_seed_curves_count_only_runs_that_reached_a_step() -> None:
+    runs = pd.DataFrame({"env": ["e", "e"], "method": ["m", "m"], "q": [1.0, 1.0]})
+    values = np.array([[1.0, 3.0, 5.0], [3.0, 5.0, np.nan]])
+    curves = seed_curves({"e": np.array([1.0, 2.0, 3.0])}, values, runs)
+    assert curves["mean"].tolist() == [2.0, 4.0, 5.0]
+    assert curves["n"].tolist() == [2, 2, 1]
+    np.testing.assert_allclose(curves["std"], [math.sqrt(2), math.sqrt(2), np.nan])
+
+
+def test_curves_of_flat_runs_on_the_grid(flat_report: Report) -> None:
+    curves = flat_report.curves
+    sac = curves[curves["method"] == SAC_LABEL]
+    assert sac["step"].tolist() == [1000.0, 2000.0, 3000.0, 4000.0]
+    assert sac["mean"].tolist() == pytest.approx([0.0, 150.0, 300.0, 300.0])
+    best = curves[curves["method"] == BEST_Q_LABEL]
+    q12 = curves[curves["method"] == "TAC q=1.2"]
+    assert best["mean"].tolist() == q12["mean"].tolist()
+
+
+def test_method_labels() -> None:
+    runs = pd.DataFrame(
+        {
+            "algo": ["tac", "tac", "tac", "tac", "td3", "ppo", "ppo", "newalgo"],
+            "env": ["A-v4", "A-v4", "A-v4", "B-v4", "A-v4", "A-v4", "A-v4", "A-v4"],
+            "variant": ["q1-a0.2", "q1.5-a0.2", "q1.5-a0.1", "q1.5-a0.05", "d", "x", "y", "d"],
+            "q": [1.0, 1.5, 1.5, 1.5, np.nan, np.nan, np.nan, np.nan],
+        }
+    )
+    assert assign_methods(runs).tolist() == [
+        SAC_LABEL,
+        "TAC q=1.5 [q1.5-a0.2]",
+        "TAC q=1.5 [q1.5-a0.1]",
+        "TAC q=1.5 [q1.5-a0.05]",
+        "TD3",
+        "PPO [x]",
+        "PPO [y]",
+        "NEWALGO",
+    ]
+
+
+def test_styles_are_fixed_per_method() -> None:
+    assert (style_of(SAC_LABEL).color, style_of(SAC_LABEL).marker) == ("#d62728", "s")
+    assert style_of(BEST_Q_LABEL).marker == "p"
+    assert style_of("TAC q=1.5", 1.5) == style_of("TAC q=1.5", 1.5)
+    colours = {style_of(f"TAC q={q:g}", q).color for q in (0.5, 0.7, 1.2, 1.5, 1.7, 2, 3, 5)}
+    assert len(colours) == 8 and style_of(SAC_LABEL).color not in colours
+    assert style_of("TAC q=1.5 [q1.5-a0.1]", 1.5).linestyle != "-"
+
+
+def test_orders_follow_the_paper() -> None:
+    envs = ["Swimmer-v4", "Hopper-v5", "Ant-v4", "Walker2d-v4", "HalfCheetah-v4"]
+    assert sorted(envs, key=task_sort_key) == [
+        "HalfCheetah-v4",
+        "Ant-v4",
+        "Hopper-v5",
+        "Swimmer-v4",
+        "Walker2d-v4",
+    ]
+    assert task_name("Humanoid-v4") == "Humanoid" and task_name("Custom") == "Custom"
+    methods = {"TRPO": np.nan, "TAC q=2": 2.0, BEST_Q_LABEL: np.nan, SAC_LABEL: 1.0, "DDPG": np.nan}
+    assert sorted(methods, key=lambda m: method_sort_key(m, methods[m])) == [
+        SAC_LABEL,
+        "TAC q=2",
+        BEST_Q_LABEL,
+        "DDPG",
+        "TRPO",
+    ]
+
+
+def test_synthetic_sweep_finds_the_known_best_q(tmp_path: Path) -> None:
+    synthetic_tree(tmp_path, tasks=("Humanoid-v4",), seeds=2, n_eval=5, baselines=())
+    report = analyse(ReportOptions(results=tmp_path, out=tmp_path / "r", reps=100))
+    row = report.best_q.iloc[0]
+    assert row["best_q"] == 1.5 and row["ranking"] == "1.5 > 2 > 1 > 0.5"
+    assert row["paper_q_rank"] == "not run" and row["agrees"] == "no"
