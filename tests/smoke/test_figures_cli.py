@@ -1,0 +1,59 @@
+"""``tacbench figures`` end to end: every PNG and CSV is written, readable and fast."""
+
+from __future__ import annotations
+
+import struct
+import time
+from pathlib import Path
+
+import pandas as pd
+import pytest
+from click.testing import CliRunner
+
+from tacbench.cli import cli
+
+pytestmark = pytest.mark.smoke
+
+EXPECTED_COLUMNS = {
+    "qexp_qlog_entropy": ["function", "q", "x", "value"],
+    "bandit_policies": ["q", "alpha", "action", "reward", "prob"],
+    "q_max_bounds": ["q", "c", "q_max", "lower", "upper"],
+    "error_bounds": ["q", "J", "lower_bound", "upper_bound"],
+}
+
+
+def _png_size(path: Path) -> tuple[int, int]:
+    header = path.read_bytes()[:24]
+    assert header[:8] == b"\x89PNG\r\n\x1a\n", f"{path} is not a PNG"
+    width, height = struct.unpack(">II", header[16:24])
+    return width, height
+
+
+def test_figures_command_writes_every_figure(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.chdir(tmp_path)  # the default --out is relative: results/figures
+    start = time.perf_counter()
+    result = CliRunner().invoke(cli, ["figures"])
+    elapsed = time.perf_counter() - start
+    assert result.exit_code == 0, result.output
+    out = tmp_path / "results" / "figures"
+    assert elapsed < 60.0  # seconds on a laptop; generous for a loaded CI machine
+    for name, columns in EXPECTED_COLUMNS.items():
+        png, csv = out / f"{name}.png", out / f"{name}.csv"
+        assert f"wrote {Path('results/figures') / png.name}" in result.output
+        assert f"wrote {Path('results/figures') / csv.name}" in result.output
+        width, height = _png_size(png)
+        assert width >= 1000 and height >= 400
+        table = pd.read_csv(csv)
+        assert list(table.columns) == columns and len(table) > 0
+    assert len(result.output.splitlines()) == 2 * len(EXPECTED_COLUMNS)
+
+
+def test_figures_command_rejects_a_file_as_out(tmp_path: Path) -> None:
+    target = tmp_path / "file"
+    target.write_text("x")
+    result = CliRunner().invoke(cli, ["figures", "--out", str(target)])
+    assert result.exit_code == 2
+    assert "is a file" in result.output
+    assert "Traceback" not in result.output
