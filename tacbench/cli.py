@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import shlex
+from pathlib import Path
 from typing import Any
 
 import click
 
-from tacbench import __version__
+from tacbench import __version__, config
 from tacbench.errors import TacbenchError
 
 
@@ -30,6 +32,274 @@ class _Group(click.Group):
 @click.version_option(__version__, prog_name="tacbench")
 def cli() -> None:
     """tacbench: train, sweep and report Tsallis Actor-Critic and its baselines."""
+
+
+@cli.command()
+@click.option(
+    "--out",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=Path("results/figures"),
+    show_default=True,
+    help="Directory for the PNGs and CSVs (created if missing).",
+)
+def figures(out: Path) -> None:
+    """Write the paper's theory figures (PNG) and the numbers they plot (CSV)."""
+    from tacbench.figures import write_figures  # matplotlib only when this command runs
+
+    for path in write_figures(out):
+        click.echo(f"wrote {path}")
+
+
+@cli.command()
+@click.option(
+    "--results",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=Path("results"),
+    show_default=True,
+    help="Folder holding runs/<algo>/<env>/<variant>/seed<k>/ (or the run folders themselves).",
+)
+@click.option(
+    "--out",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=Path("results/report"),
+    show_default=True,
+    help="Folder for index.html, report.md, the figures and the CSV tables (created if missing).",
+)
+@click.option(
+    "--metric",
+    type=click.Choice(["eval", "train"]),
+    default="eval",
+    show_default=True,
+    help="eval: evaluation returns (eval.csv); train: training-episode returns (train.csv).",
+)
+@click.option(
+    "--format",
+    "fmt",
+    type=click.Choice(["png", "svg", "pdf"]),
+    default="png",
+    show_default=True,
+    help="File format of the figures.",
+)
+@click.option(
+    "--reps",
+    type=int,
+    default=2000,
+    show_default=True,
+    help="Bootstrap replications for every confidence interval.",
+)
+@click.option(
+    "--last",
+    type=int,
+    default=10,
+    show_default=True,
+    help="Final return = mean of each run's last N logged returns.",
+)
+@click.option(
+    "--grid-points",
+    type=int,
+    default=200,
+    show_default=True,
+    help="At most this many points on the common step grid the curves are put on, per task.",
+)
+def report(
+    results: Path, out: Path, metric: str, fmt: str, reps: int, last: int, grid_points: int
+) -> None:
+    """Figures, tables and rliable statistics from the run directories under --results."""
+    from tacbench.report import ReportOptions, analyse, write_report  # pandas etc. only here
+
+    options = ReportOptions(
+        results=results,
+        out=out,
+        metric=metric,
+        fmt=fmt,
+        reps=reps,
+        last=last,
+        grid_points=grid_points,
+    )
+    analysed = analyse(options)
+    write_report(analysed)
+    runs, skipped = analysed.runset.runs, analysed.runset.skipped
+    click.echo(
+        f"{len(runs)} runs loaded ({int(runs['partial'].sum())} partial), {len(skipped)} skipped"
+        f"{' (see skipped.csv)' if skipped else ''}; wrote {out / 'index.html'} and "
+        f"{out / 'report.md'}"
+    )
+
+
+def _command_line(ctx: click.Context) -> str:
+    """The flags the user gave, in canonical form (defaults left out): recorded in config.json."""
+    parts = ["tacbench", ctx.info_name or "run"]
+    for param in ctx.command.params:
+        name = param.name or ""
+        if ctx.get_parameter_source(name) != click.core.ParameterSource.COMMANDLINE:
+            continue
+        flag, value = param.opts[0], ctx.params[name]
+        if isinstance(param, click.Option) and param.is_flag:
+            parts.append(flag)
+        else:
+            for item in value if isinstance(value, tuple) else (value,):
+                parts += [flag, str(item)]
+    return shlex.join(parts)
+
+
+@cli.command()
+@click.option("--env", required=True, help="Gymnasium id (Ant-v4) or paper task name (Ant).")
+@click.option(
+    "--q",
+    type=float,
+    default=None,
+    help="Entropic index q.  [default: the paper's best q for the task]",
+)
+@click.option(
+    "--alpha",
+    type=float,
+    default=None,
+    help="Entropy coefficient.  [default: the paper's: 0.2, Humanoid 0.05]",
+)
+@click.option(
+    "--seed",
+    "seeds",
+    type=int,
+    multiple=True,
+    default=(0,),
+    show_default=True,
+    help="Repeatable (--seed 0 --seed 10): the seeds train as members of one process.",
+)
+@click.option("--steps", type=int, default=config.TOTAL_STEPS, show_default=True)
+@click.option(
+    "--learning-starts",
+    type=int,
+    default=config.LEARNING_STARTS,
+    show_default=True,
+    help="Steps of uniform random actions before learning (the paper's table says 100000).",
+)
+@click.option(
+    "--eval-every",
+    type=int,
+    default=config.EVAL_EVERY,
+    show_default=True,
+    help="Steps between evaluations; 0 disables evaluation.",
+)
+@click.option("--eval-episodes", type=int, default=config.EVAL_EPISODES, show_default=True)
+@click.option(
+    "--update-schedule",
+    type=click.Choice(config.UPDATE_SCHEDULES),
+    default="step",
+    show_default=True,
+    help="step: one update per env step; episode: paper Algorithm 1 (one --seed only).",
+)
+@click.option(
+    "--lnq",
+    type=click.Choice(config.LNQ_MODES),
+    default="joint",
+    show_default=True,
+    help="joint: ln_q of the joint density (paper); per-dim: sum of per-dimension ln_q "
+    "(reference code).",
+)
+@click.option(
+    "--q-schedule",
+    type=click.Choice(config.Q_SCHEDULES),
+    default="constant",
+    show_default=True,
+    help="linear: q goes from 1 to --q between 10% and 90% of --steps.",
+)
+@click.option("--checkpoint-every", type=int, default=config.CHECKPOINT_EVERY, show_default=True)
+@click.option(
+    "--device", type=click.Choice(["cpu", "cuda", "auto"]), default="cpu", show_default=True
+)
+@click.option("--threads", type=int, default=1, show_default=True, help="torch CPU threads.")
+@click.option(
+    "--out",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=Path("results"),
+    show_default=True,
+    help="Results folder; runs go to <out>/runs/tac/<env>/<variant>/seed<k>/.",
+)
+@click.option("--resume", is_flag=True, help="Continue an interrupted run from its checkpoint.")
+@click.option("--force", is_flag=True, help="Delete an existing run directory and start over.")
+@click.option("--quiet", is_flag=True, help="Plain progress lines instead of a progress bar.")
+@click.pass_context
+def run(
+    ctx: click.Context,
+    env: str,
+    q: float | None,
+    alpha: float | None,
+    seeds: tuple[int, ...],
+    steps: int,
+    learning_starts: int,
+    eval_every: int,
+    eval_episodes: int,
+    update_schedule: str,
+    lnq: str,
+    q_schedule: str,
+    checkpoint_every: int,
+    device: str,
+    threads: int,
+    out: Path,
+    resume: bool,
+    force: bool,
+    quiet: bool,
+) -> None:
+    """Train Tsallis Actor-Critic on one task into a resumable run directory.
+
+    Exit status: 0 when every run is complete (or skipped), 1 when one failed (NaN/inf),
+    130 when interrupted (Ctrl-C or SIGTERM; rerun with --resume), 2 for a usage error.
+    """
+    from tacbench import envs, training  # torch only when this command runs
+
+    env_id = envs.resolve_env_id(env)
+    envs.env_info(env_id)  # refuse unusable tasks before printing anything
+    configs, notes = config.make_run_configs(
+        env_id,
+        envs.paper_task(env_id),
+        seeds,
+        q=q,
+        alpha=alpha,
+        total_steps=steps,
+        learning_starts=learning_starts,
+        eval_every=eval_every,
+        eval_episodes=eval_episodes,
+        update_schedule=update_schedule,
+        lnq=lnq,
+        q_schedule=q_schedule,
+        checkpoint_every=checkpoint_every,
+        device=training.resolve_device(device),
+        threads=threads,
+    )
+    for note in notes:
+        click.echo(note)
+    outcomes = training.train(
+        configs, out, resume=resume, force=force, quiet=quiet, command=_command_line(ctx)
+    )
+    for outcome in outcomes:
+        detail = f" ({outcome.message})" if outcome.message else ""
+        click.echo(f"seed {outcome.seed}: {outcome.state}, {outcome.directory}{detail}")
+    states = {outcome.state for outcome in outcomes}
+    if "interrupted" in states:
+        ctx.exit(130)
+    if "failed" in states:
+        ctx.exit(1)
+
+
+@cli.command(name="envs")
+def envs_command() -> None:
+    """List the paper's task suite with its Gymnasium ids and the paper's alpha and best q."""
+    from tacbench.envs import suite_table
+
+    header = (
+        f"{'task':<12} {'env':<16} {'obs':>4} {'act':>4} {'limit':>6} {'alpha':>6} {'best q':>7}"
+    )
+    click.echo(header + "  loads")
+    for row in suite_table():
+        click.echo(
+            f"{row['task']:<12} {row['env']:<16} {row['obs']!s:>4} {row['act']!s:>4} "
+            f"{row['limit']!s:>6} {config.PAPER_ALPHA[row['task']]:>6g} "
+            f"{config.PAPER_BEST_Q[row['task']]:>7g}  {row['ok']}"
+        )
+    click.echo(
+        "alpha and best q: paper appendix, per-task table. Any other registered Gymnasium id "
+        "with continuous actions also works with --env (default q = 1, alpha = 0.2)."
+    )
 
 
 def main() -> None:

@@ -1,0 +1,228 @@
+"""The task suite, environment creation and checks, exact env state for resume, and evaluation.
+
+The paper ran six MuJoCo tasks (v2, mujoco-py). Their Gymnasium ids here are v4, the closest to
+v2 that runs on mujoco >= 3, except Pusher: ``Pusher-v4`` only loads with mujoco < 3 (Gymnasium
+issue 950), so Pusher is v5. Any other registered Gymnasium environment with a bounded, flat
+``Box`` action space works too.
+
+No torch here: the evaluation protocol (:func:`evaluate`) takes any policy callable, so the
+baselines use it as TAC does.
+"""
+
+from __future__ import annotations
+
+import difflib
+import warnings
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+import numpy.typing as npt
+from gymnasium.envs.mujoco.mujoco_env import MujocoEnv
+
+from tacbench.errors import TacbenchError
+
+# paper name -> Gymnasium id (issue 3: v4 by default, Pusher on v5)
+SUITE: dict[str, str] = {
+    "HalfCheetah": "HalfCheetah-v4",
+    "Ant": "Ant-v4",
+    "Hopper": "Hopper-v4",
+    "Swimmer": "Swimmer-v4",
+    "Humanoid": "Humanoid-v4",
+    "Pusher": "Pusher-v5",
+}
+
+FloatArray = npt.NDArray[np.float64]
+Policy = Callable[[FloatArray], FloatArray]
+
+
+@dataclass(frozen=True)
+class EnvInfo:
+    """What a learner needs to know about a task."""
+
+    env_id: str
+    task: str | None  # the paper's name for it, None if the paper did not run it
+    obs_dim: int
+    act_dim: int
+    low: tuple[float, ...]
+    high: tuple[float, ...]
+    max_episode_steps: int
+
+
+def paper_task(env_id: str) -> str | None:
+    """The paper's task name for a Gymnasium id of any version (``Hopper-v5`` -> ``Hopper``)."""
+    name = env_id.split("-v")[0]
+    return name if name in SUITE else None
+
+
+def resolve_env_id(name: str) -> str:
+    """A Gymnasium id for ``name``: a paper task name (``Ant``) or any registered id.
+
+    Unknown names raise :class:`TacbenchError` listing the suite and the closest registered ids.
+    """
+    by_lower = {task.lower(): env_id for task, env_id in SUITE.items()}
+    if name.lower() in by_lower:
+        return by_lower[name.lower()]
+    if name in gym.registry:
+        return name
+    close = difflib.get_close_matches(name, [*SUITE, *gym.registry], n=4, cutoff=0.5)
+    suite = ", ".join(f"{task} ({env_id})" for task, env_id in SUITE.items())
+    hint = f" Closest registered names: {', '.join(close)}." if close else ""
+    raise TacbenchError(
+        f"unknown environment {name!r}.{hint} The paper's suite: {suite}. "
+        "`tacbench envs` lists it; any registered continuous-action Gymnasium id also works."
+    )
+
+
+def make_env(env_id: str) -> gym.Env[Any, Any]:
+    """Create ``env_id``; check that TAC can drive it (bounded flat Box actions, a time limit)."""
+    try:
+        with warnings.catch_warnings():  # v4 is the suite's deliberate choice (module docstring)
+            warnings.filterwarnings("ignore", message=".*is out of date.*")
+            env = gym.make(env_id)
+    except (ImportError, gym.error.Error) as err:
+        alternative = SUITE.get(paper_task(env_id) or "", "")
+        hint = f" Use {alternative} instead." if alternative and alternative != env_id else ""
+        raise TacbenchError(f"cannot create {env_id}: {err}.{hint}") from None
+    action_space, obs_space = env.action_space, env.observation_space
+    if not isinstance(action_space, gym.spaces.Box):
+        env.close()
+        raise TacbenchError(
+            f"{env_id} has a {type(action_space).__name__} action space; TAC needs continuous "
+            "(Box) actions. Pick a continuous-control task, e.g. from `tacbench envs`."
+        )
+    if (
+        len(action_space.shape) != 1
+        or not np.all(np.isfinite(action_space.low))
+        or not np.all(np.isfinite(action_space.high))
+    ):
+        env.close()
+        raise TacbenchError(f"{env_id}: TAC needs a flat action Box with finite bounds.")
+    if not isinstance(obs_space, gym.spaces.Box) or len(obs_space.shape) != 1:
+        env.close()
+        raise TacbenchError(f"{env_id}: TAC needs a flat Box observation space.")
+    if env.spec is None or env.spec.max_episode_steps is None:
+        env.close()
+        raise TacbenchError(f"{env_id} has no time limit; register it with max_episode_steps.")
+    return env
+
+
+def env_info(env_id: str) -> EnvInfo:
+    """Check ``env_id`` (see :func:`make_env`) and describe it."""
+    env = make_env(env_id)
+    space = env.action_space
+    assert isinstance(space, gym.spaces.Box) and env.spec and env.spec.max_episode_steps
+    info = EnvInfo(
+        env_id=env_id,
+        task=paper_task(env_id),
+        obs_dim=int(np.prod(env.observation_space.shape or (1,))),
+        act_dim=int(space.shape[0]),
+        low=tuple(float(x) for x in space.low),
+        high=tuple(float(x) for x in space.high),
+        max_episode_steps=int(env.spec.max_episode_steps),
+    )
+    env.close()
+    return info
+
+
+def to_env_action(squashed: npt.ArrayLike, info: EnvInfo) -> FloatArray:
+    """Map actions in [-1, 1] (tanh output) affinely onto the env's bounds [low, high]."""
+    low, high = np.asarray(info.low), np.asarray(info.high)
+    return low + (np.asarray(squashed, dtype=np.float64) + 1.0) * 0.5 * (high - low)
+
+
+def suite_table() -> list[dict[str, Any]]:
+    """One row per paper task: its id, sizes, episode limit and whether it loads here."""
+    rows = []
+    for task, env_id in SUITE.items():
+        row: dict[str, Any] = {"task": task, "env": env_id}
+        try:
+            info = env_info(env_id)
+            row.update(obs=info.obs_dim, act=info.act_dim, limit=info.max_episode_steps, ok="yes")
+        except TacbenchError as err:
+            row.update(obs="-", act="-", limit="-", ok=f"no: {err}")
+        rows.append(row)
+    return rows
+
+
+# --- exact state for resume -----------------------------------------------------------------
+
+
+def _time_limit(env: gym.Env[Any, Any]) -> Any:
+    wrapper: Any = env
+    while not isinstance(wrapper, gym.wrappers.TimeLimit):
+        wrapper = wrapper.env
+    return wrapper
+
+
+def get_env_state(env: gym.Env[Any, Any]) -> dict[str, Any] | None:
+    """Everything needed to continue ``env`` bit-exactly, or None when it cannot be captured.
+
+    For MuJoCo tasks: the simulator's integration state (positions, velocities, actuator state,
+    solver warm start, time), the env's random generator and the time-limit counter.
+    """
+    base = env.unwrapped
+    if not isinstance(base, MujocoEnv):
+        return None
+    spec = mujoco.mjtState.mjSTATE_INTEGRATION
+    physics = np.empty(mujoco.mj_stateSize(base.model, spec))
+    mujoco.mj_getState(base.model, base.data, physics, spec)
+    return {
+        "physics": physics.tolist(),
+        "np_random": base.np_random.bit_generator.state,
+        "elapsed_steps": int(_time_limit(env)._elapsed_steps),
+    }
+
+
+def set_env_state(env: gym.Env[Any, Any], state: dict[str, Any]) -> None:
+    """Restore a state from :func:`get_env_state` into an env of the same id that was reset."""
+    base = env.unwrapped
+    assert isinstance(base, MujocoEnv)
+    physics = np.asarray(state["physics"], dtype=np.float64)
+    mujoco.mj_setState(base.model, base.data, physics, mujoco.mjtState.mjSTATE_INTEGRATION)
+    base.np_random.bit_generator.state = state["np_random"]
+    _time_limit(env)._elapsed_steps = state["elapsed_steps"]
+
+
+# --- evaluation protocol (reference code: deterministic episodes on separate env instances) ---
+
+
+def eval_seeds(seed: int, step: int, n: int) -> list[int]:
+    """Episode seeds for the evaluation at ``step`` of the run with ``seed``: distinct per
+    evaluation, independent of the training env and of any other run."""
+    sequence = np.random.SeedSequence([seed, step, 0x5EED])
+    return [int(s) for s in sequence.generate_state(n, dtype=np.uint32)]
+
+
+def evaluate(
+    policy: Policy, envs: Sequence[gym.Env[Any, Any]], seeds: Sequence[int]
+) -> tuple[FloatArray, FloatArray]:
+    """One episode on each of ``envs``, reset with its seed, all stepped in lockstep.
+
+    ``policy`` maps an ``(n, obs_dim)`` array (one row per env, finished ones included) to
+    ``(n, act_dim)`` actions in the env's units; it should be deterministic. Returns the
+    episode returns and lengths. The envs are evaluation-only instances: training is unaffected.
+    """
+    if len(envs) != len(seeds):
+        raise ValueError("evaluate needs one seed per env")
+    obs = np.stack(
+        [
+            np.asarray(env.reset(seed=int(s))[0], dtype=np.float64)
+            for env, s in zip(envs, seeds, strict=True)
+        ]
+    )
+    returns = np.zeros(len(envs))
+    lengths = np.zeros(len(envs))
+    active = np.ones(len(envs), dtype=bool)
+    while active.any():
+        actions = policy(obs)
+        for i in np.flatnonzero(active).tolist():
+            next_obs, reward, terminated, truncated, _ = envs[i].step(actions[i])
+            obs[i] = next_obs
+            returns[i] += float(reward)
+            lengths[i] += 1
+            active[i] = not (terminated or truncated)
+    return returns, lengths

@@ -1,0 +1,356 @@
+"""The run directory: layout, atomic JSON, row-by-row CSVs, status, resume planning, progress.
+
+Shared by every trainer (TAC here, the baselines later), so nothing here knows about torch or
+TAC. The layout (ARCHITECTURE.md, "The run directory")::
+
+    <out>/runs/<algo>/<env>/<variant>/seed<k>/
+      config.json  status.json  eval.csv  train.csv  losses.csv  checkpoint/
+
+JSON files are written to a temporary name and renamed. CSV rows are appended and flushed one
+at a time; reopening a run for resume first cuts every CSV back to the checkpoint's step, so
+no row is ever duplicated. docs/results-schema.md describes every file, column and field.
+"""
+
+from __future__ import annotations
+
+import csv
+import importlib.metadata
+import json
+import math
+import platform
+import socket
+import subprocess
+import sys
+import time
+from collections import deque
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import IO, Any, Literal
+
+from tacbench.errors import TacbenchError
+
+EVAL_COLUMNS = ("step", "wall_s", "return_mean", "return_std", "length_mean")
+TRAIN_COLUMNS = ("step", "wall_s", "return", "length")
+VERSIONED_PACKAGES = ("torch", "gymnasium", "mujoco", "stable_baselines3", "numpy")
+State = Literal["running", "complete", "failed"]
+
+
+def run_directory(out: Path, algo: str, env: str, variant: str, seed: int) -> Path:
+    """``<out>/runs/<algo>/<env>/<variant>/seed<seed>``."""
+    return Path(out) / "runs" / algo / env / variant / f"seed{seed}"
+
+
+def now_iso() -> str:
+    """The current UTC time, ISO 8601 with seconds."""
+    return datetime.now(UTC).isoformat(timespec="seconds")
+
+
+def atomic_write_json(path: Path, data: Mapping[str, Any]) -> None:
+    """Write ``data`` as JSON so that a reader sees the old file or the new one, never half."""
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(data, indent=2, sort_keys=False) + "\n")
+    tmp.replace(path)
+
+
+def read_json(path: Path) -> dict[str, Any]:
+    """A JSON object from ``path``."""
+    data = json.loads(Path(path).read_text())
+    if not isinstance(data, dict):
+        raise TacbenchError(f"{path} is not a JSON object; delete it or rerun with --force.")
+    return data
+
+
+def package_versions() -> dict[str, str | None]:
+    """Python's and the main dependencies' versions (None for a package that is not installed)."""
+    versions: dict[str, str | None] = {"python": platform.python_version()}
+    for package in VERSIONED_PACKAGES:
+        try:
+            versions[package] = importlib.metadata.version(package.replace("_", "-"))
+        except importlib.metadata.PackageNotFoundError:
+            versions[package] = None
+    return versions
+
+
+def git_commit() -> str | None:
+    """The tacbench checkout's commit, with ``-dirty`` for uncommitted changes; None outside git."""
+    here = Path(__file__).resolve().parent
+    try:
+        sha = subprocess.run(
+            ["git", "rev-parse", "HEAD"], cwd=here, capture_output=True, text=True, check=True
+        ).stdout.strip()
+        dirty = subprocess.run(
+            ["git", "status", "--porcelain", "--untracked-files=no"],
+            cwd=here,
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return None
+    return sha + ("-dirty" if dirty else "")
+
+
+def run_metadata(config: Mapping[str, Any], command: str, **fields: Any) -> dict[str, Any]:
+    """config.json's content: ``fields`` (algo, env, variant, seed, q, alpha, total_steps, ...)
+    then command, versions, git commit, host, creation time and the full config."""
+    return {
+        **fields,
+        "command": command,
+        "versions": package_versions(),
+        "git_commit": git_commit(),
+        "host": socket.gethostname(),
+        "created": now_iso(),
+        "config": dict(config),
+    }
+
+
+def differing_fields(
+    old: Mapping[str, Any], new: Mapping[str, Any], ignore: Sequence[str] = ()
+) -> list[str]:
+    """``"name: old -> new"`` for every field that differs, ignoring the names in ``ignore``."""
+    names = sorted((set(old) | set(new)) - set(ignore))
+    return [
+        f"{name}: {old.get(name, '(absent)')!r} -> {new.get(name, '(absent)')!r}"
+        for name in names
+        if old.get(name) != new.get(name)
+    ]
+
+
+@dataclass(frozen=True)
+class Plan:
+    """What to do with one run directory: start it, resume it, or skip it (with why)."""
+
+    action: Literal["start", "resume", "skip"]
+    message: str = ""
+
+
+def plan_run(
+    directory: Path,
+    config: Mapping[str, Any],
+    *,
+    resume: bool,
+    force: bool,
+    neutral: Sequence[str] = (),
+) -> Plan:
+    """Decide how a new command treats ``directory``; refuse (TacbenchError) when it must not
+    touch it. Fields in ``neutral`` may differ between the stored config and the new one."""
+    config_path = directory / "config.json"
+    if force or not config_path.exists():
+        return Plan("start", "--force: starting over" if force and directory.exists() else "")
+    differences = differing_fields(read_json(config_path).get("config", {}), config, neutral)
+    if differences:
+        raise TacbenchError(
+            f"{directory} holds a run with another config ({'; '.join(differences)}). "
+            "Pass --force to replace it, or --out to write somewhere else."
+        )
+    status_path = directory / "status.json"
+    status = read_json(status_path) if status_path.exists() else {"state": "running", "step": 0}
+    step = status.get("step", 0)
+    if status.get("state") == "complete":
+        return Plan("skip", f"already complete ({step} steps); --force retrains it")
+    if status.get("state") == "failed":
+        return Plan(
+            "skip",
+            f"failed at step {step}: {status.get('reason', '')}; --force retrains it",
+        )
+    if not resume:
+        raise TacbenchError(
+            f"{directory} holds an unfinished run (step {step}). Add --resume to continue it, "
+            "or --force to start over."
+        )
+    return Plan("resume", "resuming from its last checkpoint")
+
+
+class CsvLog:
+    """An append-only CSV: one row per :meth:`write`, flushed at once (floats at full precision).
+
+    ``keep_until`` reopens an existing file for resume: rows whose first column (the step)
+    exceeds it, and a torn last line, are dropped first (atomically). Without it the file is
+    started afresh with its header.
+    """
+
+    def __init__(self, path: Path, columns: Sequence[str], keep_until: int | None = None):
+        self.path = Path(path)
+        self.columns = tuple(columns)
+        if keep_until is not None and self.path.exists():
+            self._truncate(keep_until)
+            self._handle: IO[str] = self.path.open("a", newline="")
+        else:
+            self._handle = self.path.open("w", newline="")
+            csv.writer(self._handle, lineterminator="\n").writerow(self.columns)
+            self._handle.flush()
+        self._writer = csv.writer(self._handle, lineterminator="\n")
+
+    def _truncate(self, keep_until: int) -> None:
+        text = self.path.read_text()
+        lines = text.split("\n")
+        if not text.endswith("\n"):
+            lines = lines[:-1]  # a torn last line (crash mid-write) never counts
+        header, rows = ",".join(self.columns), [line for line in lines[1:] if line]
+        if lines[0] != header:
+            raise TacbenchError(
+                f"{self.path} has columns {lines[0]!r}, expected {header!r}; use --force."
+            )
+        kept = [row for row in rows if int(float(row.split(",", 1)[0])) <= keep_until]
+        tmp = self.path.with_name(self.path.name + ".tmp")
+        tmp.write_text("\n".join([header, *kept]) + "\n")
+        tmp.replace(self.path)
+
+    def write(self, row: Sequence[Any]) -> None:
+        """Append one row (same order as the columns) and flush it to the OS."""
+        if len(row) != len(self.columns):
+            raise ValueError(f"{self.path.name}: {len(row)} values for {len(self.columns)} columns")
+        self._writer.writerow(row)
+        self._handle.flush()
+
+    def close(self) -> None:
+        """Close the file."""
+        self._handle.close()
+
+
+class RunWriter:
+    """Writes one run directory: config.json, status.json and the three CSVs."""
+
+    def __init__(self, directory: Path, loss_columns: Sequence[str]) -> None:
+        self.directory = Path(directory)
+        self.loss_columns = ("step", *loss_columns)
+        self._logs: dict[str, CsvLog] = {}
+
+    @property
+    def checkpoint_dir(self) -> Path:
+        """``<run>/checkpoint``, created on first use."""
+        path = self.directory / "checkpoint"
+        path.mkdir(parents=True, exist_ok=True)
+        return path
+
+    def open(self, metadata: Mapping[str, Any] | None, resume_step: int | None) -> None:
+        """Start a fresh run (``metadata`` for config.json) or reopen one, cutting its CSVs back
+        to ``resume_step``."""
+        self.directory.mkdir(parents=True, exist_ok=True)
+        if metadata is not None:
+            atomic_write_json(self.directory / "config.json", metadata)
+        for name, columns in (
+            ("eval", EVAL_COLUMNS),
+            ("train", TRAIN_COLUMNS),
+            ("losses", self.loss_columns),
+        ):
+            self._logs[name] = CsvLog(self.directory / f"{name}.csv", columns, resume_step)
+        self.status("running", resume_step or 0)
+
+    def eval_row(
+        self, step: int, wall_s: float, returns: Sequence[float], lengths: Sequence[float]
+    ) -> None:
+        """One evaluation: mean and (population) std of the episode returns, mean length."""
+        mean = math.fsum(returns) / len(returns)
+        std = math.sqrt(math.fsum((r - mean) ** 2 for r in returns) / len(returns))
+        length = math.fsum(lengths) / len(lengths)
+        self._logs["eval"].write([step, round(wall_s, 3), mean, std, length])
+
+    def train_row(self, step: int, wall_s: float, episode_return: float, length: int) -> None:
+        """One finished training episode (ending at ``step``)."""
+        self._logs["train"].write([step, round(wall_s, 3), episode_return, length])
+
+    def losses_row(self, step: int, values: Sequence[float]) -> None:
+        """Losses and diagnostics at ``step``, in the order of ``loss_columns``."""
+        self._logs["losses"].write([step, *values])
+
+    def status(self, state: State, step: int, reason: str = "") -> None:
+        """Replace status.json."""
+        atomic_write_json(
+            self.directory / "status.json",
+            {"state": state, "step": step, "reason": reason, "updated": now_iso()},
+        )
+
+    def close(self) -> None:
+        """Close the CSVs."""
+        for log in self._logs.values():
+            log.close()
+        self._logs.clear()
+
+
+class Progress:
+    """A progress display for one training process: a rich bar (steps, steps/s, last evaluation
+    return, ETA) on a terminal; plain lines at each evaluation, or every 5% without evaluation,
+    when the output is not a terminal or ``quiet`` is set."""
+
+    def __init__(
+        self,
+        label: str,
+        total: int,
+        start: int,
+        every: int,
+        quiet: bool,
+        stream: IO[str] | None = None,
+    ) -> None:
+        self.label, self.total, self.start_step = label, total, start
+        self.every = every if every > 0 else max(1, total // 20)
+        self.stream = stream if stream is not None else sys.stderr
+        self.last_eval = "-"
+        self._step = start
+        self._bar: Any = None
+        if not quiet and self.stream.isatty():
+            from rich.console import Console
+            from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeRemainingColumn
+            from rich.progress import Progress as RichProgress
+
+            self._bar = RichProgress(
+                TextColumn("{task.description}"),
+                BarColumn(),
+                MofNCompleteColumn(),
+                TextColumn("{task.fields[rate]} steps/s"),
+                TextColumn("eval {task.fields[last_eval]}"),
+                TimeRemainingColumn(),
+                console=Console(file=self.stream),
+            )
+            self._task = self._bar.add_task(
+                label, total=total, completed=start, rate="-", last_eval="-"
+            )
+            self._bar.start()
+        # steps/s over the last ~2,000 steps (bar) or since the previous line (plain)
+        window = 20 if self._bar is not None else 2
+        self._window: deque[tuple[float, int]] = deque([(time.perf_counter(), start)], window)
+
+    def _rate(self) -> float:
+        self._window.append((time.perf_counter(), self._step))
+        (t_first, s_first), (t_last, s_last) = self._window[0], self._window[-1]
+        return (s_last - s_first) / (t_last - t_first) if t_last > t_first else 0.0
+
+    def update(self, step: int, eval_return: float | None = None) -> None:
+        """Record progress to ``step`` (cheap enough to call every step)."""
+        previous, self._step = self._step, step
+        if eval_return is not None:
+            self.last_eval = f"{eval_return:.1f}"
+        if self._bar is not None:
+            if eval_return is not None or step // 100 != previous // 100 or step == self.total:
+                self._bar.update(
+                    self._task, completed=step, rate=f"{self._rate():.0f}", last_eval=self.last_eval
+                )
+        elif step // self.every != previous // self.every or step == self.total:
+            rate = self._rate()
+            eta = (self.total - step) / rate if rate > 0 else math.inf
+            self.message(
+                f"{self.label}: step {step}/{self.total} | {rate:.0f} steps/s | "
+                f"eval {self.last_eval} | ETA {_duration(eta)}"
+            )
+
+    def message(self, text: str) -> None:
+        """Print a line (above the bar when there is one)."""
+        if self._bar is not None:
+            self._bar.console.print(text, highlight=False, markup=False)
+        else:
+            print(text, file=self.stream, flush=True)
+
+    def close(self) -> None:
+        """Stop the bar."""
+        if self._bar is not None:
+            self._bar.stop()
+
+
+def _duration(seconds: float) -> str:
+    if not math.isfinite(seconds):
+        return "-"
+    minutes, secs = divmod(int(seconds), 60)
+    hours, minutes = divmod(minutes, 60)
+    return f"{hours}h{minutes:02d}m" if hours else f"{minutes}m{secs:02d}s"

@@ -1,0 +1,131 @@
+"""RunConfig: the paper's defaults, validation, variant names, the q schedule, JSON round trip."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+import torch
+
+from tacbench.config import PAPER_SEEDS, RunConfig, make_run_configs, paper_defaults
+from tacbench.errors import TacbenchError
+
+pytestmark = pytest.mark.unit
+
+
+def test_defaults_are_the_papers_and_the_reference_codes() -> None:
+    config = RunConfig(env="Ant-v4", q=1.5, alpha=0.2)
+    assert config.hidden_sizes == (300,)
+    assert (config.learning_rate, config.batch_size, config.buffer_size) == (1e-3, 100, 1_000_000)
+    assert (config.gamma, config.tau) == (0.99, 0.005)
+    assert (config.log_std_min, config.log_std_max) == (-20.0, 2.0)
+    assert (config.learning_starts, config.total_steps) == (10_000, 1_000_000)
+    assert (config.eval_every, config.eval_episodes, config.checkpoint_every) == (5_000, 10, 50_000)
+    assert (config.update_schedule, config.lnq, config.q_schedule) == ("step", "joint", "constant")
+    assert PAPER_SEEDS == (0, 10, 20, 30, 40, 50, 60, 70, 80, 90)
+
+
+@pytest.mark.parametrize(
+    ("task", "q", "alpha"),
+    [
+        ("HalfCheetah", 1.5, 0.2),
+        ("Ant", 1.5, 0.2),
+        ("Hopper", 2.0, 0.2),
+        ("Swimmer", 2.0, 0.2),
+        ("Pusher", 1.2, 0.2),
+        ("Humanoid", 1.2, 0.05),
+        (None, 1.0, 0.2),
+    ],
+)
+def test_paper_defaults_per_task(task: str | None, q: float, alpha: float) -> None:
+    assert paper_defaults(task)[:2] == (q, alpha)
+
+
+def test_make_run_configs_fills_in_the_papers_values_and_says_so() -> None:
+    configs, notes = make_run_configs("Humanoid-v4", "Humanoid", [0, 10])
+    assert [(c.q, c.alpha, c.seed) for c in configs] == [(1.2, 0.05, 0), (1.2, 0.05, 10)]
+    assert any("q = 1.2" in note and "Humanoid" in note for note in notes)
+    assert any("alpha = 0.05" in note for note in notes)
+    configs, notes = make_run_configs("Hopper-v4", "Hopper", [0], q=1.5, alpha=0.3)
+    assert (configs[0].q, configs[0].alpha, notes) == (1.5, 0.3, [])
+
+
+def test_q_at_least_two_mentions_the_density_cap() -> None:
+    _, notes = make_run_configs("Hopper-v4", "Hopper", [0])
+    assert any("capped at 1e+08" in note for note in notes)
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "fragment"),
+    [
+        ("q", 0.0, "q must be"),
+        ("q", float("nan"), "q must be"),
+        ("alpha", -0.1, "alpha must be"),
+        ("total_steps", 0, "--total-steps"),
+        ("batch_size", 2.5, "batch_size"),
+        ("eval_episodes", 0, "--eval-episodes"),
+        ("lnq", "log", "--lnq must be one of joint, per-dim"),
+        ("update_schedule", "epoch", "--update-schedule"),
+        ("device", "tpu", "--device"),
+        ("gamma", 1.5, "gamma"),
+        ("hidden_sizes", (), "hidden_sizes"),
+        ("q_schedule_start", 0.95, "q_schedule_start"),
+    ],
+)
+def test_invalid_values_are_refused_with_what_to_do(
+    field: str, value: object, fragment: str
+) -> None:
+    with pytest.raises(TacbenchError, match=fragment):
+        RunConfig(**{"env": "Hopper-v4", "q": 1.5, "alpha": 0.2, field: value})  # type: ignore[arg-type]
+
+
+def test_members_must_have_distinct_seeds_and_episode_schedule_needs_one() -> None:
+    with pytest.raises(TacbenchError, match="must differ"):
+        make_run_configs("Hopper-v4", "Hopper", [0, 0])
+    with pytest.raises(TacbenchError, match="one --seed per process"):
+        make_run_configs("Hopper-v4", "Hopper", [0, 10], update_schedule="episode")
+    configs, _ = make_run_configs("Hopper-v4", "Hopper", [0], update_schedule="episode")
+    assert configs[0].update_schedule == "episode"
+
+
+@pytest.mark.parametrize(
+    ("overrides", "variant"),
+    [
+        ({}, "q1.5-a0.2"),
+        ({"lnq": "per-dim"}, "q1.5-a0.2-perdim"),
+        ({"update_schedule": "episode", "q_schedule": "linear"}, "q1.5-a0.2-episode-qlinear"),
+        ({"learning_starts": 100_000}, "q1.5-a0.2-ls100000"),
+        ({"hidden_sizes": (400, 300), "learning_rate": 3e-4}, "q1.5-a0.2-h400x300-lr0.0003"),
+        # neither evaluation, logging, hardware nor length change what is learned
+        ({"eval_every": 1000, "threads": 4, "total_steps": 30_000, "seed": 3}, "q1.5-a0.2"),
+    ],
+)
+def test_variant_names_each_non_default_training_choice(overrides: dict, variant: str) -> None:
+    assert RunConfig(env="Ant-v4", q=1.5, alpha=0.2, **overrides).variant == variant
+
+
+def test_linear_q_schedule_goes_from_one_to_q_between_ten_and_ninety_percent() -> None:
+    config = RunConfig(env="Ant-v4", q=2.0, alpha=0.2, total_steps=1000, q_schedule="linear")
+    assert [config.q_at(s) for s in (0, 100, 500, 900, 1000)] == pytest.approx(
+        [1.0, 1.0, 1.5, 2.0, 2.0]
+    )
+    assert RunConfig(env="Ant-v4", q=0.5, alpha=0.2, q_schedule="linear").q_at(500_000) == 0.75
+    assert RunConfig(env="Ant-v4", q=2.0, alpha=0.2).q_at(0) == 2.0
+
+
+def test_json_round_trip_and_unknown_fields() -> None:
+    config = RunConfig(env="Ant-v4", q=1.5, alpha=0.2, hidden_sizes=(400, 300), seed=20)
+    data = json.loads(json.dumps(config.to_dict()))
+    assert RunConfig.from_dict(data) == config
+    with pytest.raises(TacbenchError, match="unknown RunConfig fields"):
+        RunConfig.from_dict({**data, "epochs": 3})
+
+
+def test_device_resolution() -> None:
+    from tacbench.training import resolve_device
+
+    assert resolve_device("cpu") == "cpu"
+    assert resolve_device("auto") == ("cuda" if torch.cuda.is_available() else "cpu")
+    if not torch.cuda.is_available():
+        with pytest.raises(TacbenchError, match="no CUDA device"):
+            resolve_device("cuda")

@@ -1,0 +1,126 @@
+"""The task suite, env checks, exact env state for resume, and the evaluation protocol."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from tacbench import envs
+from tacbench.cli import cli
+from tacbench.errors import TacbenchError
+
+pytestmark = pytest.mark.unit
+
+
+@pytest.mark.parametrize(
+    ("name", "env_id"),
+    [
+        ("Ant", "Ant-v4"),
+        ("hopper", "Hopper-v4"),
+        ("Pusher", "Pusher-v5"),
+        ("Humanoid", "Humanoid-v4"),
+        ("Hopper-v5", "Hopper-v5"),
+        ("Pendulum-v1", "Pendulum-v1"),
+    ],
+)
+def test_resolve_env_id(name: str, env_id: str) -> None:
+    assert envs.resolve_env_id(name) == env_id
+
+
+def test_unknown_env_lists_the_suite_and_the_closest_names() -> None:
+    with pytest.raises(TacbenchError) as err:
+        envs.resolve_env_id("Hoper-v4")
+    message = str(err.value)
+    assert "Closest registered names: Hopper-v4" in message
+    for env_id in envs.SUITE.values():
+        assert env_id in message
+
+
+def test_discrete_action_env_is_refused() -> None:
+    with pytest.raises(TacbenchError, match="Discrete action space; TAC needs continuous"):
+        envs.make_env("CartPole-v1")
+
+
+def test_pusher_v4_points_to_pusher_v5() -> None:
+    with pytest.raises(TacbenchError, match="Use Pusher-v5 instead"):
+        envs.make_env("Pusher-v4")
+
+
+def test_paper_task_names() -> None:
+    assert envs.paper_task("Hopper-v5") == "Hopper"
+    assert envs.paper_task("HalfCheetah-v4") == "HalfCheetah"
+    assert envs.paper_task("Pendulum-v1") is None
+
+
+def test_env_info_and_action_scaling() -> None:
+    info = envs.env_info("Humanoid-v4")
+    assert (info.obs_dim, info.act_dim, info.max_episode_steps) == (376, 17, 1000)
+    assert info.low[0] == pytest.approx(-0.4)
+    scaled = envs.to_env_action(np.array([[-1.0] * 17, [0.0] * 17, [1.0] * 17]), info)
+    np.testing.assert_allclose(scaled[:, 0], [-0.4, 0.0, 0.4], atol=1e-7)
+    pusher = envs.env_info("Pusher-v5")
+    assert pusher.high[0] == pytest.approx(2.0)
+
+
+def test_mujoco_state_restores_bit_exactly() -> None:
+    rng = np.random.default_rng(0)
+    actions = rng.uniform(-1, 1, size=(120, 3))
+    env = envs.make_env("Hopper-v4")
+    env.reset(seed=3)
+    for action in actions[:40]:
+        env.step(action)
+    state = envs.get_env_state(env)
+    assert state is not None
+    expected = [env.step(a) for a in actions[40:]]
+    other = envs.make_env("Hopper-v4")
+    other.reset(seed=99)
+    envs.set_env_state(other, state)
+    got = [other.step(a) for a in actions[40:]]
+    for (o1, r1, t1, u1, _), (o2, r2, t2, u2, _) in zip(expected, got, strict=True):
+        np.testing.assert_array_equal(o1, o2)
+        assert (r1, t1, u1) == (r2, t2, u2)
+    # the env's own generator (used at reset) comes back too
+    np.testing.assert_array_equal(env.reset()[0], other.reset()[0])
+
+
+def test_non_mujoco_env_has_no_exact_state() -> None:
+    env = envs.make_env("Pendulum-v1")
+    env.reset(seed=0)
+    assert envs.get_env_state(env) is None
+
+
+def test_eval_seeds_are_deterministic_distinct_and_per_run() -> None:
+    first = envs.eval_seeds(0, 5000, 10)
+    assert first == envs.eval_seeds(0, 5000, 10)
+    assert len(set(first)) == 10
+    assert set(first).isdisjoint(envs.eval_seeds(0, 10000, 10))
+    assert set(first).isdisjoint(envs.eval_seeds(10, 5000, 10))
+
+
+def test_evaluate_in_lockstep_equals_one_episode_at_a_time() -> None:
+    info = envs.env_info("Hopper-v4")
+
+    def policy(obs: np.ndarray) -> np.ndarray:
+        return envs.to_env_action(np.tanh(obs[:, :3] * 3.0), info)
+
+    seeds = [11, 12, 13]
+    returns, lengths = envs.evaluate(policy, [envs.make_env("Hopper-v4") for _ in seeds], seeds)
+    for seed, ret, length in zip(seeds, returns, lengths, strict=True):
+        env = envs.make_env("Hopper-v4")
+        obs, total, steps, done = env.reset(seed=seed)[0], 0.0, 0, False
+        while not done:
+            obs, reward, terminated, truncated, _ = env.step(policy(obs[None])[0])
+            total, steps, done = total + float(reward), steps + 1, terminated or truncated
+        assert (ret, length) == (total, steps)
+    assert len(set(lengths.tolist())) > 1  # the episodes did end at different steps
+
+
+def test_envs_command_lists_the_suite_with_the_papers_values() -> None:
+    result = CliRunner().invoke(cli, ["envs"])
+    assert result.exit_code == 0, result.output
+    rows = {line.split()[0]: line.split() for line in result.output.splitlines()[1:7]}
+    assert set(rows) == set(envs.SUITE)
+    assert rows["Humanoid"][1:7] == ["Humanoid-v4", "376", "17", "1000", "0.05", "1.2"]
+    assert rows["Pusher"][1:7] == ["Pusher-v5", "23", "7", "100", "0.2", "1.2"]
+    assert all(row[7] == "yes" for row in rows.values())

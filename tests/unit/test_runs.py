@@ -1,0 +1,142 @@
+"""The run directory: layout, atomic JSON, CSV append/truncate, resume planning, progress."""
+
+from __future__ import annotations
+
+import io
+import json
+from pathlib import Path
+
+import pytest
+
+from tacbench import runs
+from tacbench.errors import TacbenchError
+
+pytestmark = pytest.mark.unit
+
+CONFIG = {"env": "Hopper-v4", "q": 1.5, "alpha": 0.2, "seed": 0, "device": "cpu"}
+
+
+def test_layout() -> None:
+    path = runs.run_directory(Path("results"), "tac", "Ant-v4", "q1.5-a0.2", 10)
+    assert path == Path("results/runs/tac/Ant-v4/q1.5-a0.2/seed10")
+
+
+def test_atomic_json_leaves_no_temporary_file(tmp_path: Path) -> None:
+    path = tmp_path / "status.json"
+    runs.atomic_write_json(path, {"state": "running", "step": 3})
+    runs.atomic_write_json(path, {"state": "complete", "step": 5})
+    assert runs.read_json(path) == {"state": "complete", "step": 5}
+    assert [p.name for p in tmp_path.iterdir()] == ["status.json"]
+
+
+def test_csv_rows_are_flushed_at_once_and_keep_full_precision(tmp_path: Path) -> None:
+    log = runs.CsvLog(tmp_path / "eval.csv", runs.EVAL_COLUMNS)
+    log.write([5000, 1.25, 0.1 + 0.2, 0.0, 57.0])
+    assert (tmp_path / "eval.csv").read_text() == (
+        "step,wall_s,return_mean,return_std,length_mean\n5000,1.25,0.30000000000000004,0.0,57.0\n"
+    )
+    with pytest.raises(ValueError, match="5 columns"):
+        log.write([1, 2])
+    log.close()
+
+
+def test_reopening_cuts_rows_after_the_checkpoint_and_torn_lines(tmp_path: Path) -> None:
+    path = tmp_path / "train.csv"
+    path.write_text(
+        "step,wall_s,return,length\n10,0.1,1.0,10\n20,0.2,2.0,10\n30,0.3,3.0,10\n40,0.4"
+    )
+    log = runs.CsvLog(path, runs.TRAIN_COLUMNS, keep_until=20)
+    log.write([25, 0.25, 2.5, 5])
+    log.close()
+    assert path.read_text() == (
+        "step,wall_s,return,length\n10,0.1,1.0,10\n20,0.2,2.0,10\n25,0.25,2.5,5\n"
+    )
+    with pytest.raises(TacbenchError, match="expected"):
+        runs.CsvLog(path, runs.EVAL_COLUMNS, keep_until=20)
+
+
+def _run(tmp_path: Path, state: str, step: int, config: dict | None = None) -> Path:
+    directory = tmp_path / "run"
+    directory.mkdir(exist_ok=True)
+    runs.atomic_write_json(directory / "config.json", {"config": config or CONFIG})
+    runs.atomic_write_json(
+        directory / "status.json", {"state": state, "step": step, "reason": "nan in loss_v"}
+    )
+    return directory
+
+
+def test_plan_new_directory_starts(tmp_path: Path) -> None:
+    plan = runs.plan_run(tmp_path / "new", CONFIG, resume=False, force=False)
+    assert plan.action == "start"
+
+
+def test_plan_complete_run_is_skipped_unless_forced(tmp_path: Path) -> None:
+    directory = _run(tmp_path, "complete", 1000)
+    plan = runs.plan_run(directory, CONFIG, resume=True, force=False)
+    assert plan.action == "skip"
+    assert "already complete (1000 steps)" in plan.message
+    assert runs.plan_run(directory, CONFIG, resume=False, force=True).action == "start"
+
+
+def test_plan_failed_run_is_skipped_with_its_reason(tmp_path: Path) -> None:
+    plan = runs.plan_run(_run(tmp_path, "failed", 700), CONFIG, resume=True, force=False)
+    assert (plan.action, plan.message) == (
+        "skip",
+        "failed at step 700: nan in loss_v; --force retrains it",
+    )
+
+
+def test_plan_unfinished_run_needs_resume(tmp_path: Path) -> None:
+    directory = _run(tmp_path, "running", 500)
+    with pytest.raises(TacbenchError, match=r"unfinished run \(step 500\)\. Add --resume"):
+        runs.plan_run(directory, CONFIG, resume=False, force=False)
+    assert runs.plan_run(directory, CONFIG, resume=True, force=False).action == "resume"
+
+
+def test_plan_refuses_another_config_naming_the_fields(tmp_path: Path) -> None:
+    directory = _run(tmp_path, "running", 500)
+    new = {**CONFIG, "q": 2.0, "alpha": 0.1}
+    with pytest.raises(TacbenchError) as err:
+        runs.plan_run(directory, new, resume=True, force=False)
+    assert "alpha: 0.2 -> 0.1; q: 1.5 -> 2.0" in str(err.value)
+    assert "--force" in str(err.value)
+    neutral = {**CONFIG, "device": "cuda"}
+    assert runs.plan_run(
+        directory, neutral, resume=True, force=False, neutral=["device"]
+    ).action == ("resume")
+
+
+def test_run_writer_files(tmp_path: Path) -> None:
+    writer = runs.RunWriter(tmp_path / "run", ["loss"])
+    metadata = runs.run_metadata(CONFIG, "tacbench run --env Hopper-v4", algo="tac", seed=0)
+    writer.open(metadata, None)
+    writer.eval_row(5000, 1.0, [1.0, 3.0], [10, 20])
+    writer.train_row(17, 0.5, 12.5, 17)
+    writer.losses_row(1000, [0.25])
+    writer.status("failed", 1200, "non-finite loss_v")
+    writer.close()
+    directory = tmp_path / "run"
+    config = json.loads((directory / "config.json").read_text())
+    assert config["config"] == CONFIG
+    assert config["command"] == "tacbench run --env Hopper-v4"
+    assert set(config["versions"]) == {"python", *runs.VERSIONED_PACKAGES}
+    assert {"git_commit", "host", "created"} <= set(config)
+    assert (directory / "eval.csv").read_text().splitlines()[1] == "5000,1.0,2.0,1.0,15.0"
+    assert (directory / "train.csv").read_text().splitlines()[1] == "17,0.5,12.5,17"
+    assert (directory / "losses.csv").read_text().splitlines() == ["step,loss", "1000,0.25"]
+    status = json.loads((directory / "status.json").read_text())
+    assert status["state"] == "failed"
+    assert status["step"] == 1200
+    assert status["reason"] == "non-finite loss_v"
+
+
+def test_plain_progress_prints_a_line_per_interval() -> None:
+    stream = io.StringIO()
+    progress = runs.Progress("TAC Hopper-v4", 3000, 0, 1000, quiet=False, stream=stream)
+    for step in range(1, 3001):
+        progress.update(step, 42.5 if step % 1000 == 0 else None)
+    progress.close()
+    lines = stream.getvalue().splitlines()
+    assert len(lines) == 3
+    assert lines[0].startswith("TAC Hopper-v4: step 1000/3000 | ")
+    assert "steps/s | eval 42.5 | ETA" in lines[0]

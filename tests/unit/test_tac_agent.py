@@ -1,0 +1,132 @@
+"""The member-batched networks and agent: per-member initialisation, act, update, state."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from tacbench.config import RunConfig
+from tacbench.tac.agent import METRICS, TacAgent
+from tacbench.tac.networks import BatchedMLP, TanhGaussianPolicy, glorot_uniform
+
+pytestmark = pytest.mark.unit
+
+OBS, ACT = 5, 3
+
+
+def _agent(seeds: list[int], **overrides: object) -> TacAgent:
+    config = RunConfig(env="Hopper-v4", q=1.5, alpha=0.2, hidden_sizes=(16,), **overrides)  # type: ignore[arg-type]
+    return TacAgent(OBS, ACT, config, seeds, torch.device("cpu"))
+
+
+def _batch(k: int, b: int = 12, seed: int = 0) -> dict[str, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    return {
+        "obs": rng.normal(size=(k, b, OBS)),
+        "action": rng.uniform(-1, 1, size=(k, b, ACT)),
+        "reward": rng.normal(size=(k, b)),
+        "next_obs": rng.normal(size=(k, b, OBS)),
+        "terminated": (rng.random((k, b)) < 0.2).astype(np.float32),
+    }
+
+
+def _params(agent: TacAgent, k: int) -> dict[str, torch.Tensor]:
+    return agent.member_state(k)["params"]
+
+
+def test_batched_mlp_applies_each_members_own_weights() -> None:
+    gens = [torch.Generator().manual_seed(s) for s in (1, 2)]
+    mlp = BatchedMLP([4, 6, 2], gens)
+    x = torch.randn(2, 7, 4)
+    out = mlp(x)
+    assert out.shape == (2, 7, 2)
+    for k in range(2):
+        w0, b0, w1, b1 = mlp.weights[0][k], mlp.biases[0][k], mlp.weights[1][k], mlp.biases[1][k]
+        torch.testing.assert_close(out[k], torch.relu(x[k] @ w0 + b0) @ w1 + b1)
+
+
+def test_glorot_uniform_bounds_and_zero_biases() -> None:
+    weights = glorot_uniform(300, 6, [torch.Generator().manual_seed(0)])
+    limit = math.sqrt(6 / 306)
+    assert weights.abs().max() <= limit
+    assert weights.abs().max() > 0.9 * limit
+    mlp = BatchedMLP([3, 4], [torch.Generator().manual_seed(0)])
+    assert not mlp.biases[0].any()
+
+
+def test_log_std_stays_within_bounds() -> None:
+    policy = TanhGaussianPolicy(OBS, ACT, (8,), [torch.Generator().manual_seed(0)], -20.0, 2.0)
+    _, log_std = policy(torch.randn(1, 50, OBS) * 1e4)
+    assert log_std.min() >= -20.0
+    assert log_std.max() <= 2.0
+
+
+def test_member_initialisation_does_not_depend_on_other_members() -> None:
+    alone, grouped = _agent([10]), _agent([0, 10, 20])
+    for name, value in _params(alone, 0).items():
+        assert torch.equal(value, _params(grouped, 1)[name]), name
+    assert not torch.equal(
+        _params(grouped, 0)["q1.net.weights.0"], _params(grouped, 1)["q1.net.weights.0"]
+    )
+
+
+def test_target_v_starts_as_a_copy_of_v() -> None:
+    params = _params(_agent([3]), 0)
+    for key in ("net.weights.0", "net.biases.0", "net.weights.1"):
+        assert torch.equal(params[f"v.{key}"], params[f"v_target.{key}"])
+
+
+def test_actions_are_bounded_and_deterministic_action_is_tanh_mu() -> None:
+    agent = _agent([0, 1])
+    obs = np.random.default_rng(0).normal(size=(2, OBS))
+    action = agent.act(obs)
+    assert action.shape == (2, ACT)
+    assert np.all(np.abs(action) <= 1.0)
+    det = agent.act_deterministic(obs[:, None])
+    mu, _ = agent.policy(torch.as_tensor(obs[:, None], dtype=torch.float32))
+    np.testing.assert_allclose(det, torch.tanh(mu).detach().numpy())
+
+
+def test_update_changes_weights_and_moves_target_v_by_tau() -> None:
+    agent = _agent([0], tau=0.005)
+    before = _params(agent, 0)
+    metrics = agent.update(_batch(1), q=1.5)
+    after = _params(agent, 0)
+    assert metrics.shape == (1, len(METRICS))
+    assert torch.isfinite(metrics).all()
+    for net in ("policy", "q1", "q2", "v"):
+        assert not torch.equal(before[f"{net}.net.weights.0"], after[f"{net}.net.weights.0"])
+    expected = 0.995 * before["v_target.net.weights.0"] + 0.005 * after["v.net.weights.0"]
+    torch.testing.assert_close(after["v_target.net.weights.0"], expected)
+
+
+def test_members_train_independently() -> None:
+    """Member 1 of a pair ends where the same seed alone ends, even if member 0 diverges."""
+    pair, alone = _agent([4, 5]), _agent([5])
+    for step in range(3):
+        batch = _batch(2, seed=step)
+        batch["reward"][0] = np.nan  # member 0 diverges at once
+        pair.alive &= torch.tensor([step == 0, True])  # the trainer retires it after step 0
+        pair.update(batch, q=1.5)
+        alone.update({key: value[1:] for key, value in batch.items()}, q=1.5)
+    for name, value in _params(alone, 0).items():
+        torch.testing.assert_close(_params(pair, 1)[name], value, rtol=1e-6, atol=1e-7)
+
+
+def test_member_state_round_trip_continues_identically() -> None:
+    agent = _agent([7, 8])
+    for step in range(2):
+        agent.update(_batch(2, seed=step), q=1.5)
+    restored = _agent([0, 1])
+    restored.load_member_states([agent.member_state(0), agent.member_state(1)])
+    batch = _batch(2, seed=5)
+    torch.testing.assert_close(
+        agent.update(batch, q=1.5), restored.update(batch, q=1.5), rtol=0, atol=0
+    )
+    np.testing.assert_array_equal(agent.act(batch["obs"][:, 0]), restored.act(batch["obs"][:, 0]))
+    for k in range(2):
+        for name, value in _params(agent, k).items():
+            assert torch.equal(value, _params(restored, k)[name]), name
