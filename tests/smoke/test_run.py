@@ -252,7 +252,7 @@ def test_cli_user_errors_and_failed_run(tmp_path: Path) -> None:
     for env, message in [("Hoper-v4", "Closest registered names"), ("CartPole-v1", "Discrete")]:
         result = runner.invoke(cli, ["run", "--env", env, "--out", str(tmp_path)])
         assert (result.exit_code, message in result.output) == (2, True), result.output
-    args = ["--env", "Humanoid-v4", "--steps", "300", "--learning-starts", "200"]
+    args = ["--env", "Humanoid-v4", "--lnq", "joint", "--steps", "300", "--learning-starts", "200"]
     failed = runner.invoke(cli, ["run", *args, "--eval-every", "0", "--out", str(tmp_path)])
     assert failed.exit_code == 1, failed.output
     assert "seed 0: failed" in failed.output

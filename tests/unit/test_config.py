@@ -21,7 +21,11 @@ def test_defaults_are_the_papers_and_the_reference_codes() -> None:
     assert (config.log_std_min, config.log_std_max) == (-20.0, 2.0)
     assert (config.learning_starts, config.total_steps) == (10_000, 1_000_000)
     assert (config.eval_every, config.eval_episodes, config.checkpoint_every) == (5_000, 10, 50_000)
-    assert (config.update_schedule, config.lnq, config.q_schedule) == ("step", "joint", "constant")
+    assert (config.update_schedule, config.lnq, config.q_schedule) == (
+        "step",
+        "per-dim",
+        "constant",
+    )
     assert PAPER_SEEDS == (0, 10, 20, 30, 40, 50, 60, 70, 80, 90)
 
 
@@ -92,7 +96,7 @@ def test_members_must_have_distinct_seeds_and_episode_schedule_needs_one() -> No
     ("overrides", "variant"),
     [
         ({}, "q1.5-a0.2"),
-        ({"lnq": "per-dim"}, "q1.5-a0.2-perdim"),
+        ({"lnq": "joint"}, "q1.5-a0.2-joint"),
         ({"update_schedule": "episode", "q_schedule": "linear"}, "q1.5-a0.2-episode-qlinear"),
         ({"learning_starts": 100_000}, "q1.5-a0.2-ls100000"),
         ({"hidden_sizes": (400, 300), "learning_rate": 3e-4}, "q1.5-a0.2-h400x300-lr0.0003"),
