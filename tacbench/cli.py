@@ -3,13 +3,18 @@
 from __future__ import annotations
 
 import shlex
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import click
 
+from baselines import ALGOS as BASELINES
 from tacbench import __version__, config
 from tacbench.errors import TacbenchError
+
+if TYPE_CHECKING:
+    from tacbench.training import Outcome
 
 
 class _UserError(click.ClickException):
@@ -145,6 +150,19 @@ def _command_line(ctx: click.Context) -> str:
 @cli.command()
 @click.option("--env", required=True, help="Gymnasium id (Ant-v4) or paper task name (Ant).")
 @click.option(
+    "--algo",
+    type=click.Choice(["tac", *BASELINES]),
+    default="tac",
+    show_default=True,
+    help="TAC, or a baseline from stable-baselines3 / sb3-contrib (docs/baselines.md).",
+)
+@click.option(
+    "--hp",
+    multiple=True,
+    metavar="KEY=VALUE",
+    help="Repeatable: override a baseline hyperparameter (baselines/hyperparams/<algo>.yaml).",
+)
+@click.option(
     "--q",
     type=float,
     default=None,
@@ -214,7 +232,7 @@ def _command_line(ctx: click.Context) -> str:
     type=click.Path(file_okay=False, path_type=Path),
     default=Path("results"),
     show_default=True,
-    help="Results folder; runs go to <out>/runs/tac/<env>/<variant>/seed<k>/.",
+    help="Results folder; runs go to <out>/runs/<algo>/<env>/<variant>/seed<k>/.",
 )
 @click.option("--resume", is_flag=True, help="Continue an interrupted run from its checkpoint.")
 @click.option("--force", is_flag=True, help="Delete an existing run directory and start over.")
@@ -223,6 +241,8 @@ def _command_line(ctx: click.Context) -> str:
 def run(
     ctx: click.Context,
     env: str,
+    algo: str,
+    hp: tuple[str, ...],
     q: float | None,
     alpha: float | None,
     seeds: tuple[int, ...],
@@ -241,7 +261,8 @@ def run(
     force: bool,
     quiet: bool,
 ) -> None:
-    """Train Tsallis Actor-Critic on one task into a resumable run directory.
+    """Train Tsallis Actor-Critic (or a baseline: --algo) on one task into a resumable run
+    directory.
 
     Exit status: 0 when every run is complete (or skipped), 1 when one failed (NaN/inf),
     130 when interrupted (Ctrl-C or SIGTERM; rerun with --resume), 2 for a usage error.
@@ -250,6 +271,11 @@ def run(
 
     env_id = envs.resolve_env_id(env)
     envs.env_info(env_id)  # refuse unusable tasks before printing anything
+    if algo != "tac":
+        _run_baseline(ctx, algo, env_id, hp)
+        return
+    if hp:
+        raise TacbenchError("--hp sets a baseline's hyperparameters; TAC's have their own flags.")
     configs, notes = config.make_run_configs(
         env_id,
         envs.paper_task(env_id),
@@ -272,6 +298,52 @@ def run(
     outcomes = training.train(
         configs, out, resume=resume, force=force, quiet=quiet, command=_command_line(ctx)
     )
+    _report_outcomes(ctx, outcomes)
+
+
+_TAC_ONLY = ("q", "alpha", "learning_starts", "update_schedule", "lnq", "q_schedule")
+
+
+def _run_baseline(ctx: click.Context, algo: str, env_id: str, hp: tuple[str, ...]) -> None:
+    """`tacbench run --algo <baseline>`: the same run settings, the baseline's trainer."""
+    from baselines import config as baseline_config  # torch and SB3 only when this runs
+    from baselines import trainer
+    from tacbench import envs, training
+
+    p = ctx.params
+    given = {
+        name: p[name]
+        for name in _TAC_ONLY
+        if ctx.get_parameter_source(name) != click.core.ParameterSource.DEFAULT
+    }
+    configs, _, notes = baseline_config.make_configs(
+        algo,
+        env_id,
+        envs.paper_task(env_id),
+        p["seeds"],
+        [*baseline_config.flags_as_overrides(algo, given), *hp],
+        total_steps=p["steps"],
+        eval_every=p["eval_every"],
+        eval_episodes=p["eval_episodes"],
+        checkpoint_every=p["checkpoint_every"],
+        device=training.resolve_device(p["device"]),
+        threads=p["threads"],
+    )
+    for note in notes:
+        click.echo(note)
+    outcomes = trainer.train(
+        configs,
+        p["out"],
+        resume=p["resume"],
+        force=p["force"],
+        quiet=p["quiet"],
+        command=_command_line(ctx),
+    )
+    _report_outcomes(ctx, outcomes)
+
+
+def _report_outcomes(ctx: click.Context, outcomes: Sequence[Outcome]) -> None:
+    """One line per seed; exit status 130 if interrupted, 1 if a run failed."""
     for outcome in outcomes:
         detail = f" ({outcome.message})" if outcome.message else ""
         click.echo(f"seed {outcome.seed}: {outcome.state}, {outcome.directory}{detail}")

@@ -1,0 +1,204 @@
+"""A baseline's ``checkpoint/``: everything its exact continuation depends on.
+
+- ``model-<step>.zip``: ``model.save`` (weights, optimiser states, counters, last observation,
+  action-noise state, learning-rate schedule).
+- ``replay/<from>-<to>.npz`` (off-policy): the replay transitions added since the previous
+  checkpoint, so a checkpoint writes only what is new (SB3's ``save_replay_buffer`` would pickle
+  the whole preallocated buffer each time). Loading the chunks in order rebuilds the buffer.
+- ``state.pt``: the step, which model file belongs to it, the global random generators SB3 draws
+  from (torch, NumPy, Python) and the action space's, the environment's exact state
+  (:func:`tacbench.envs.get_env_state`), the episode in progress, the ``VecNormalize``
+  statistics, the partial losses window and the wall-clock time.
+
+``state.pt`` is written last and atomically, so a crash mid-checkpoint leaves the previous
+checkpoint usable; files of a later, unfinished checkpoint are removed on resume.
+"""
+
+from __future__ import annotations
+
+import random
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.buffers import ReplayBuffer
+from stable_baselines3.common.running_mean_std import RunningMeanStd
+from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecNormalize
+
+from baselines import algos
+from baselines.callbacks import LossLogger
+from baselines.config import BaselineConfig
+from tacbench import envs
+
+STATE_FILE = "state.pt"
+REPLAY_FIELDS = ("observations", "next_observations", "actions", "rewards", "dones", "timeouts")
+
+
+def _rng_state(model: BaseAlgorithm) -> dict[str, Any]:
+    # SB3 draws from the legacy global NumPy generator (replay sampling, action noise)
+    kind, key, pos, has_gauss, cached = np.random.get_state(legacy=True)  # noqa: NPY002
+    assert isinstance(key, np.ndarray)
+    state = {
+        "torch": torch.get_rng_state(),
+        "numpy": [kind, torch.from_numpy(key.astype(np.int64)), pos, has_gauss, cached],
+        "python": random.getstate(),
+        "action_space": model.action_space.np_random.bit_generator.state,
+    }
+    if model.device.type == "cuda":
+        state["cuda"] = torch.cuda.get_rng_state_all()
+    return state
+
+
+def _set_rng_state(model: BaseAlgorithm, state: dict[str, Any]) -> None:
+    torch.set_rng_state(state["torch"])
+    kind, key, pos, has_gauss, cached = state["numpy"]
+    np.random.set_state((kind, key.numpy().astype(np.uint32), pos, has_gauss, cached))  # noqa: NPY002
+    random.setstate(state["python"])
+    model.action_space.np_random.bit_generator.state = state["action_space"]
+    if "cuda" in state:
+        torch.cuda.set_rng_state_all(state["cuda"])
+
+
+def _statistics(venv: VecNormalize) -> tuple[RunningMeanStd, RunningMeanStd]:
+    obs_rms, ret_rms = venv.obs_rms, venv.ret_rms
+    assert isinstance(obs_rms, RunningMeanStd) and isinstance(ret_rms, RunningMeanStd)
+    return obs_rms, ret_rms
+
+
+def _normalizer_state(venv: VecEnv) -> dict[str, torch.Tensor] | None:
+    if not isinstance(venv, VecNormalize):
+        return None
+    obs_rms, ret_rms = _statistics(venv)
+    return {
+        "obs_mean": torch.from_numpy(np.asarray(obs_rms.mean, dtype=np.float64)),
+        "obs_var": torch.from_numpy(np.asarray(obs_rms.var, dtype=np.float64)),
+        "obs_count": torch.tensor(float(obs_rms.count), dtype=torch.float64),
+        "ret_mean": torch.from_numpy(np.asarray(ret_rms.mean, dtype=np.float64)),
+        "ret_var": torch.from_numpy(np.asarray(ret_rms.var, dtype=np.float64)),
+        "ret_count": torch.tensor(float(ret_rms.count), dtype=torch.float64),
+        "returns": torch.from_numpy(np.asarray(venv.returns, dtype=np.float64)),
+    }
+
+
+def _set_normalizer_state(venv: VecEnv, state: dict[str, torch.Tensor] | None) -> None:
+    if state is None:
+        return
+    assert isinstance(venv, VecNormalize)
+    obs_rms, ret_rms = _statistics(venv)
+    obs_rms.mean, obs_rms.var = state["obs_mean"].numpy(), state["obs_var"].numpy()
+    obs_rms.count = float(state["obs_count"])
+    ret_rms.mean, ret_rms.var = state["ret_mean"].numpy(), state["ret_var"].numpy()
+    ret_rms.count = float(state["ret_count"])
+    venv.returns = state["returns"].numpy().copy()
+
+
+def _replay_buffer(model: BaseAlgorithm) -> ReplayBuffer | None:
+    buffer = getattr(model, "replay_buffer", None)
+    return buffer if isinstance(buffer, ReplayBuffer) else None
+
+
+def _chunk_end(path: Path) -> int:
+    return int(path.stem.split("-")[1])
+
+
+def save(
+    directory: Path,
+    step: int,
+    since: int,
+    model: BaseAlgorithm,
+    dummy: DummyVecEnv,
+    venv: VecEnv,
+    losses: LossLogger,
+    wall_s: float,
+) -> None:
+    """Write the checkpoint at ``step``; ``since`` is the previous checkpoint's step (0 if none)."""
+    buffer = _replay_buffer(model)
+    if buffer is not None:
+        replay = directory / "replay"
+        replay.mkdir(exist_ok=True)
+        if step > since:
+            start = max(since, step - buffer.buffer_size)
+            positions = np.arange(start, step) % buffer.buffer_size
+            tmp = replay / f"{since:012d}-{step:012d}.npz.tmp"
+            with tmp.open("wb") as handle:
+                np.savez(
+                    handle,
+                    start=start,
+                    **{name: getattr(buffer, name)[positions] for name in REPLAY_FIELDS},
+                )
+            tmp.replace(replay / f"{since:012d}-{step:012d}.npz")
+    model_file = f"model-{step:012d}.zip"
+    model.save(directory / model_file)
+    recorder = algos.recorder(dummy)
+    state = {
+        "step": step,
+        "model": model_file,
+        "rng": _rng_state(model),
+        "env": envs.get_env_state(dummy.envs[0]),
+        "episode": [recorder.episode_return, recorder.episode_length],
+        "normalize": _normalizer_state(venv),
+        "losses": losses.state(),
+        "wall_s": wall_s,
+    }
+    tmp_state = directory / (STATE_FILE + ".tmp")
+    torch.save(state, tmp_state)
+    tmp_state.replace(directory / STATE_FILE)
+    for old in directory.glob("model-*.zip"):
+        if old.name != model_file:
+            old.unlink()
+    if buffer is not None:
+        for old in (directory / "replay").glob("*.npz"):
+            if _chunk_end(old) < step - buffer.buffer_size:  # every transition overwritten
+                old.unlink()
+
+
+def load_state(directory: Path) -> dict[str, Any] | None:
+    """The checkpoint's ``state.pt`` under ``directory``, or None if there is none."""
+    path = directory / STATE_FILE
+    return torch.load(path, weights_only=True) if path.exists() else None
+
+
+def restore(
+    config: BaselineConfig,
+    directory: Path,
+    state: dict[str, Any],
+    dummy: DummyVecEnv,
+    venv: VecEnv,
+    losses: LossLogger,
+) -> BaseAlgorithm:
+    """The model, its replay buffer, the environment and the generators as they were at the
+    checkpoint ``state`` (from :func:`load_state`)."""
+    step = int(state["step"])
+    env = dummy.envs[0]
+    env.reset(seed=config.seed)
+    _set_normalizer_state(venv, state["normalize"])
+    model = algos.ALGORITHMS[config.algo].load(
+        directory / state["model"], env=venv, device=config.device, force_reset=False
+    )
+    if state["env"] is not None:
+        envs.set_env_state(env, state["env"])
+        recorder = algos.recorder(dummy)
+        recorder.episode_return, recorder.episode_length = state["episode"]
+    else:  # no exact env state (not MuJoCo): continue with a fresh episode, as TAC does
+        venv.seed(config.seed + step)
+        obs = venv.reset()
+        assert isinstance(obs, np.ndarray)
+        model._last_obs = obs
+        model._last_episode_starts = np.ones((1,), dtype=bool)
+    buffer = _replay_buffer(model)
+    if buffer is not None:
+        for chunk in sorted((directory / "replay").glob("*.npz")):
+            if _chunk_end(chunk) > step:
+                chunk.unlink()  # written after the checkpoint we resume from
+                continue
+            with np.load(chunk) as data:
+                start, count = int(data["start"]), len(data["rewards"])
+                positions = np.arange(start, start + count) % buffer.buffer_size
+                for name in REPLAY_FIELDS:
+                    getattr(buffer, name)[positions] = data[name]
+        buffer.pos, buffer.full = step % buffer.buffer_size, step >= buffer.buffer_size
+    losses.load_state(state["losses"])
+    _set_rng_state(model, state["rng"])
+    return model

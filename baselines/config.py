@@ -1,0 +1,135 @@
+"""One frozen, JSON-serialisable :class:`BaselineConfig` per baseline run, and how to build them.
+
+The run settings (steps, evaluation, checkpoints, logging, hardware) have the same names,
+defaults and checks as TAC's :class:`tacbench.config.RunConfig`; the algorithm's settings are
+the resolved hyperparameter table (``baselines/hyperparams/<algo>.yaml``) with the ``--hp``
+overrides applied.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+from baselines import hyperparams
+from tacbench import config as tac_config
+from tacbench.errors import TacbenchError
+
+
+@dataclass(frozen=True)
+class BaselineConfig:
+    """Everything that determines one baseline run; built once, then read-only."""
+
+    algo: str
+    env: str
+    seed: int = 0
+    total_steps: int = tac_config.TOTAL_STEPS
+    eval_every: int = tac_config.EVAL_EVERY
+    eval_episodes: int = tac_config.EVAL_EPISODES
+    checkpoint_every: int = tac_config.CHECKPOINT_EVERY
+    log_every: int = tac_config.LOG_EVERY
+    device: str = "cpu"
+    threads: int = 1
+    hyperparams: Mapping[str, Any] = field(default_factory=dict)
+    variant: str = "default"
+
+    def __post_init__(self) -> None:
+        hyperparams.check_algo(self.algo)
+        for name, minimum in (
+            ("total_steps", 1),
+            ("eval_every", 0),
+            ("eval_episodes", 1),
+            ("checkpoint_every", 0),
+            ("log_every", 1),
+            ("threads", 1),
+            ("seed", 0),
+        ):
+            value = getattr(self, name)
+            if not isinstance(value, int) or isinstance(value, bool) or value < minimum:
+                flag = "--" + name.replace("_", "-")
+                raise TacbenchError(
+                    f"{name} must be an integer >= {minimum} (got {value!r}); {flag}."
+                )
+        if self.device not in ("cpu", "cuda"):
+            raise TacbenchError(f"--device must be cpu or cuda (got {self.device!r}).")
+        missing = sorted(set(hyperparams.ALGO_KEYS[self.algo]) - set(self.hyperparams))
+        if missing:
+            raise TacbenchError(f"{self.algo} config lacks hyperparameters {missing}.")
+        for key, value in self.hyperparams.items():
+            hyperparams.coerce(self.algo, key, value)
+
+    @property
+    def off_policy(self) -> bool:
+        """Whether the algorithm learns from a replay buffer."""
+        return self.algo in hyperparams.OFF_POLICY
+
+    @property
+    def alpha(self) -> float | None:
+        """The entropy coefficient when it is a constant (sac-sb3), else None."""
+        value = self.hyperparams.get("ent_coef") if self.algo == "sac-sb3" else None
+        return float(value) if isinstance(value, int | float) else None
+
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON-ready dict of every field."""
+        data = dataclasses.asdict(self)
+        data["hyperparams"] = dict(self.hyperparams)
+        return data
+
+
+def make_configs(
+    algo: str,
+    env: str,
+    task: str | None,
+    seeds: Sequence[int],
+    hp: Sequence[str] = (),
+    **settings: Any,
+) -> tuple[list[BaselineConfig], dict[str, Any], list[str]]:
+    """One config per seed, the overrides that differ from the table, and notes for the user.
+
+    ``env`` is a Gymnasium id, ``task`` its paper name (None outside the suite); ``hp`` holds
+    ``key=value`` overrides; ``settings`` are run settings (``total_steps``, ``eval_every``...).
+    """
+    hyperparams.check_algo(algo)
+    if not seeds:
+        raise TacbenchError("give at least one --seed.")
+    if len(set(seeds)) != len(seeds):
+        raise TacbenchError(f"--seed values must differ (got {list(seeds)}).")
+    table, sections = hyperparams.resolve(algo, env, task)
+    overrides = hyperparams.parse_overrides(algo, hp)
+    effective = {**table, **overrides}
+    name = hyperparams.variant(table, effective)
+    configs = [
+        BaselineConfig(
+            algo=algo, env=env, seed=seed, hyperparams=effective, variant=name, **settings
+        )
+        for seed in seeds
+    ]
+    changed = {k: v for k, v in overrides.items() if table.get(k) != v}
+    notes = [
+        f"{algo} hyperparameters: baselines/hyperparams/{algo}.yaml, sections "
+        f"{' + '.join(sections)}" + (f"; overridden: {changed}" if changed else "")
+    ]
+    return configs, changed, notes
+
+
+# TAC's `tacbench run` flags that a baseline understands, as the hyperparameter they set.
+_FLAG_KEYS = {("sac-sb3", "alpha"): "ent_coef"}
+_FLAG_KEYS.update({(algo, "learning_starts"): "learning_starts" for algo in hyperparams.OFF_POLICY})
+
+
+def flags_as_overrides(algo: str, given: Mapping[str, Any]) -> list[str]:
+    """TAC flags given on the command line (``{"alpha": 0.1}``) as ``--hp`` items for ``algo``
+    (``ent_coef=0.1`` for sac-sb3); a flag the baseline has no use for is refused."""
+    items = []
+    for name, value in given.items():
+        key = _FLAG_KEYS.get((algo, name))
+        if key is None:
+            raise TacbenchError(
+                f"--{name.replace('_', '-')} is a TAC option that {algo} does not use; set "
+                f"{algo}'s hyperparameters with --hp KEY=VALUE, KEY one of "
+                f"{', '.join(sorted(hyperparams.ALGO_KEYS[algo]))}."
+            )
+        items.append(f"{key}={value}")
+    return items

@@ -1,0 +1,176 @@
+"""The parity study (docs/parity.md): is our TAC at q = 1 a correct SAC?
+
+TAC at q = 1 (the paper's "SAC") and stable-baselines3's SAC configured to match it
+(``sac-sb3``) are trained on the same tasks, seeds and budget through ``tacbench run``; this
+module prints those commands and analyses their run directories:
+
+- learning curves: mean and standard deviation over seeds of the evaluation return at each
+  evaluation step, per task and algorithm (a table and a figure);
+- final return: per run, the mean evaluation return over the last ``fraction`` of the steps;
+  per task, the difference of the two algorithms' means (TAC minus SB3) with a percentile
+  bootstrap confidence interval, seeds resampled independently within each algorithm.
+
+``python -m baselines.parity commands`` prints the study's commands;
+``python -m baselines.parity analyse --results DIR`` prints the tables and writes the figure.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from tacbench.config import PAPER_ALPHA
+from tacbench.envs import paper_task
+from tacbench.errors import TacbenchError
+from tacbench.report.load import load_runs
+
+ENVS = ("Hopper-v4", "HalfCheetah-v4")
+SEEDS = (0, 10, 20, 30, 40)  # the first five of the paper's seeds (0, 10, ..., 90)
+STEPS = 100_000
+FRACTION = 0.1  # final return: the evaluations in the last 10% of the steps
+REPS = 10_000
+METHODS = {"tac": "TAC q=1", "sac-sb3": "SAC (SB3)"}
+
+
+def commands(
+    envs: Sequence[str] = ENVS,
+    seeds: Sequence[int] = SEEDS,
+    steps: int = STEPS,
+    out: str = "results/parity",
+) -> list[str]:
+    """The ``tacbench run`` commands of the study: per task, TAC at q = 1 (the seeds as members
+    of one process) and sac-sb3 (the seeds one after another)."""
+    seed_flags = [flag for seed in seeds for flag in ("--seed", str(seed))]
+    lines = []
+    for env in envs:
+        alpha = PAPER_ALPHA[paper_task(env) or ""]
+        common = ["--env", env, *seed_flags, "--steps", str(steps), "--out", out, "--quiet"]
+        lines.append(shlex.join(["tacbench", "run", "--q", "1", "--alpha", f"{alpha:g}", *common]))
+        lines.append(shlex.join(["tacbench", "run", "--algo", "sac-sb3", *common]))
+    return lines
+
+
+def load(results: Path) -> pd.DataFrame:
+    """Evaluation returns of the study's runs: TAC at q = 1 and sac-sb3, complete runs only.
+    Columns: method, env, seed, step, return."""
+    runset = load_runs(results, "eval")
+    runs = runset.runs
+    chosen = runs[((runs["algo"] == "tac") & (runs["q"] == 1.0)) | (runs["algo"] == "sac-sb3")]
+    chosen = chosen[chosen["state"] == "complete"]
+    several = chosen.groupby(["algo", "env"])["variant"].nunique()
+    if (several > 1).any():
+        raise TacbenchError(
+            f"several variants of one algorithm on one task under {results}: "
+            f"{several[several > 1].to_dict()}; keep one per algorithm and task."
+        )
+    data = runset.data[runset.data["run"].isin(chosen["run"])]
+    frame = data[["algo", "env", "seed", "step", "return"]].copy()
+    frame.insert(0, "method", frame.pop("algo").map(METHODS))
+    return frame.reset_index(drop=True)
+
+
+def curves(data: pd.DataFrame) -> pd.DataFrame:
+    """Mean, standard deviation and number of seeds of the evaluation return per task, method
+    and step."""
+    grouped = data.groupby(["env", "method", "step"])["return"]
+    table = grouped.agg(["mean", "std", "count"]).reset_index()
+    return table.rename(columns={"count": "seeds"})
+
+
+def final_returns(data: pd.DataFrame, fraction: float = FRACTION) -> pd.DataFrame:
+    """Per run: the mean evaluation return over its last ``fraction`` of steps."""
+    last = data.groupby(["env", "method", "seed"])["step"].transform("max")
+    tail = data[data["step"] >= (1.0 - fraction) * last]
+    return tail.groupby(["env", "method", "seed"])["return"].mean().reset_index()
+
+
+def bootstrap_difference(
+    a: np.ndarray, b: np.ndarray, reps: int = REPS, seed: int = 0
+) -> tuple[float, float, float]:
+    """mean(a) - mean(b) and its 95% percentile bootstrap interval (a and b resampled
+    independently, with replacement)."""
+    rng = np.random.default_rng(seed)
+    boot_a = a[rng.integers(0, len(a), size=(reps, len(a)))].mean(axis=1)
+    boot_b = b[rng.integers(0, len(b), size=(reps, len(b)))].mean(axis=1)
+    low, high = np.percentile(boot_a - boot_b, [2.5, 97.5])
+    return float(a.mean() - b.mean()), float(low), float(high)
+
+
+def summary(finals: pd.DataFrame, reps: int = REPS) -> pd.DataFrame:
+    """Per task: each method's final return (mean, std, seeds) and TAC minus SB3 with its CI."""
+    rows = []
+    for env, group in finals.groupby("env"):
+        values = {m: group.loc[group["method"] == m, "return"].to_numpy() for m in METHODS.values()}
+        tac, sb3 = values["TAC q=1"], values["SAC (SB3)"]
+        row: dict[str, object] = {"env": env}
+        for name, scores in (("TAC q=1", tac), ("SAC (SB3)", sb3)):
+            row[f"{name} mean"] = scores.mean() if len(scores) else np.nan
+            row[f"{name} std"] = scores.std(ddof=1) if len(scores) > 1 else np.nan
+            row[f"{name} seeds"] = len(scores)
+        if len(tac) and len(sb3):
+            row["TAC - SB3"], row["CI low"], row["CI high"] = bootstrap_difference(tac, sb3, reps)
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def plot(table: pd.DataFrame, path: Path) -> None:
+    """The learning curves, one panel per task, mean +/- one standard deviation over seeds."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    envs = sorted(table["env"].unique())
+    fig, axes = plt.subplots(1, len(envs), figsize=(5 * len(envs), 3.6), squeeze=False)
+    for ax, env in zip(axes[0], envs, strict=True):
+        for method, color in zip(METHODS.values(), ("tab:blue", "tab:orange"), strict=True):
+            rows = table[(table["env"] == env) & (table["method"] == method)]
+            std = rows["std"].fillna(0.0)
+            ax.plot(rows["step"], rows["mean"], color=color, label=method)
+            low, high = rows["mean"] - std, rows["mean"] + std
+            ax.fill_between(rows["step"], low, high, color=color, alpha=0.2)
+        ax.set(title=env, xlabel="environment steps", ylabel="evaluation return")
+        ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    """``commands`` or ``analyse`` (see the module docstring)."""
+    parser = argparse.ArgumentParser(prog="python -m baselines.parity", description=__doc__)
+    sub = parser.add_subparsers(dest="action", required=True)
+    show = sub.add_parser("commands", help="print the study's tacbench run commands")
+    show.add_argument("--env", action="append", help="repeatable (default: the study's)")
+    show.add_argument("--seed", type=int, action="append", help="repeatable")
+    show.add_argument("--steps", type=int, default=STEPS)
+    show.add_argument("--out", default="results/parity")
+    analyse = sub.add_parser("analyse", help="curves and final-return difference")
+    analyse.add_argument("--results", type=Path, default=Path("results/parity"))
+    analyse.add_argument("--out", type=Path, help="folder for curves.csv, finals.csv, curves.png")
+    analyse.add_argument("--reps", type=int, default=REPS)
+    args = parser.parse_args(argv)
+    if args.action == "commands":
+        print("\n".join(commands(args.env or ENVS, args.seed or SEEDS, args.steps, args.out)))
+        return
+    data = load(args.results)
+    table, finals = curves(data), final_returns(data)
+    pd.set_option("display.width", 200)
+    print(table.to_string(index=False, float_format=lambda x: f"{x:.1f}"))
+    print(finals.to_string(index=False, float_format=lambda x: f"{x:.1f}"))
+    print(summary(finals, args.reps).to_string(index=False, float_format=lambda x: f"{x:.1f}"))
+    if args.out is not None:
+        args.out.mkdir(parents=True, exist_ok=True)
+        table.to_csv(args.out / "curves.csv", index=False)
+        finals.to_csv(args.out / "finals.csv", index=False)
+        plot(table, args.out / "curves.png")
+        print(f"wrote {args.out / 'curves.csv'}, finals.csv and curves.png")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,225 @@
+"""Train baselines into TAC's run directories: plan, start or resume, learn, end cleanly.
+
+:func:`train` is the baselines' counterpart of :func:`tacbench.training.train`, with the same
+interface and outcomes: it plans every seed's run directory first (start, resume, skip, refuse;
+:func:`tacbench.runs.plan_run`), then trains the seeds one after another (SB3 trains one model
+per process), each through :class:`baselines.callbacks.RunCallback`. The evaluation protocol is
+TAC's own function (:func:`tacbench.envs.evaluate` with :func:`tacbench.envs.eval_seeds`):
+deterministic actions, one episode on each of ``eval_episodes`` separate env instances.
+"""
+
+from __future__ import annotations
+
+import shutil
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from stable_baselines3.common.vec_env import VecNormalize
+
+from baselines import algos, checkpoint, hyperparams
+from baselines.callbacks import Diverged, Interrupted, LossLogger, RunCallback
+from baselines.config import BaselineConfig
+from tacbench import envs, runs
+from tacbench.config import RESULT_NEUTRAL_FIELDS
+from tacbench.errors import TacbenchError
+from tacbench.training import Outcome, StopCheck, _stop_signals
+
+
+def metadata(config: BaselineConfig, command: str) -> dict[str, Any]:
+    """config.json's content for ``config``; ``hp_overrides`` lists where its hyperparameters
+    differ from the table's values for its environment."""
+    table, _ = hyperparams.resolve(config.algo, config.env, envs.paper_task(config.env))
+    overrides = {k: v for k, v in config.hyperparams.items() if table.get(k) != v}
+    return runs.run_metadata(
+        config.to_dict(),
+        command,
+        algo=config.algo,
+        env=config.env,
+        variant=config.variant,
+        seed=config.seed,
+        q=None,
+        alpha=config.alpha,
+        total_steps=config.total_steps,
+        hp_overrides=overrides,
+        hyperparams_file=f"baselines/hyperparams/{config.algo}.yaml",
+    )
+
+
+def train(
+    configs: list[BaselineConfig],
+    out: Path,
+    *,
+    resume: bool = False,
+    force: bool = False,
+    quiet: bool = False,
+    command: str = "",
+    stop: StopCheck | None = None,
+) -> list[Outcome]:
+    """Train each config (same algorithm and env, different seeds) into its run directory.
+
+    ``stop`` is polled at every boundary (each step off-policy, each rollout for PPO/TRPO); when
+    it, Ctrl-C or SIGTERM says stop, the run is checkpointed and left "running" for
+    ``resume=True``, and later seeds are not started. Complete and failed runs are skipped
+    unless ``force``.
+    """
+    if not configs or len({c.seed for c in configs}) != len(configs):
+        raise TacbenchError("give each baseline run a different seed.")
+    envs.env_info(configs[0].env)  # an unusable task fails before any directory is touched
+    outcomes, active = [], []
+    for config in configs:
+        directory = runs.run_directory(out, config.algo, config.env, config.variant, config.seed)
+        plan = runs.plan_run(
+            directory, config.to_dict(), resume=resume, force=force, neutral=RESULT_NEUTRAL_FIELDS
+        )
+        if plan.action == "skip":
+            outcomes.append(Outcome(config.seed, directory, "skipped", -1, plan.message))
+        else:
+            if plan.action == "start" and directory.exists():
+                shutil.rmtree(directory)
+            active.append((config, directory))
+    with _stop_signals() as received:
+        for config, directory in active:
+            torch.set_num_threads(config.threads)
+            run = _Run(config, directory, command, quiet)
+            outcome = run.learn(lambda step: bool(received) or (stop is not None and stop(step)))
+            outcomes.append(outcome)
+            if outcome.state == "interrupted":
+                break
+    return sorted(outcomes, key=lambda o: o.seed)
+
+
+class _Run:
+    """One baseline run: its model, environments, writer and checkpoints."""
+
+    def __init__(
+        self,
+        config: BaselineConfig,
+        directory: Path,
+        command: str,
+        quiet: bool,
+    ) -> None:
+        self.config, self.command = config, command
+        self.writer = runs.RunWriter(directory, algos.loss_columns(config))
+        self.losses = LossLogger(algos.loss_columns(config))
+        self.dummy, self.venv = algos.make_training_env(config)
+        self.eval_envs = [
+            envs.make_env(config.env)
+            for _ in range(config.eval_episodes if config.eval_every else 0)
+        ]
+        state = checkpoint.load_state(self.writer.checkpoint_dir)
+        if state is None:
+            self.writer.open(metadata(config, command), None)
+            self.model = algos.build_model(config, self.venv)
+            self.step, self.wall_offset = 0, 0.0
+        else:
+            self.writer.open(None, int(state["step"]))
+            self.model = checkpoint.restore(
+                config, self.writer.checkpoint_dir, state, self.dummy, self.venv, self.losses
+            )
+            self.step, self.wall_offset = int(state["step"]), float(state["wall_s"])
+        self.model.set_logger(self.losses)
+        self.checkpoint_step = self.step
+        label = f"{algos.DISPLAY_NAMES[config.algo]} {config.env} seed {config.seed}"
+        self.progress = runs.Progress(
+            label, config.total_steps, self.step, config.eval_every, quiet
+        )
+        self._t0 = time.perf_counter()
+
+    def wall_s(self) -> float:
+        """Wall-clock seconds of training so far, over every session of this run."""
+        return self.wall_offset + time.perf_counter() - self._t0
+
+    def evaluate(self, step: int) -> float:
+        """TAC's evaluation protocol on the current policy; writes the eval.csv row."""
+        normalizer = self.venv if isinstance(self.venv, VecNormalize) else None
+
+        def policy(obs: np.ndarray) -> np.ndarray:
+            if normalizer is not None:
+                normalized = normalizer.normalize_obs(obs)
+                assert isinstance(normalized, np.ndarray)
+                obs = normalized
+            actions, _ = self.model.predict(obs, deterministic=True)
+            return np.asarray(actions, dtype=np.float64)
+
+        returns, lengths = envs.evaluate(
+            policy,
+            self.eval_envs,
+            envs.eval_seeds(self.config.seed, step, self.config.eval_episodes),
+        )
+        self.writer.eval_row(step, self.wall_s(), returns.tolist(), lengths.tolist())
+        return float(returns.mean())
+
+    def save(self, step: int) -> None:
+        """Checkpoint at ``step`` (a boundary) and record it in status.json."""
+        checkpoint.save(
+            self.writer.checkpoint_dir,
+            step,
+            self.checkpoint_step,
+            self.model,
+            self.dummy,
+            self.venv,
+            self.losses,
+            self.wall_s(),
+        )
+        self.checkpoint_step = step
+        self.writer.status("running", step)
+
+    def learn(self, stop: StopCheck) -> Outcome:
+        """Train to ``total_steps`` or until stopped or diverged; close everything."""
+        config, directory = self.config, self.writer.directory
+        callback = RunCallback(
+            total_steps=config.total_steps,
+            eval_every=config.eval_every,
+            checkpoint_every=config.checkpoint_every,
+            log_every=config.log_every,
+            on_policy=not config.off_policy,
+            writer=self.writer,
+            progress=self.progress,
+            losses=self.losses,
+            evaluate=self.evaluate,
+            checkpoint=self.save,
+            stop=stop,
+            wall_s=self.wall_s,
+        )
+        try:
+            self.model.learn(
+                total_timesteps=config.total_steps - self.step,
+                callback=callback,
+                reset_num_timesteps=self.step == 0,
+            )
+        except Interrupted as stopped:
+            step = int(stopped.args[0])
+            command = self.command or "train(..., resume=True)"
+            again = command if "--resume" in command.split() else f"{command} --resume"
+            reason = f"interrupted at step {step}; resume with: {again}"
+            self.writer.status("running", step, reason)
+            return Outcome(config.seed, directory, "interrupted", step, reason)
+        except (Diverged, ValueError) as err:
+            if isinstance(err, ValueError) and "invalid values" not in str(err):
+                raise
+            step = self.model.num_timesteps
+            reason = f"{_divergence(err, step)}; the last checkpoint is kept"
+            self.writer.status("failed", step, reason)
+            self.progress.message(f"seed {config.seed} failed: {reason}")
+            return Outcome(config.seed, directory, "failed", step, reason)
+        finally:
+            self._close()
+        self.writer.status("complete", config.total_steps)
+        return Outcome(config.seed, directory, "complete", config.total_steps)
+
+    def _close(self) -> None:
+        self.progress.close()
+        self.writer.close()
+        self.venv.close()
+        for env in self.eval_envs:
+            env.close()
+
+
+def _divergence(err: Exception, step: int) -> str:
+    if isinstance(err, Diverged):
+        return str(err)
+    # torch.distributions refuses NaN parameters: the policy's weights are no longer finite
+    return f"non-finite policy output at step {step} ({str(err).splitlines()[0][:120]})"

@@ -1,0 +1,191 @@
+"""The baselines' hyperparameter tables, --hp parsing, variants and configs."""
+
+from __future__ import annotations
+
+import re
+from importlib import resources
+
+import pytest
+import yaml
+
+from baselines import hyperparams
+from baselines.config import BaselineConfig, flags_as_overrides, make_configs
+from tacbench import config as tac_config
+from tacbench.envs import SUITE, paper_task
+from tacbench.errors import TacbenchError
+
+pytestmark = pytest.mark.unit
+
+
+def _table_text(algo: str) -> str:
+    return resources.files("baselines").joinpath("hyperparams", f"{algo}.yaml").read_text()
+
+
+@pytest.mark.parametrize("algo", hyperparams.ALGOS)
+def test_every_value_in_a_table_names_its_source(algo: str) -> None:
+    values = [line for line in _table_text(algo).splitlines() if re.match(r"^\s+\w+:", line)]
+    assert values
+    for line in values:
+        value, _, comment = line.partition("  # ")
+        assert comment.strip(), f"{algo}.yaml: no source for {value.strip()!r}"
+
+
+@pytest.mark.parametrize("algo", hyperparams.ALGOS)
+@pytest.mark.parametrize("env", sorted(SUITE.values()))
+def test_tables_resolve_to_every_key_for_every_suite_task(algo: str, env: str) -> None:
+    values, sections = hyperparams.resolve(algo, env, paper_task(env))
+    assert set(values) == set(hyperparams.ALGO_KEYS[algo])
+    assert sections[0] == "default"
+    table = yaml.safe_load(_table_text(algo))
+    assert set(table) - {"default"} <= {*SUITE, *SUITE.values()}  # no misspelt section names
+
+
+def test_networks_are_the_papers() -> None:
+    def net(algo: str) -> tuple[list[int], str]:
+        values, _ = hyperparams.resolve(algo, "Hopper-v4", "Hopper")
+        return values["net_arch"], values["activation_fn"]
+
+    assert net("ddpg") == ([300], "relu")  # paper: SAC, TAC and DDPG share 1 x 300
+    assert net("sac-sb3") == ([300], "relu")
+    assert net("td3") == ([400, 300], "relu")  # TD3's authors
+    assert net("ppo") == ([64, 64], "tanh")  # paper: 64 units; Spinning Up: two layers, tanh
+    assert net("trpo") == ([64, 64], "tanh")
+
+
+@pytest.mark.parametrize("env", sorted(SUITE.values()))
+def test_sac_sb3_is_configured_like_tac_at_q1(env: str) -> None:
+    values, _ = hyperparams.resolve("sac-sb3", env, paper_task(env))
+    tac = tac_config.RunConfig(env=env, q=1.0, alpha=tac_config.PAPER_ALPHA[paper_task(env)])
+    assert values["net_arch"] == list(tac.hidden_sizes)
+    assert values["learning_rate"] == tac.learning_rate
+    assert values["batch_size"] == tac.batch_size
+    assert values["buffer_size"] == tac.buffer_size
+    assert values["learning_starts"] == tac.learning_starts
+    assert values["gamma"] == tac.gamma
+    assert values["tau"] == tac.tau
+    assert values["ent_coef"] == tac.alpha  # a constant alpha, 0.05 on Humanoid
+    assert (values["train_freq"], values["gradient_steps"]) == (1, 1)
+
+
+def test_zoo_values_are_applied_per_environment() -> None:
+    hopper, sections = hyperparams.resolve("ppo", "Hopper-v4", "Hopper")
+    assert sections == ["default", "Hopper-v4"]
+    assert (hopper["n_steps"], hopper["batch_size"], hopper["gamma"]) == (512, 32, 0.999)
+    assert hopper["learning_rate"] == pytest.approx(9.80828e-5)
+    ant, _ = hyperparams.resolve("ppo", "Ant-v4", "Ant")
+    assert (ant["n_steps"], ant["learning_rate"], ant["normalize"]) == (2048, 3e-4, True)
+    assert hyperparams.resolve("td3", "Hopper-v4", "Hopper")[0]["learning_rate"] == 3e-4
+    assert hyperparams.resolve("trpo", "HalfCheetah-v4", "HalfCheetah")[0]["target_kl"] == 0.04
+    humanoid, sections = hyperparams.resolve("sac-sb3", "Humanoid-v5", "Humanoid")
+    assert sections == ["default", "Humanoid"] and humanoid["ent_coef"] == 0.05
+
+
+def test_overrides_are_parsed_as_yaml_and_checked() -> None:
+    parsed = hyperparams.parse_overrides(
+        "td3",
+        ["learning_rate=3e-4", "net_arch=[64, 64]", "train_freq=[1, episode]", "batch_size=1e2"],
+    )
+    assert parsed == {
+        "learning_rate": 3e-4,
+        "net_arch": [64, 64],
+        "train_freq": [1, "episode"],
+        "batch_size": 100,
+    }
+    assert hyperparams.parse_overrides("ppo", ["target_kl=null", "normalize=false"]) == {
+        "target_kl": None,
+        "normalize": False,
+    }
+    assert hyperparams.parse_overrides("sac-sb3", ["ent_coef=auto_0.1"]) == {"ent_coef": "auto_0.1"}
+
+
+def test_a_bad_key_names_the_valid_keys() -> None:
+    with pytest.raises(TacbenchError) as err:
+        hyperparams.parse_overrides("ppo", ["lr=3e-4"])
+    message = str(err.value)
+    assert "unknown hyperparameter 'lr' for ppo" in message
+    assert "Valid keys: activation_fn, batch_size, clip_range" in message
+    with pytest.raises(TacbenchError, match="Did you mean n_steps"):
+        hyperparams.parse_overrides("ppo", ["steps=10"])
+    with pytest.raises(TacbenchError, match=r"write key=value.*Valid keys for ddpg"):
+        hyperparams.parse_overrides("ddpg", ["learning_rate"])
+    with pytest.raises(TacbenchError, match="given twice"):
+        hyperparams.parse_overrides("ddpg", ["gamma=0.9", "gamma=0.8"])
+    with pytest.raises(TacbenchError, match="unknown baseline 'sac'"):
+        hyperparams.parse_overrides("sac", ["gamma=0.9"])
+
+
+@pytest.mark.parametrize(
+    ("algo", "item", "expected"),
+    [
+        ("ppo", "n_steps=abc", "n_steps for ppo must be an integer >= 2"),
+        ("ppo", "n_steps=2.5", "an integer >= 2"),
+        ("td3", "gamma=1.5", "gamma for td3 must be a number > 0 and <= 1"),
+        ("td3", "learning_rate=0", "a number > 0"),
+        ("td3", "learning_rate=nan", "a number > 0"),
+        ("ddpg", "net_arch=300", "a list of layer widths"),
+        ("ddpg", "net_arch=[300, 0]", "a list of layer widths"),
+        ("ddpg", "activation_fn=sigmoid", "one of relu, tanh, elu, leaky_relu"),
+        ("ddpg", "noise_type=ornstein-uhlenbeck", "one of normal, none"),
+        ("ppo", "normalize=yes please", "true or false"),
+        ("ppo", "ent_coef=auto", "ent_coef for ppo must be a number >= 0"),
+        ("sac-sb3", "ent_coef=automatic", '"auto" or "auto_<initial value>"'),
+        ("td3", "train_freq=[1, day]", 'an integer >= 1, or [n,"step"]'),
+    ],
+)
+def test_a_bad_value_says_what_is_expected(algo: str, item: str, expected: str) -> None:
+    with pytest.raises(TacbenchError, match=re.escape(expected)):
+        hyperparams.parse_overrides(algo, [item])
+
+
+def test_variant_names_what_differs_and_hashes_it() -> None:
+    table, _ = hyperparams.resolve("td3", "Hopper-v4", "Hopper")
+    assert hyperparams.variant(table, dict(table)) == "default"
+    a = hyperparams.variant(table, {**table, "learning_rate": 1e-3, "net_arch": [64, 64]})
+    b = hyperparams.variant(table, {**table, "net_arch": [64, 64], "learning_rate": 1e-3})
+    c = hyperparams.variant(table, {**table, "learning_rate": 1e-4, "net_arch": [64, 64]})
+    assert a == b != c
+    assert re.fullmatch(r"learning_rate0\.001-net_arch64x64-[0-9a-f]{8}", a)
+
+
+def test_make_configs_applies_overrides_and_run_settings() -> None:
+    configs, changed, notes = make_configs(
+        "sac-sb3",
+        "Humanoid-v4",
+        "Humanoid",
+        [0, 10],
+        ["learning_rate=1e-3", "batch_size=256"],
+        total_steps=5000,
+    )
+    assert [c.seed for c in configs] == [0, 10]
+    assert changed == {"batch_size": 256}  # learning_rate=1e-3 is the table's value
+    assert configs[0].hyperparams["batch_size"] == 256
+    assert configs[0].alpha == 0.05 and configs[0].total_steps == 5000
+    assert configs[0].variant.startswith("batch_size256-")
+    assert "sections default + Humanoid; overridden: {'batch_size': 256}" in notes[0]
+    data = configs[1].to_dict()
+    assert data["hyperparams"]["ent_coef"] == 0.05 and data["seed"] == 10
+    with pytest.raises(TacbenchError, match="must differ"):
+        make_configs("ppo", "Hopper-v4", "Hopper", [0, 0])
+    with pytest.raises(TacbenchError, match="total_steps must be an integer >= 1"):
+        make_configs("ppo", "Hopper-v4", "Hopper", [0], total_steps=0)
+
+
+def test_config_checks_its_hyperparameters() -> None:
+    values, _ = hyperparams.resolve("ppo", "Hopper-v4", "Hopper")
+    assert BaselineConfig("ppo", "Hopper-v4", hyperparams=values).alpha is None
+    with pytest.raises(TacbenchError, match="lacks hyperparameters"):
+        BaselineConfig("ppo", "Hopper-v4", hyperparams={})
+    with pytest.raises(TacbenchError, match="n_epochs for ppo"):
+        BaselineConfig("ppo", "Hopper-v4", hyperparams={**values, "n_epochs": 0})
+
+
+def test_tac_flags_map_to_hyperparameters_or_are_refused() -> None:
+    assert flags_as_overrides("sac-sb3", {"alpha": 0.1, "learning_starts": 500}) == [
+        "ent_coef=0.1",
+        "learning_starts=500",
+    ]
+    assert flags_as_overrides("td3", {"learning_starts": 500}) == ["learning_starts=500"]
+    with pytest.raises(TacbenchError, match="--learning-starts is a TAC option that ppo"):
+        flags_as_overrides("ppo", {"learning_starts": 500})
+    with pytest.raises(TacbenchError, match="--q is a TAC option that td3 does not use"):
+        flags_as_overrides("td3", {"q": 1.5})

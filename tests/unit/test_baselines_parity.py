@@ -1,0 +1,64 @@
+"""The parity study's commands and statistics (baselines/parity.py)."""
+
+from __future__ import annotations
+
+import shlex
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from baselines import parity
+
+pytestmark = pytest.mark.unit
+
+
+def test_commands_run_tac_at_q1_and_sac_sb3_on_the_same_seeds_and_budget() -> None:
+    lines = parity.commands(["Hopper-v4", "Humanoid-v4"], [0, 10], 5000, "out")
+    assert [shlex.split(line)[:4] for line in lines] == [
+        ["tacbench", "run", "--q", "1"],
+        ["tacbench", "run", "--algo", "sac-sb3"],
+    ] * 2
+    for line in lines:
+        assert "--seed 0 --seed 10 --steps 5000 --out out --quiet" in line
+    assert "--alpha 0.05 --env Humanoid-v4" in lines[2]  # the paper's alpha per task
+
+
+def _frame() -> pd.DataFrame:
+    rows = []
+    for method, offset in (("TAC q=1", 100.0), ("SAC (SB3)", 0.0)):
+        for seed in (0, 10, 20):
+            for step in range(5000, 105_000, 5000):
+                rows.append((method, "Hopper-v4", seed, step, offset + seed + step / 1000))
+    return pd.DataFrame(rows, columns=["method", "env", "seed", "step", "return"])
+
+
+def test_final_return_is_the_mean_over_the_last_tenth_of_the_steps() -> None:
+    finals = parity.final_returns(_frame())
+    row = finals[(finals["method"] == "SAC (SB3)") & (finals["seed"] == 10)]
+    assert row["return"].item() == pytest.approx(10 + (90 + 95 + 100) / 3)  # 90k, 95k, 100k
+    assert len(finals) == 6
+
+
+def test_curves_and_summary() -> None:
+    data = _frame()
+    table = parity.curves(data)
+    first = table[(table["method"] == "TAC q=1") & (table["step"] == 5000)]
+    assert first["mean"].item() == pytest.approx(100 + 10 + 5) and first["seeds"].item() == 3
+    assert first["std"].item() == pytest.approx(10.0)
+    summary = parity.summary(parity.final_returns(data), reps=2000).iloc[0]
+    assert summary["TAC - SB3"] == pytest.approx(100.0)
+    # seeds (returns 0, 10, 20 above the method's offset) are resampled independently per method
+    assert 80.0 <= summary["CI low"] < 100.0 < summary["CI high"] <= 120.0
+    assert summary["TAC q=1 seeds"] == summary["SAC (SB3) seeds"] == 3
+
+
+def test_bootstrap_interval_covers_the_difference_of_means() -> None:
+    rng = np.random.default_rng(1)
+    a, b = rng.normal(10.0, 2.0, 5), rng.normal(8.0, 2.0, 5)
+    diff, low, high = parity.bootstrap_difference(a, b, reps=5000)
+    assert diff == pytest.approx(a.mean() - b.mean())
+    assert low < diff < high
+    se = np.sqrt(a.var() / 5 + b.var() / 5)  # the interval is about +/- 2 standard errors
+    assert 2.5 * se < high - low < 5.0 * se
+    assert parity.bootstrap_difference(a, b, reps=5000) == (diff, low, high)  # seeded
