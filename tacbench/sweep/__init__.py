@@ -1,0 +1,12 @@
+"""``tacbench sweep``: the paper's grids on one machine or a Ray cluster, idempotent and
+crash-proof (docs/sweep.md). Nothing is imported here, so the CLI can read the preset names
+without loading torch or Gymnasium.
+
+- :mod:`~tacbench.sweep.presets`: the grids, each value with its source, and narrowing;
+- :mod:`~tacbench.sweep.plan`: runs, their state on disk, actions and units of work;
+- :mod:`~tacbench.sweep.driver`: the loop (schedule, record failures, retry, summarize);
+- :mod:`~tacbench.sweep.executors`: a local process pool, or Ray tasks;
+- :mod:`~tacbench.sweep.worker`: what a worker process or Ray task runs;
+- :mod:`~tacbench.sweep.state`, :mod:`~tacbench.sweep.summary`, :mod:`~tacbench.sweep.cost`,
+  :mod:`~tacbench.sweep.progress`: failure history and lock, texts, cost estimate, display.
+"""

@@ -1,0 +1,164 @@
+"""How long the steps left will take: seconds per environment step for each (algo, env).
+
+Measured, where possible, from run directories already under ``--out``: a run's ``eval.csv``
+``wall_s`` (training, evaluation and checkpoints, summed over sessions) over its second half of
+evaluations, times its torch threads, divided by its members (K seeds sharing one process share
+its clock). The median over the runs of an (algo, env) is used. Where no run has two evaluations
+yet, the defaults below are used, and the plan says so.
+"""
+
+from __future__ import annotations
+
+import csv
+import statistics
+from collections import defaultdict
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+from tacbench import runs
+
+# CPU seconds per environment step with the paper's settings, one torch thread, K = 1: the CPU
+# time (time.process_time, not inflated by other jobs) from step 1,000 to 3,000 of one run per
+# pair, learning from step 1,000, 4 evaluation episodes every 1,000 steps (the paper's ratio, 10
+# per 5,000; early episodes are short on Hopper, Ant and Humanoid, so later evaluations cost
+# more). Measured with :func:`measure` on the development machine (2 shared x86-64 cores, torch
+# 2.13 CPU, 2026-11-22). TD3's table uses a (400, 300) network, DDPG's and TAC's one layer of 300.
+DEFAULT_SECONDS_PER_STEP: dict[tuple[str, str], float] = {
+    # tac
+    ("tac", "HalfCheetah-v4"): 1.63e-3,
+    ("tac", "Ant-v4"): 2.70e-3,
+    ("tac", "Hopper-v4"): 1.95e-3,
+    ("tac", "Swimmer-v4"): 2.03e-3,
+    ("tac", "Pusher-v5"): 1.80e-3,
+    ("tac", "Humanoid-v4"): 7.41e-3,
+    # ddpg
+    ("ddpg", "HalfCheetah-v4"): 4.19e-3,
+    ("ddpg", "Ant-v4"): 6.27e-3,
+    ("ddpg", "Hopper-v4"): 3.63e-3,
+    ("ddpg", "Swimmer-v4"): 4.59e-3,
+    ("ddpg", "Pusher-v5"): 4.93e-3,
+    ("ddpg", "Humanoid-v4"): 14.28e-3,
+    # td3
+    ("td3", "HalfCheetah-v4"): 18.63e-3,
+    ("td3", "Ant-v4"): 18.31e-3,
+    ("td3", "Hopper-v4"): 16.96e-3,
+    ("td3", "Swimmer-v4"): 16.94e-3,
+    ("td3", "Pusher-v5"): 16.87e-3,
+    ("td3", "Humanoid-v4"): 29.06e-3,
+    # ppo
+    ("ppo", "HalfCheetah-v4"): 1.53e-3,
+    ("ppo", "Ant-v4"): 2.29e-3,
+    ("ppo", "Hopper-v4"): 1.16e-3,
+    ("ppo", "Swimmer-v4"): 1.48e-3,
+    ("ppo", "Pusher-v5"): 1.23e-3,
+    ("ppo", "Humanoid-v4"): 1.21e-3,
+    # trpo
+    ("trpo", "HalfCheetah-v4"): 1.09e-3,
+    ("trpo", "Ant-v4"): 1.90e-3,
+    ("trpo", "Hopper-v4"): 0.88e-3,
+    ("trpo", "Swimmer-v4"): 1.05e-3,
+    ("trpo", "Pusher-v5"): 0.75e-3,
+    ("trpo", "Humanoid-v4"): 0.92e-3,
+}
+DEFAULT_SOURCE = "default*"  # the plan explains the asterisk
+
+
+@dataclass(frozen=True)
+class Rate:
+    """Seconds of one core per environment step, and where the number comes from."""
+
+    seconds_per_step: float
+    source: str
+
+
+def run_seconds_per_step(directory: Path) -> float | None:
+    """Core-seconds per step of the run in ``directory`` from its eval.csv (None: fewer than two
+    evaluations, or no config.json)."""
+    eval_csv, config_json = directory / "eval.csv", directory / "config.json"
+    if not eval_csv.exists() or not config_json.exists():
+        return None
+    with eval_csv.open(newline="") as handle:
+        rows = [(int(r["step"]), float(r["wall_s"])) for r in csv.DictReader(handle)]
+    if len(rows) < 2:
+        return None
+    (step_a, wall_a), (step_b, wall_b) = rows[(len(rows) - 1) // 2], rows[-1]
+    if step_b <= step_a or wall_b <= wall_a:
+        return None
+    metadata = runs.read_json(config_json)
+    threads = int(metadata.get("config", {}).get("threads", 1))
+    members = len(metadata.get("members", [0])) or 1
+    return (wall_b - wall_a) / (step_b - step_a) * threads / members
+
+
+def rates(out: Path, pairs: Iterable[tuple[str, str]]) -> dict[tuple[str, str], Rate]:
+    """A :class:`Rate` for each (algo, env) in ``pairs``: measured under ``out`` when a run there
+    has two evaluations, else the default (None-free: an unmeasured pair gets the mean default
+    of its algorithm, or of everything)."""
+    measured: dict[tuple[str, str], list[float]] = defaultdict(list)
+    for config_json in Path(out).glob("runs/*/*/*/seed*/config.json"):
+        value = run_seconds_per_step(config_json.parent)
+        if value is not None:
+            algo, env = config_json.parts[-5], config_json.parts[-4]
+            measured[(algo, env)].append(value)
+    result = {}
+    for pair in set(pairs):
+        if measured.get(pair):
+            n = len(measured[pair])
+            result[pair] = Rate(
+                statistics.median(measured[pair]),
+                f"measured: {n} run{'s' if n > 1 else ''} under {out}",
+            )
+        else:
+            result[pair] = Rate(_default(*pair), DEFAULT_SOURCE)
+    return result
+
+
+def _default(algo: str, env: str) -> float:
+    if (algo, env) in DEFAULT_SECONDS_PER_STEP:
+        return DEFAULT_SECONDS_PER_STEP[(algo, env)]
+    same_algo = [v for (a, _), v in DEFAULT_SECONDS_PER_STEP.items() if a == algo]
+    pool = same_algo or list(DEFAULT_SECONDS_PER_STEP.values())
+    return statistics.fmean(pool)
+
+
+def measure(out: Path, pairs: Iterable[tuple[str, str]]) -> dict[tuple[str, str], float]:
+    """CPU seconds per step of each (algo, env) as :data:`DEFAULT_SECONDS_PER_STEP` was measured:
+    3,000 steps, learning from step 1,000, 4 evaluation episodes every 1,000 steps, one thread,
+    each run trained afresh into ``out``; the CPU time from step 1,000 to the last is divided by
+    the steps. TAC runs at q = 1.5 (q hardly changes the cost). Takes about 10 minutes for the
+    paper's 30 pairs on one core."""
+    import time
+
+    import torch
+
+    from baselines import trainer
+    from baselines.config import make_configs
+    from tacbench import training
+    from tacbench.config import make_run_configs
+    from tacbench.envs import paper_task
+
+    torch.set_num_threads(1)
+    settings = {"total_steps": 3000, "eval_every": 1000, "eval_episodes": 4}
+    result = {}
+    for algo, env in pairs:
+        marks: dict[str, tuple[int, float]] = {}
+
+        def stop(step: int, marks: dict[str, tuple[int, float]] = marks) -> bool:
+            if step >= 1000:
+                marks.setdefault("first", (step, time.process_time()))
+                marks["last"] = (step, time.process_time())
+            return False
+
+        if algo == "tac":
+            configs, _ = make_run_configs(
+                env, paper_task(env), [0], learning_starts=1000, **settings
+            )
+            training.train(configs, out, quiet=True, force=True, stop=stop)
+        else:
+            hp = ["learning_starts=1000"] if algo in ("ddpg", "td3", "sac-sb3") else []
+            baseline_configs = make_configs(algo, env, paper_task(env), [0], hp, **settings)[0]
+            trainer.train(baseline_configs, out, quiet=True, force=True, stop=stop)
+        (s0, t0), (s1, t1) = marks["first"], marks["last"]
+        result[(algo, env)] = (t1 - t0) / (s1 - s0)
+    return result

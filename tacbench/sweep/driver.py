@@ -1,0 +1,269 @@
+"""The sweep driver: plan, hand units to an executor, record failures, retry, summarize.
+
+Idempotent: every decision is made from the run directories under ``--out`` and the failure
+history in ``<out>/sweep/state.json``, so running the same command again continues whatever
+was left (complete runs are skipped, partial ones resume from their checkpoints, failed ones
+are retried until they have failed ``max_retries + 1`` times).
+
+Ctrl-C or SIGTERM: the first asks every running unit to checkpoint and return (and starts no
+new one), then the summary is written; a second one stops the workers at once (they keep their
+last checkpoints).
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import threading
+from collections import deque
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import IO, Any
+
+from tacbench import runs
+from tacbench.errors import TacbenchError
+from tacbench.sweep import executors, plan, state, summary
+from tacbench.sweep.presets import Preset
+from tacbench.sweep.progress import SweepProgress
+
+
+@dataclass(frozen=True)
+class Options:
+    """How to run a sweep (the ``tacbench sweep`` flags other than the preset narrowing)."""
+
+    executor: str = "local"
+    workers: int | None = None  # local: the core count; Ray: what the cluster has room for
+    address: str | None = None
+    cpus_per_run: float = 1.0
+    gpus_per_run: float = 0.0
+    scratch: Path | None = None
+    shared_fs: bool = False
+    group_seeds: bool = False
+    max_retries: int = 2
+    command: str = ""
+
+    def __post_init__(self) -> None:
+        if self.executor not in ("local", "ray"):
+            raise TacbenchError(f"--executor must be local or ray (got {self.executor!r}).")
+        if self.workers is not None and self.workers < 1:
+            raise TacbenchError(f"--workers must be at least 1 (got {self.workers}).")
+        if self.max_retries < 0:
+            raise TacbenchError(f"--max-retries must be 0 or more (got {self.max_retries}).")
+        if self.cpus_per_run <= 0 or self.gpus_per_run < 0:
+            raise TacbenchError("--cpus-per-run must be > 0 and --gpus-per-run >= 0.")
+        if self.executor == "local" and (
+            self.address
+            or self.gpus_per_run
+            or self.cpus_per_run != 1.0
+            or self.scratch
+            or self.shared_fs
+        ):
+            raise TacbenchError(
+                "--address, --cpus-per-run, --gpus-per-run, --scratch and --shared-fs are Ray "
+                "options: add --executor ray (the local executor runs one thread per worker)."
+            )
+
+    def worker_count(self) -> int:
+        """Workers for the plan's estimate: --workers, else this machine's cores."""
+        if self.workers:
+            return self.workers
+        if hasattr(os, "sched_getaffinity"):  # the cores this process may use (Linux)
+            return len(os.sched_getaffinity(0))
+        return os.cpu_count() or 1
+
+
+@dataclass(frozen=True)
+class Result:
+    """How a sweep ended: the summary (also written to ``<out>/sweep/``) and its text."""
+
+    summary: dict[str, Any]
+    text: str
+    interrupted: bool
+
+    @property
+    def exit_code(self) -> int:
+        """130 interrupted, 1 a run failed for good, else 0."""
+        if self.interrupted:
+            return 130
+        return 1 if self.summary["counts"]["given_up"] or self.summary["counts"]["failed"] else 0
+
+
+def load_plan(
+    preset: Preset, out: Path, options: Options, *, save: bool = True
+) -> tuple[plan.Plan, state.SweepState]:
+    """The plan from the run directories and failure history under ``out``. A failure found in
+    a status.json but not in the history (a run that failed outside a sweep) is added to the
+    history, which is saved if ``save`` (not for a dry run)."""
+    device = "cuda" if options.gpus_per_run else "cpu"
+    threads = max(1, int(options.cpus_per_run)) if options.executor == "ray" else 1
+    all_runs = plan.build_runs(preset, device=device, threads=threads)
+    history = state.SweepState(out)
+    statuses = {run.key: plan.read_status(out, run) for run in all_runs}
+    for key, status in statuses.items():
+        if status.state == "failed":
+            history.note_failed_status(key, status.step, status.reason)
+    if save:
+        history.save()
+    built = plan.make_plan(
+        preset,
+        out,
+        all_runs,
+        statuses,
+        history.failure_counts(),
+        max_retries=options.max_retries,
+        group_seeds=options.group_seeds,
+    )
+    return built, history
+
+
+def run_sweep(preset: Preset, out: Path, options: Options, stream: IO[str] | None = None) -> Result:
+    """Train every run of ``preset`` into ``out`` that is not complete; see the module doc."""
+    with state.Lock(out):
+        work, history = load_plan(preset, out, options)
+        executor = _executor(out, options)
+        driver = _Driver(work, history, executor, options, stream)
+        with _signals() as received:
+            interrupted = driver.run(received)
+        final, history = load_plan(preset, out, options)
+        result = summary.summarize(final, history, command=options.command, interrupted=interrupted)
+        text = summary.summary_text(result, options.command)
+        summary.write_summary(out, result, text)
+        return Result(result, text, interrupted)
+
+
+def _executor(out: Path, options: Options) -> executors.Executor:
+    if options.executor == "ray":
+        return executors.RayExecutor(
+            out,
+            address=options.address,
+            workers=options.workers,
+            cpus=options.cpus_per_run,
+            gpus=options.gpus_per_run,
+            scratch=options.scratch,
+            shared_fs=options.shared_fs,
+            command=options.command,
+        )
+    return executors.LocalExecutor(out, options.worker_count(), options.command)
+
+
+class _Driver:
+    """The loop: keep the executor busy, handle each unit that ends, show progress."""
+
+    def __init__(
+        self,
+        work: plan.Plan,
+        history: state.SweepState,
+        executor: executors.Executor,
+        options: Options,
+        stream: IO[str] | None,
+    ) -> None:
+        self.plan, self.history, self.executor, self.options = work, history, executor, options
+        self.queue = deque(work.units)
+        self.step = {p.run.key: p.status.step for p in work.runs}
+        self.total = {p.run.key: p.run.total_steps for p in work.runs}
+        self.ended = {p.run.key for p in work.runs if p.action in ("skip", "give-up")}
+        self.progress = SweepProgress(
+            len(work.runs), sum(self.total.values()), self._done(), stream
+        )
+        self.stopping = self.forced = False
+
+    def _done(self) -> int:
+        return sum(self.total[k] if k in self.ended else s for k, s in self.step.items())
+
+    def run(self, received: dict[str, int]) -> bool:
+        """Train until the queue is empty or a stop is requested; True if stopped early."""
+        try:
+            while (self.queue and not self.stopping) or self.executor.running():
+                if received and not self.stopping:
+                    self.stopping = True
+                    self.progress.message("stopping: every running run checkpoints and returns")
+                    self.executor.request_stop()
+                if received.get("count", 0) > 1:
+                    self.forced = True
+                    break
+                while self.queue and not self.stopping:
+                    if self.executor.running() >= self.executor.capacity():
+                        break
+                    unit = self.queue.popleft()
+                    self.executor.submit(unit, self.history.node(unit.runs[0].key))
+                for finished in self.executor.wait(timeout=1.0):
+                    self._handle(finished)
+                for key, step in self.executor.steps().items():
+                    for run_key in self._run_keys(key):
+                        self.step[run_key] = max(self.step[run_key], step)
+                self.progress.update(len(self.ended), self._done())
+        finally:
+            self.executor.close(force=self.forced)
+            self.progress.close()
+        return self.stopping or bool(self.queue)
+
+    def _run_keys(self, unit_key: str) -> list[str]:
+        if unit_key in self.step:
+            return [unit_key]
+        parent, seeds = unit_key.rsplit("/seeds", 1)
+        return [f"{parent}/seed{s}" for s in seeds.split(",") if f"{parent}/seed{s}" in self.step]
+
+    def _handle(self, finished: executors.Finished) -> None:
+        """Read each run's status after its unit ended; record failures, queue retries."""
+        result, out = finished.result, self.plan.out
+        if result is not None and result.node:
+            self.history.set_node([r.key for r in finished.unit.runs], result.node)
+        error = finished.died or (result.error if result else "")
+        again: list[plan.Run] = []
+        retry: list[plan.Run] = []
+        for run in finished.unit.runs:
+            status = plan.read_status(out, run)
+            self.step[run.key] = status.step if status.state != "complete" else run.total_steps
+            if status.state == "complete":
+                self.ended.add(run.key)
+                self.progress.message(f"complete: {run.key}")
+                continue
+            if status.state != "failed" and (not error or self.stopping):
+                if status.state == "partial":  # interrupted: resumes with the next sweep
+                    _note_resume(out / run.key, self.options.command)
+                continue
+            reason = status.reason if status.state == "failed" else error
+            self.history.add_failure(run.key, status.step, reason, result.host if result else "")
+            n = len(self.history.failures(run.key))
+            if n > self.options.max_retries:
+                self.ended.add(run.key)
+                self.progress.message(f"failed ({n} attempts, giving up): {run.key}: {reason}")
+            elif not self.stopping:
+                self.progress.message(f"failed (attempt {n}, retrying): {run.key}: {reason}")
+                (retry if status.state == "failed" else again).append(run)
+        if again:
+            self.queue.append(plan.Unit(tuple(again)))
+        self.queue.extend(plan.Unit((run,), retry=(run.key,)) for run in retry)
+
+
+def _note_resume(directory: Path, command: str) -> None:
+    """Point an interrupted run's status reason at the sweep command (the trainer names its own
+    ``--resume``, which a sweep does not need)."""
+    path = directory / "status.json"
+    status = runs.read_json(path)
+    if command and str(status.get("reason", "")).startswith("interrupted"):
+        status["reason"] = f"interrupted at step {status.get('step')}; resume with: {command}"
+        runs.atomic_write_json(path, status)
+
+
+@contextmanager
+def _signals() -> Iterator[dict[str, int]]:
+    """Count SIGINT/SIGTERM while the sweep runs (the driver stops on the first, at once on the
+    second); the previous handlers come back afterwards. No-op outside the main thread."""
+    received: dict[str, int] = {}
+    if threading.current_thread() is not threading.main_thread():
+        yield received
+        return
+
+    def handler(signum: int, _frame: Any) -> None:
+        received["count"] = received.get("count", 0) + 1
+        received["signal"] = signum
+
+    previous = {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield received
+    finally:
+        for sig, old in previous.items():
+            signal.signal(sig, old)

@@ -1,0 +1,221 @@
+"""From a preset to the work of one sweep: every run's config, its state on disk, what to do with
+it, and the units (one process or Ray task each) that do it.
+
+A run's state comes from its directory under ``--out`` (ARCHITECTURE.md, "The run directory"):
+no ``config.json``: *new*; ``status.json`` ``complete``: *complete*; ``failed``: *failed*;
+otherwise *partial* (``running``: interrupted or crashed, resumable from its checkpoint). A
+directory holding another config stops the sweep before anything runs.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Literal
+
+from tacbench import runs
+from tacbench.config import RESULT_NEUTRAL_FIELDS, RunConfig, make_run_configs
+from tacbench.envs import SUITE
+from tacbench.errors import TacbenchError
+from tacbench.sweep.presets import Preset
+
+if TYPE_CHECKING:
+    from baselines.config import BaselineConfig
+
+    AnyConfig = RunConfig | BaselineConfig
+
+State = Literal["new", "partial", "complete", "failed"]
+Action = Literal["skip", "train", "retry", "give-up"]
+
+
+@dataclass(frozen=True)
+class Run:
+    """One run of the sweep: its config and where its directory is, relative to ``--out``."""
+
+    config: AnyConfig
+    label: str = ""
+
+    @property
+    def key(self) -> str:
+        """``runs/<algo>/<env>/<variant>/seed<k>``: the run directory under ``--out``."""
+        c = self.config
+        return runs.run_directory(Path(), c.algo, c.env, c.variant, c.seed).as_posix()
+
+    @property
+    def total_steps(self) -> int:
+        """The run's budget in environment steps."""
+        return self.config.total_steps
+
+
+@dataclass(frozen=True)
+class Status:
+    """A run's state on disk, the step it reached (its last checkpoint, unless complete or
+    failed) and the trainer's reason (failed runs)."""
+
+    state: State
+    step: int = 0
+    reason: str = ""
+
+
+@dataclass(frozen=True)
+class PlannedRun:
+    """A run, its state, its failed attempts so far and what this sweep does with it."""
+
+    run: Run
+    status: Status
+    failures: int
+    action: Action
+
+
+@dataclass(frozen=True)
+class Unit:
+    """The work of one process (local) or task (Ray): one run, or TAC members (``--group-seeds``:
+    runs equal but for the seed, resuming from the same step). ``retry`` lists the keys of
+    failed runs to reset to "running" before training, so they continue from their checkpoint."""
+
+    runs: tuple[Run, ...]
+    retry: tuple[str, ...] = ()
+
+    @property
+    def key(self) -> str:
+        """The run's key, or ``<variant dir>/seeds<a>,<b>,...`` for members."""
+        if len(self.runs) == 1:
+            return self.runs[0].key
+        parent = self.runs[0].key.rsplit("/", 1)[0]
+        return f"{parent}/seeds{','.join(str(r.config.seed) for r in self.runs)}"
+
+    @property
+    def algo(self) -> str:
+        """The algorithm of every run in the unit."""
+        return self.runs[0].config.algo
+
+
+@dataclass
+class Plan:
+    """Every run of the sweep with its state and action, and the units to train."""
+
+    preset: Preset
+    out: Path
+    runs: list[PlannedRun]
+    units: list[Unit] = field(default_factory=list)
+
+    def count(self, **where: Any) -> int:
+        """How many runs have the given ``state`` and/or ``action``."""
+        return sum(
+            all(getattr(p.status if k == "state" else p, k) == v for k, v in where.items())
+            for p in self.runs
+        )
+
+    def steps_left(self) -> int:
+        """Environment steps still to train (runs given up on count nothing)."""
+        return sum(
+            p.run.total_steps - p.status.step for p in self.runs if p.action in ("train", "retry")
+        )
+
+
+def build_runs(preset: Preset, *, device: str = "cpu", threads: int = 1) -> list[Run]:
+    """Every run of ``preset`` (narrowed already), in preset order, each directory once."""
+    from baselines.config import make_configs  # SB3's tables: only when the preset has baselines
+
+    built: dict[str, Run] = {}
+    for entry in preset.entries:
+        settings = {**entry.settings, "device": device, "threads": threads}
+        for task in entry.tasks:
+            env_id = SUITE[task]
+            configs: Sequence[AnyConfig]
+            if entry.algo == "tac":
+                configs = [
+                    c
+                    for q in entry.q_values(task)
+                    for c in make_run_configs(env_id, task, entry.seeds, q=q, **settings)[0]
+                ]
+            else:
+                configs = make_configs(entry.algo, env_id, task, entry.seeds, entry.hp, **settings)[
+                    0
+                ]
+            for config in configs:
+                run = Run(config, entry.label)
+                built.setdefault(run.key, run)
+    return list(built.values())
+
+
+def read_status(out: Path, run: Run) -> Status:
+    """The state of ``run``'s directory under ``out``; TacbenchError if it holds another config."""
+    directory = out / run.key
+    config_path = directory / "config.json"
+    if not config_path.exists():
+        return Status("new")
+    try:
+        stored = runs.read_json(config_path).get("config", {})
+        status = (
+            runs.read_json(directory / "status.json")
+            if (directory / "status.json").exists()
+            else {}
+        )
+    except json.JSONDecodeError as err:
+        raise TacbenchError(
+            f"{directory} has an unreadable JSON file ({err}); delete the directory to retrain "
+            "that run."
+        ) from None
+    differences = runs.differing_fields(stored, run.config.to_dict(), RESULT_NEUTRAL_FIELDS)
+    if differences:
+        raise TacbenchError(
+            f"{directory} holds a run with another config ({'; '.join(differences)}). "
+            "Use another --out, or delete that directory to retrain it with this sweep's config."
+        )
+    state, step = status.get("state", "running"), int(status.get("step", 0))
+    if state in ("complete", "failed"):
+        return Status(state, step, str(status.get("reason", "")))
+    return Status("partial", step)
+
+
+def make_plan(
+    preset: Preset,
+    out: Path,
+    runs_: Sequence[Run],
+    statuses: Mapping[str, Status],
+    failures: Mapping[str, int],
+    *,
+    max_retries: int,
+    group_seeds: bool,
+) -> Plan:
+    """Each run's action and the units to train, from its status (:func:`read_status`) and its
+    number of recorded failures: a run that failed more than ``max_retries`` times is given up
+    on, a failed run with fewer failures is retried, complete runs are skipped."""
+    planned = []
+    for run in runs_:
+        status, n_failed = statuses[run.key], failures.get(run.key, 0)
+        action: Action
+        if status.state == "complete":
+            action = "skip"
+        elif n_failed > max_retries:
+            action = "give-up"
+        else:
+            action = "retry" if status.state == "failed" else "train"
+        planned.append(PlannedRun(run, status, n_failed, action))
+    return Plan(preset, out, planned, make_units(planned, group_seeds))
+
+
+def make_units(planned: Sequence[PlannedRun], group_seeds: bool) -> list[Unit]:
+    """One unit per run to train; with ``group_seeds`` TAC runs equal but for the seed and at the
+    same resume step become members of one unit. Failed runs are retried alone."""
+    units: list[Unit | tuple[str, int]] = []  # a tuple marks where a group goes
+    groups: dict[tuple[str, int], list[Run]] = {}
+    for p in planned:
+        config = p.run.config
+        if p.action == "retry":
+            units.append(Unit((p.run,), retry=(p.run.key,)))
+        elif p.action != "train":
+            continue
+        elif group_seeds and isinstance(config, RunConfig) and config.update_schedule == "step":
+            shared = {k: v for k, v in config.to_dict().items() if k != "seed"}
+            key = (json.dumps(shared, sort_keys=True), p.status.step)
+            if key not in groups:
+                groups[key] = []
+                units.append(key)
+            groups[key].append(p.run)
+        else:
+            units.append(Unit((p.run,)))
+    return [Unit(tuple(groups[u])) if isinstance(u, tuple) else u for u in units]

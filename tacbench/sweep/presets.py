@@ -1,0 +1,222 @@
+"""The sweep presets, each value with its source, and how a preset is narrowed.
+
+Line numbers refer to ``shared/paper/tsallis-rl-paper.tex``:
+
+- tasks: the six MuJoCo tasks of section 7 (line 767) and of the per-task table (lines
+  2059-2067), as Gymnasium ids from :data:`tacbench.envs.SUITE`;
+- q grid: section 7.1, "Effect of Entropic Index" (line 797);
+- alpha: 0.05 for Humanoid, 0.2 otherwise (line 799; per-task table), i.e.
+  :data:`tacbench.config.PAPER_ALPHA`;
+- seeds: 0, 10, ..., 90 (Hyperparameter Settings table, line 2054; "ten different random
+  seeds", lines 800 and 867), i.e. :data:`tacbench.config.PAPER_SEEDS`;
+- comparison: section 7.2, "Comparative Evaluation": TAC at the best q of section 7.1 (line 857;
+  per-task table, :data:`tacbench.config.PAPER_BEST_Q`), TAC with q = 1 "denoted as SAC" (lines
+  786-788), DDPG and TD3 (lines 780-784), TRPO and PPO (lines 773-778);
+- steps: 1M per run (:data:`tacbench.config.TOTAL_STEPS`: the reference code's 200 epochs x
+  5,000 steps; the paper's figures span 1M steps).
+
+Every other setting is the trainer's default (docs/tac.md, baselines/hyperparams/*.yaml).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from types import MappingProxyType
+from typing import Any
+
+from tacbench import config
+from tacbench.errors import TacbenchError
+
+PAPER_TASKS = ("HalfCheetah", "Ant", "Hopper", "Swimmer", "Pusher", "Humanoid")  # line 767
+PAPER_Q_GRID = (0.5, 0.7, 1.0, 1.2, 1.5, 1.7, 2.0, 3.0, 5.0)  # section 7.1, line 797
+PAPER_BASELINES = ("ddpg", "td3", "ppo", "trpo")  # section 7, lines 773-784 (SAC is TAC q=1)
+
+# smoke: ours (issue 5), the budgets of the trainers' own smoke tests, halved: 1,000 steps,
+# learning from step 500 with minibatches of 32, two evaluation episodes at 500 and 1,000.
+SMOKE_STEPS = 1000
+SMOKE_TAC = {
+    "learning_starts": 500,
+    "batch_size": 32,
+    "eval_every": 500,
+    "eval_episodes": 2,
+    "log_every": 250,
+    "checkpoint_every": 500,
+}
+SMOKE_BASELINE = {k: v for k, v in SMOKE_TAC.items() if k not in ("learning_starts", "batch_size")}
+SMOKE_HP = {
+    "td3": ("learning_starts=500", "batch_size=32"),
+    "ppo": ("n_steps=250", "batch_size=50", "n_epochs=2"),  # 4 rollouts in 1,000 steps
+}
+
+
+@dataclass(frozen=True)
+class Entry:
+    """One algorithm on some tasks and seeds: TAC at each of ``q`` (empty: the paper's best q
+    per task) with the paper's alpha, or a baseline with its table's hyperparameters and the
+    ``hp`` overrides. ``settings`` are run settings (``total_steps``, ``eval_every``, ...)."""
+
+    algo: str
+    tasks: tuple[str, ...]
+    seeds: tuple[int, ...]
+    q: tuple[float, ...] = ()
+    settings: Mapping[str, Any] = field(default_factory=lambda: MappingProxyType({}))
+    hp: tuple[str, ...] = ()
+    label: str = ""
+
+    def q_values(self, task: str) -> tuple[float, ...]:
+        """The q values this entry trains on ``task`` (TAC only; empty for a baseline)."""
+        if self.algo != "tac":
+            return ()
+        return self.q or (config.PAPER_BEST_Q[task],)
+
+
+@dataclass(frozen=True)
+class Preset:
+    """A named grid: a list of entries and a description naming its sources."""
+
+    name: str
+    description: str
+    entries: tuple[Entry, ...]
+
+
+def _frozen(values: Mapping[str, Any]) -> Mapping[str, Any]:
+    return MappingProxyType(dict(values))
+
+
+PAPER_STEPS = _frozen({"total_steps": config.TOTAL_STEPS})
+
+PRESETS: dict[str, Preset] = {
+    preset.name: preset
+    for preset in (
+        Preset(
+            "paper-q-grid",
+            "TAC at q in {0.5, 0.7, 1, 1.2, 1.5, 1.7, 2, 3, 5} (paper section 7.1, line 797) on "
+            "the six tasks (line 767), the paper's alpha per task (line 799), seeds 0..90 step "
+            "10 (line 2054), 1M steps each",
+            (Entry("tac", PAPER_TASKS, config.PAPER_SEEDS, PAPER_Q_GRID, PAPER_STEPS),),
+        ),
+        Preset(
+            "paper-comparison",
+            "TAC at the paper's best q per task (line 857, per-task table), TAC q = 1 as SAC "
+            "(lines 786-788), DDPG, TD3, PPO, TRPO (lines 773-784) on the six tasks, seeds "
+            "0..90 step 10 (line 2054), 1M steps each",
+            (
+                Entry("tac", PAPER_TASKS, config.PAPER_SEEDS, (), PAPER_STEPS, label="TAC"),
+                Entry("tac", PAPER_TASKS, config.PAPER_SEEDS, (1.0,), PAPER_STEPS, label="SAC"),
+                *(
+                    Entry(a, PAPER_TASKS, config.PAPER_SEEDS, (), PAPER_STEPS)
+                    for a in PAPER_BASELINES
+                ),
+            ),
+        ),
+        Preset(
+            "smoke",
+            "tiny budgets for tests and a first try (ours): TAC q = 1 and 2, TD3 and PPO on "
+            f"Hopper, seeds 0 and 10, {SMOKE_STEPS:,} steps each",
+            (
+                Entry(
+                    "tac",
+                    ("Hopper",),
+                    (0, 10),
+                    (1.0, 2.0),
+                    _frozen({"total_steps": SMOKE_STEPS, **SMOKE_TAC}),
+                ),
+                *(
+                    Entry(
+                        algo,
+                        ("Hopper",),
+                        (0, 10),
+                        (),
+                        _frozen({"total_steps": SMOKE_STEPS, **SMOKE_BASELINE}),
+                        hp,
+                    )
+                    for algo, hp in SMOKE_HP.items()
+                ),
+            ),
+        ),
+    )
+}
+
+
+@dataclass(frozen=True)
+class Narrowing:
+    """What ``--env/--q/--algo/--seed/--steps/--checkpoint-every`` keep or set (empty: all)."""
+
+    tasks: tuple[str, ...] = ()
+    q: tuple[float, ...] = ()
+    algos: tuple[str, ...] = ()
+    seeds: tuple[int, ...] = ()
+    steps: int | None = None
+    checkpoint_every: int | None = None
+
+
+def get_preset(name: str) -> Preset:
+    """The preset called ``name``."""
+    if name not in PRESETS:
+        raise TacbenchError(f"unknown preset {name!r}; choose one of {', '.join(PRESETS)}.")
+    return PRESETS[name]
+
+
+def narrow(preset: Preset, by: Narrowing) -> Preset:
+    """``preset`` restricted to the tasks, q values, algorithms and seeds in ``by`` (each must
+    occur in the preset), with ``steps`` and ``checkpoint_every`` replacing the preset's.
+    A ``--q`` keeps TAC entries only: baselines have no q."""
+    entries = preset.entries
+    by = replace(by, tasks=tuple(task_of(name) for name in by.tasks))
+    _check_subset("--env", by.tasks, {t for e in entries for t in e.tasks})
+    _check_subset("--algo", by.algos, {e.algo for e in entries})
+    _check_subset("--seed", by.seeds, {s for e in entries for s in e.seeds})
+    all_q = {q for e in entries for t in e.tasks for q in e.q_values(t)}
+    _check_subset("--q", by.q, all_q)
+    kept = []
+    for entry in entries:
+        if by.algos and entry.algo not in by.algos:
+            continue
+        if by.q and entry.algo != "tac":
+            continue
+        tasks = tuple(t for t in entry.tasks if not by.tasks or t in by.tasks)
+        if by.q and entry.q:
+            entry = replace(entry, q=tuple(q for q in entry.q if q in by.q))
+            if not entry.q:
+                continue
+        elif by.q:  # the paper's best q per task: keep the tasks whose best q was asked for
+            tasks = tuple(t for t in tasks if entry.q_values(t)[0] in by.q)
+        seeds = tuple(s for s in entry.seeds if not by.seeds or s in by.seeds)
+        if not tasks or not seeds:
+            continue
+        settings = dict(entry.settings)
+        if by.steps is not None:
+            settings["total_steps"] = by.steps
+        if by.checkpoint_every is not None:
+            settings["checkpoint_every"] = by.checkpoint_every
+        kept.append(replace(entry, tasks=tasks, seeds=seeds, settings=_frozen(settings)))
+    if not kept:
+        raise TacbenchError(
+            f"--env/--q/--algo/--seed leave no run of preset {preset.name!r}; "
+            "`tacbench sweep --preset NAME --dry-run` lists what it holds."
+        )
+    return replace(preset, entries=tuple(kept))
+
+
+def task_of(name: str) -> str:
+    """The paper task for ``name``: a task name in any case (``hopper``) or its suite id
+    (``Hopper-v4``). Another version of a task is refused: the presets train the suite's."""
+    from tacbench.envs import SUITE
+
+    for task, env_id in SUITE.items():
+        if name.lower() in (task.lower(), env_id.lower()):
+            return task
+    suite = ", ".join(f"{task} ({env_id})" for task, env_id in SUITE.items())
+    raise TacbenchError(f"--env {name}: the presets train the paper's tasks: {suite}.")
+
+
+def _check_subset(flag: str, given: Sequence[Any], available: set[Any]) -> None:
+    def show(values: Sequence[Any]) -> str:
+        return ", ".join(f"{v:g}" if isinstance(v, float) else str(v) for v in values)
+
+    missing = [v for v in given if v not in available]
+    if missing:
+        raise TacbenchError(
+            f"{flag} {show(missing)}: not in this preset, which has {show(sorted(available))}."
+        )

@@ -1,0 +1,147 @@
+"""What a sweep keeps in ``<out>/sweep/``: the failure history, a lock, the summary, worker logs.
+
+::
+
+    <out>/sweep/
+      state.json     {"runs": {"<run key>": {"failures": [{"time", "host", "step", "reason"}],
+                                             "node": "<Ray node id holding its checkpoint>"}}}
+      lock           {"pid", "host", "started"} while a sweep writes to <out>
+      summary.json   the last sweep's counts by state and its failures with their reasons
+      summary.txt    the same, as printed at the end of the sweep
+      logs/<unit>.log  each unit's output (progress lines, warnings, tracebacks), appended
+
+Every JSON file is written atomically (:func:`tacbench.runs.atomic_write_json`).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from tacbench import runs
+from tacbench.errors import TacbenchError
+
+
+def sweep_dir(out: Path) -> Path:
+    """``<out>/sweep``."""
+    return Path(out) / "sweep"
+
+
+def log_path(out: Path, unit_key: str) -> Path:
+    """``<out>/sweep/logs/<unit key with / as __>.log``."""
+    return sweep_dir(out) / "logs" / (unit_key.removeprefix("runs/").replace("/", "__") + ".log")
+
+
+@dataclass(frozen=True)
+class Failure:
+    """One failed attempt of a run: when, where, at which step and why."""
+
+    time: str
+    host: str
+    step: int
+    reason: str
+
+
+class SweepState:
+    """The failure history of every run (``state.json``), read at start, saved on each change."""
+
+    def __init__(self, out: Path) -> None:
+        self.path = sweep_dir(out) / "state.json"
+        data = runs.read_json(self.path) if self.path.exists() else {}
+        self.runs: dict[str, dict[str, Any]] = data.get("runs", {})
+
+    def failures(self, key: str) -> list[Failure]:
+        """Every recorded failure of the run ``key``, oldest first."""
+        return [Failure(**f) for f in self.runs.get(key, {}).get("failures", [])]
+
+    def failure_counts(self) -> dict[str, int]:
+        """How many failures each run has had."""
+        return {key: len(entry.get("failures", [])) for key, entry in self.runs.items()}
+
+    def add_failure(self, key: str, step: int, reason: str, host: str = "") -> None:
+        """Record a failed attempt and save."""
+        self._append(key, step, reason, host or socket.gethostname())
+        self.save()
+
+    def note_failed_status(self, key: str, step: int, reason: str) -> None:
+        """Record (without saving) a failure read from a run's status.json unless it is the last
+        one recorded: a run that failed outside a sweep, or before the sweep recorded it."""
+        last = self.failures(key)[-1:]
+        if not last or (last[0].step, last[0].reason) != (step, reason):
+            self._append(key, step, reason, "(from status.json)")
+
+    def _append(self, key: str, step: int, reason: str, host: str) -> None:
+        failure = Failure(runs.now_iso(), host, step, reason)
+        self.runs.setdefault(key, {}).setdefault("failures", []).append(vars(failure))
+
+    def node(self, key: str) -> str | None:
+        """The Ray node that holds the run's checkpoint, if known."""
+        value = self.runs.get(key, {}).get("node")
+        return str(value) if value else None
+
+    def set_node(self, keys: Sequence[str], node: str) -> None:
+        """Remember the Ray node holding these runs' checkpoints and save."""
+        for key in keys:
+            self.runs.setdefault(key, {})["node"] = node
+        self.save()
+
+    def save(self) -> None:
+        """Write state.json."""
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        runs.atomic_write_json(self.path, {"runs": self.runs})
+
+
+class Lock:
+    """``<out>/sweep/lock``: one sweep at a time per ``--out``. A lock left by a process that no
+    longer exists on this host (kill -9, power loss) is taken over."""
+
+    def __init__(self, out: Path) -> None:
+        self.path = sweep_dir(out) / "lock"
+
+    def __enter__(self) -> Lock:
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        me = {"pid": os.getpid(), "host": socket.gethostname(), "started": runs.now_iso()}
+        for _ in range(2):
+            try:
+                with self.path.open("x") as handle:
+                    json.dump(me, handle)
+                return self
+            except FileExistsError:
+                self._remove_if_stale()
+        raise TacbenchError(f"could not take {self.path}; is another sweep starting?")
+
+    def _remove_if_stale(self) -> None:
+        try:
+            holder = json.loads(self.path.read_text())
+        except (OSError, json.JSONDecodeError):
+            holder = {}  # a lock torn by a crash while it was written
+        pid, host = holder.get("pid"), holder.get("host")
+        if isinstance(pid, int) and host == socket.gethostname() and _alive(pid):
+            raise TacbenchError(
+                f"another sweep (pid {pid}, started {holder.get('started')}) is writing to "
+                f"{self.path.parent.parent}; wait for it to end, or stop it (Ctrl-C) first."
+            )
+        if isinstance(pid, int) and host not in (None, socket.gethostname()):
+            raise TacbenchError(
+                f"a sweep on host {host} (pid {pid}) holds {self.path}. If it is no longer "
+                "running, delete that file and start again."
+            )
+        self.path.unlink(missing_ok=True)
+
+    def __exit__(self, *exc: object) -> None:
+        self.path.unlink(missing_ok=True)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True

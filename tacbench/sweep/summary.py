@@ -1,0 +1,149 @@
+"""Text for people: the plan (``--dry-run``: counts by state, steps left, cost estimate) and the
+summary printed at the end of a sweep and written to ``<out>/sweep/summary.{json,txt}``."""
+
+from __future__ import annotations
+
+from collections import Counter, defaultdict
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from tacbench import runs
+from tacbench.sweep import cost, state
+from tacbench.sweep.plan import Plan, PlannedRun
+from tacbench.sweep.progress import duration
+
+
+def counts(plan: Plan) -> dict[str, int]:
+    """Runs by state (complete, partial, failed, new) and failed runs by what happens next."""
+    by_state = Counter(p.status.state for p in plan.runs)
+    return {
+        "runs": len(plan.runs),
+        **{name: by_state.get(name, 0) for name in ("complete", "partial", "failed", "new")},
+        "to_retry": plan.count(action="retry"),
+        "given_up": plan.count(action="give-up"),
+    }
+
+
+def describe_plan(plan: Plan, workers: int, group_seeds: bool) -> str:
+    """The dry-run report: counts by state, the units, steps left and the cost estimate."""
+    c = counts(plan)
+    total = sum(p.run.total_steps for p in plan.runs)
+    left = plan.steps_left()
+    lines = [
+        f"preset {plan.preset.name}: {plan.preset.description}",
+        f"{c['runs']} runs: {c['complete']} complete, {c['partial']} partial, {c['failed']} "
+        f"failed ({c['to_retry']} to retry, {c['given_up']} given up after too many "
+        f"failures), {c['new']} not started",
+        f"{len(plan.units)} units to train (one process or Ray task each"
+        f"{'; TAC seeds grouped as members' if group_seeds else ''})",
+        f"environment steps left: {left:,} of {total:,}",
+        "",
+        f"{'algo':<8} {'env':<15} {'runs':>5} {'done':>5} {'part':>5} {'fail':>5} {'new':>5} "
+        f"{'steps left':>14} {'ms/step':>8}  throughput",
+    ]
+    groups: dict[tuple[str, str], list[PlannedRun]] = defaultdict(list)
+    for p in plan.runs:
+        groups[(p.run.config.algo, p.run.config.env)].append(p)
+    rates = cost.rates(plan.out, groups)
+    core_s = 0.0
+    for (algo, env), members in groups.items():
+        n = Counter(p.status.state for p in members)
+        steps = sum(
+            p.run.total_steps - p.status.step for p in members if p.action in ("train", "retry")
+        )
+        rate = rates[(algo, env)]
+        core_s += steps * rate.seconds_per_step
+        lines.append(
+            f"{algo:<8} {env:<15} {len(members):>5} {n['complete']:>5} {n['partial']:>5} "
+            f"{n['failed']:>5} {n['new']:>5} {steps:>14,} {rate.seconds_per_step * 1e3:>8.2f}  "
+            f"{rate.source}"
+        )
+    lines += [
+        "",
+        f"cost estimate: {core_s / 3600:,.1f} core-hours; with {workers} worker"
+        f"{'s' if workers != 1 else ''} about {duration(core_s / max(1, workers))} "
+        "(one core per worker, all busy)",
+    ]
+    if any(r.source == cost.DEFAULT_SOURCE for r in rates.values()):
+        lines.append(
+            "* CPU time per step measured on tacbench's development machine, not here "
+            "(tacbench/sweep/cost.py); runs under --out with two evaluations replace it."
+        )
+    return "\n".join(lines)
+
+
+def summarize(plan: Plan, sweep_state: state.SweepState, **fields: Any) -> dict[str, Any]:
+    """The summary of a finished (or stopped) sweep as a JSON-ready dict: ``fields`` (command,
+    interrupted, ...), counts by state, and every run not complete with its failures."""
+    unfinished = []
+    for p in plan.runs:
+        if p.status.state == "complete":
+            continue
+        unfinished.append(
+            {
+                "run": p.run.key,
+                "state": "given up" if p.action == "give-up" else p.status.state,
+                "step": p.status.step,
+                "total_steps": p.run.total_steps,
+                "failures": [vars(f) for f in sweep_state.failures(p.run.key)],
+            }
+        )
+    recovered = sum(
+        1 for p in plan.runs if p.status.state == "complete" and sweep_state.failures(p.run.key)
+    )
+    return {
+        **fields,
+        "preset": plan.preset.name,
+        "out": str(plan.out),
+        "finished": runs.now_iso(),
+        "counts": {**counts(plan), "recovered_after_failures": recovered},
+        "unfinished": unfinished,
+    }
+
+
+def summary_text(summary: dict[str, Any], command: str) -> str:
+    """The summary as printed at the end of the sweep."""
+    c = summary["counts"]
+    lines = [
+        f"sweep summary ({summary['preset']} into {summary['out']}): {c['runs']} runs: "
+        f"{c['complete']} complete, {c['failed']} failed ({c['given_up']} given up), "
+        f"{c['partial']} partial, {c['new']} not started"
+        + (
+            f"; {c['recovered_after_failures']} completed after failed attempts"
+            if c["recovered_after_failures"]
+            else ""
+        )
+    ]
+    failed = [u for u in summary["unfinished"] if u["failures"]]
+    if failed:
+        lines.append("failures:")
+    for entry in failed:
+        n = len(entry["failures"])
+        lines.append(
+            f"  {entry['run']}: {entry['state']} at step {entry['step']:,} after {n} failed "
+            f"attempt{'s' if n > 1 else ''}"
+        )
+        for i, failure in enumerate(entry["failures"], 1):
+            lines.append(
+                f"    {i}. {failure['time']} {failure['host']}, step {failure['step']:,}: "
+                f"{failure['reason']}"
+            )
+    if c["partial"] or c["new"] or c["to_retry"]:
+        lines.append(
+            f"to continue, run the same command again: {command}"
+            if command
+            else "to continue, run the same sweep again"
+        )
+    return "\n".join(lines)
+
+
+def write_summary(out: Path, summary: dict[str, Any], text: str) -> Sequence[Path]:
+    """Write ``<out>/sweep/summary.json`` and ``summary.txt``; return their paths."""
+    directory = state.sweep_dir(out)
+    directory.mkdir(parents=True, exist_ok=True)
+    runs.atomic_write_json(directory / "summary.json", summary)
+    tmp = directory / "summary.txt.tmp"
+    tmp.write_text(text + "\n")
+    tmp.replace(directory / "summary.txt")
+    return directory / "summary.json", directory / "summary.txt"

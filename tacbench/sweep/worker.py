@@ -1,0 +1,218 @@
+"""What runs in a sweep's worker (a local process or a Ray task): train one unit.
+
+The unit's runs are trained with their trainer's ``train(..., resume=True)`` (TAC's
+:func:`tacbench.training.train` or :func:`baselines.trainer.train`), so a new run starts, a
+partial one continues from its checkpoint and a complete one is skipped. A failed run that the
+sweep retries is first reset to "running", so it continues from its last checkpoint. The
+trainer's ``stop`` hook reports the step to the driver about once a second and asks it whether
+to stop; stopping checkpoints every run and leaves it resumable.
+
+Everything the unit prints (progress lines, warnings, a traceback) goes to its log file.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import socket
+import sys
+import time
+import traceback
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field, replace
+from multiprocessing.connection import Connection
+from multiprocessing.synchronize import Event
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from tacbench import runs
+from tacbench.errors import TacbenchError
+from tacbench.sweep.plan import Unit
+
+if TYPE_CHECKING:
+    from tacbench.training import Outcome
+
+Report = Callable[[int], bool]  # step -> whether to stop
+LOG_TAIL_BYTES = 64_000  # how much of an attempt's log a Ray task sends back to the driver
+
+
+@dataclass(frozen=True)
+class Job:
+    """A unit and where the worker writes: ``root`` holds ``runs/...`` (``--out`` itself, or a
+    Ray node's scratch folder), ``log`` is the unit's log file on the worker."""
+
+    unit: Unit
+    root: Path
+    log: Path
+    command: str = ""
+    threads: int = 1
+    return_files: bool = False  # Ray without a shared filesystem: send the small files back
+
+
+@dataclass(frozen=True)
+class JobResult:
+    """How a unit ended: the trainer's outcomes, or the error that ended it; with
+    ``return_files`` each run's small files (run key -> file name -> bytes)."""
+
+    outcomes: tuple[Outcome, ...] = ()
+    error: str = ""
+    files: dict[str, dict[str, bytes]] = field(default_factory=dict)
+    log_tail: str = ""
+    node: str = ""
+    host: str = ""
+
+
+class StopHook:
+    """The trainers' ``stop(step)``: calls ``report`` at most every ``every_s`` seconds (it may
+    be a message to another process or machine) and returns its last answer."""
+
+    def __init__(self, report: Report, every_s: float) -> None:
+        self.report, self.every_s = report, every_s
+        self._next, self._stop = 0.0, False
+
+    def __call__(self, step: int) -> bool:
+        now = time.monotonic()
+        if now >= self._next:
+            self._next = now + self.every_s
+            self._stop = self.report(step)
+        return self._stop
+
+
+def execute(job: Job, report: Report, every_s: float = 1.0) -> JobResult:
+    """Train ``job``'s unit; an exception becomes ``JobResult.error`` (its traceback goes to the
+    log), so the driver can record it and retry."""
+    host = socket.gethostname()
+    try:
+        for key in job.unit.retry:
+            reset_failed(job.root / key)
+        outcomes = _train(job, StopHook(report, every_s))
+    except Exception as err:
+        traceback.print_exc()
+        message = str(err).strip().splitlines()
+        return JobResult(error=f"{type(err).__name__}: {message[0] if message else ''}", host=host)
+    return JobResult(tuple(outcomes), host=host)
+
+
+def _train(job: Job, stop: StopHook) -> list[Outcome]:
+    configs: list[Any] = [run.config for run in job.unit.runs]
+    train: Callable[..., list[Outcome]]
+    if job.unit.algo == "tac":
+        from tacbench.training import train
+    else:
+        from baselines.trainer import train
+
+    def call(members: list[Any]) -> list[Outcome]:
+        return list(
+            train(members, job.root, resume=True, quiet=True, command=job.command, stop=stop)
+        )
+
+    try:
+        return call(configs)
+    except TacbenchError as err:
+        if len(configs) == 1:
+            raise
+        # members whose checkpoints differ in step (a crash between two members' checkpoints)
+        print(f"training the members one at a time: {err}", file=sys.stderr, flush=True)
+    outcomes: list[Outcome] = []
+    for config in configs:
+        outcomes += call([config])
+        if outcomes[-1].state == "interrupted":
+            break
+    return outcomes
+
+
+def reset_failed(directory: Path) -> None:
+    """Set a failed run's status back to "running" so that its trainer resumes it from its last
+    checkpoint (or starts it afresh if it has none); the reason names the failure retried."""
+    path = directory / "status.json"
+    if not path.exists():
+        return
+    status = runs.read_json(path)
+    if status.get("state") == "failed":
+        status.update(state="running", reason=f"retrying after: {status.get('reason', '')}")
+        status["updated"] = runs.now_iso()
+        runs.atomic_write_json(path, status)
+
+
+@contextlib.contextmanager
+def output_to(log: Path, title: str) -> Iterator[int]:
+    """Send this process's stdout and stderr (Python's and the file descriptors) to ``log``,
+    appended after a header line; yields the offset where this attempt's output starts."""
+    log.parent.mkdir(parents=True, exist_ok=True)
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = os.dup(1), os.dup(2)
+    with log.open("a", buffering=1) as handle:
+        handle.write(f"=== {runs.now_iso()} {socket.gethostname()} pid {os.getpid()}: {title}\n")
+        start = handle.tell()
+        os.dup2(handle.fileno(), 1)
+        os.dup2(handle.fileno(), 2)
+        streams = sys.stdout, sys.stderr
+        sys.stdout = sys.stderr = handle
+        try:
+            yield start
+        finally:
+            sys.stdout, sys.stderr = streams
+            os.dup2(saved[0], 1)
+            os.dup2(saved[1], 2)
+            os.close(saved[0])
+            os.close(saved[1])
+
+
+def limit_threads(threads: int) -> None:
+    """One BLAS/OpenMP pool of ``threads`` threads (set before torch or NumPy start theirs)."""
+    for name in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+        os.environ[name] = str(threads)
+
+
+def local_main(job: Job, conn: Connection, step: Any, stop_event: Event, parent_pid: int) -> None:
+    """Entry point of a local worker process: train, then send the :class:`JobResult`.
+
+    Ctrl-C reaches the whole process group; until the trainer installs its handler (which
+    checkpoints and stops) it is ignored here, and the driver's stop event does the rest. The
+    worker also stops if the driver is gone (its parent changed)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    limit_threads(job.threads)
+
+    def report(at: int) -> bool:
+        step.value = at
+        return stop_event.is_set() or os.getppid() != parent_pid
+
+    with output_to(job.log, job.unit.key):
+        result = execute(job, report)
+    conn.send(result)
+    conn.close()
+
+
+def ray_main(job: Job, board: Any) -> JobResult:
+    """Body of a Ray task: train, then (without a shared filesystem) collect the runs' small
+    files and the log of this attempt for the driver. Checkpoints stay in ``job.root``."""
+    import ray
+
+    limit_threads(job.threads)
+    key = job.unit.key
+    with output_to(job.log, key) as start:
+        result = execute(job, lambda at: bool(ray.get(board.report.remote(key, at))), 2.0)
+    files = {run.key: small_files(job.root / run.key) for run in job.unit.runs}
+    with job.log.open("rb") as handle:
+        handle.seek(max(start, job.log.stat().st_size - LOG_TAIL_BYTES))
+        tail = handle.read().decode(errors="replace")
+    return replace(
+        result,
+        files=files if job.return_files else {},
+        log_tail=tail if job.return_files else "",
+        node=ray.get_runtime_context().get_node_id(),
+    )
+
+
+def small_files(directory: Path) -> dict[str, bytes]:
+    """Every file directly in a run directory (config.json, status.json, the CSVs), not the
+    checkpoint folder or temporary files."""
+    if not directory.is_dir():
+        return {}
+    return {
+        p.name: p.read_bytes()
+        for p in sorted(directory.iterdir())
+        if p.is_file() and not p.name.endswith(".tmp")
+    }

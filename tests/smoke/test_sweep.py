@@ -1,0 +1,219 @@
+"""``tacbench sweep`` end to end with the local executor on tiny grids: members, idempotence,
+kill -9 of a worker and of the whole sweep, Ctrl-C, and a failing run among complete ones."""
+
+from __future__ import annotations
+
+import itertools
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from types import MappingProxyType
+from typing import Any
+
+import pandas as pd
+import pytest
+from click.testing import CliRunner
+
+from tacbench.cli import cli
+from tacbench.sweep import driver
+from tacbench.sweep.presets import Entry, Preset
+
+pytestmark = pytest.mark.smoke
+
+TAC_RUN = Path("runs/tac/Hopper-v4/q1-a0.2-ls500-bs32/seed0")
+ENV = {**os.environ, "PYTHONUNBUFFERED": "1"}
+
+
+def _sweep_args(out: Path, *extra: str) -> list[str]:
+    return ["sweep", "--preset", "smoke", "--out", str(out), *extra]
+
+
+def _status(run: Path) -> dict[str, Any]:
+    try:
+        return json.loads((run / "status.json").read_text())
+    except (OSError, json.JSONDecodeError):
+        return {}
+
+
+def _last_step(csv: Path) -> int:
+    try:
+        lines = csv.read_text().splitlines()
+        return int(lines[-1].split(",")[0]) if len(lines) > 1 else -1
+    except (OSError, ValueError):
+        return -1
+
+
+def _wait_for(condition: Callable[[], bool], proc: subprocess.Popen[str], timeout: float = 90):
+    deadline = time.monotonic() + timeout
+    while not condition():
+        assert proc.poll() is None, "the sweep ended before the condition held"
+        assert time.monotonic() < deadline, "timed out"
+        time.sleep(0.02)
+
+
+def _past_checkpoint(run: Path, at_least: int) -> Callable[[], bool]:
+    """True once the run checkpointed at ``at_least`` or later and wrote a losses row after its
+    checkpoint (rows that resume must cut away)."""
+
+    def check() -> bool:
+        step = _status(run).get("step", 0)
+        return step >= at_least and _last_step(run / "losses.csv") > step
+
+    return check
+
+
+def _assert_complete_rows(run: Path, steps: int) -> None:
+    """Every row the smoke config writes (learning from 500, evaluations every 500, losses
+    every 250, and both at the end), each exactly once, as an uninterrupted run writes them."""
+    evals = pd.read_csv(run / "eval.csv")["step"].tolist()
+    assert evals == sorted({*range(500, steps + 1, 500), steps})
+    losses = pd.read_csv(run / "losses.csv")
+    expected = sorted({*range(500, steps + 1, 250), steps})
+    assert losses["step"].tolist() == expected
+    assert losses["updates"].tolist() == [1] + [b - a for a, b in itertools.pairwise(expected)]
+    train_steps = pd.read_csv(run / "train.csv")["step"]
+    assert train_steps.is_monotonic_increasing and train_steps.is_unique
+    assert _status(run)["state"] == "complete" and _status(run)["step"] == steps
+
+
+def test_local_sweep_with_members_then_rerun_skips_everything(tmp_path: Path) -> None:
+    args = _sweep_args(tmp_path, "--algo", "tac", "--algo", "ppo", "--group-seeds")
+    args += ["--steps", "600", "--workers", "2"]
+    runner = CliRunner()
+    first = runner.invoke(cli, args)
+    assert first.exit_code == 0, first.output
+    assert "6 runs: 6 complete, 0 failed (0 given up), 0 partial, 0 not started" in first.output
+    tac = sorted((tmp_path / "runs" / "tac" / "Hopper-v4").glob("*/seed*"))
+    ppo = sorted((tmp_path / "runs" / "ppo" / "Hopper-v4").glob("*/seed*"))
+    assert [p.parent.name for p in tac] == ["q1-a0.2-ls500-bs32"] * 2 + ["q2-a0.2-ls500-bs32"] * 2
+    assert len(ppo) == 2
+    for run in tac:
+        assert json.loads((run / "config.json").read_text())["members"] == [0, 10]
+        _assert_complete_rows(run, 600)
+    for run in ppo:
+        assert pd.read_csv(run / "eval.csv")["step"].tolist() == [500, 600]
+        assert _status(run)["state"] == "complete"
+    summary = json.loads((tmp_path / "sweep" / "summary.json").read_text())
+    assert summary["counts"]["complete"] == 6 and summary["unfinished"] == []
+    assert summary["interrupted"] is False
+    assert len(list((tmp_path / "sweep" / "logs").glob("*.log"))) == 4  # 2 member units + 2 PPO
+    assert not (tmp_path / "sweep" / "lock").exists()
+
+    before = {p: p.stat().st_mtime_ns for p in tmp_path.glob("runs/**/*") if p.is_file()}
+    again = runner.invoke(cli, args)
+    assert again.exit_code == 0, again.output
+    assert "6 runs: 6 complete" in again.output
+    assert before == {p: p.stat().st_mtime_ns for p in tmp_path.glob("runs/**/*") if p.is_file()}
+    dry = runner.invoke(cli, [*args, "--dry-run"])
+    assert "6 runs: 6 complete, 0 partial, 0 failed" in dry.output
+    assert "0 units to train" in dry.output and "measured: 4 runs under" in dry.output
+
+
+def test_kill_9_of_a_worker_then_of_the_sweep_and_the_same_command_completes(
+    tmp_path: Path,
+) -> None:
+    args = [sys.executable, "-m", "tacbench", *_sweep_args(tmp_path)]
+    args += ["--algo", "tac", "--q", "1", "--seed", "0", "--steps", "2000"]
+    args += ["--checkpoint-every", "500", "--workers", "1"]
+    run = tmp_path / TAC_RUN
+    log = tmp_path / "sweep" / "logs" / "tac__Hopper-v4__q1-a0.2-ls500-bs32__seed0.log"
+    proc = subprocess.Popen(
+        args,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env=ENV,
+        start_new_session=True,
+    )
+    try:
+        # 1. SIGKILL the worker after its first checkpoint: the sweep records it and resumes
+        _wait_for(_past_checkpoint(run, 500), proc)
+        worker_pid = int(log.read_text().split(" pid ")[1].split(":")[0])
+        os.kill(worker_pid, signal.SIGKILL)
+        # 2. SIGKILL the sweep and its worker after the resumed run's next checkpoint
+        _wait_for(lambda: log.read_text().count("=== ") == 2, proc)
+        _wait_for(_past_checkpoint(run, 1000), proc)
+        os.killpg(proc.pid, signal.SIGKILL)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+        output = proc.communicate()[0]
+    assert "failed (attempt 1, retrying)" in output and "killed by SIGKILL" in output
+    assert (tmp_path / "sweep" / "lock").exists()  # left behind by the killed sweep
+    history = json.loads((tmp_path / "sweep" / "state.json").read_text())["runs"]
+    (failure,) = history[TAC_RUN.as_posix()]["failures"]
+    assert failure["reason"].startswith("worker process killed by SIGKILL")
+    assert failure["step"] >= 500
+    # 3. the same command again: resumes from the checkpoint, every row exactly once
+    again = subprocess.run(args, capture_output=True, text=True, env=ENV, timeout=120)
+    assert again.returncode == 0, again.stdout + again.stderr
+    assert (
+        "1 runs: 1 complete" in again.stdout and "1 completed after failed attempts" in again.stdout
+    )
+    _assert_complete_rows(run, 2000)
+
+
+def test_ctrl_c_checkpoints_and_the_same_command_resumes(tmp_path: Path) -> None:
+    args = [sys.executable, "-m", "tacbench", *_sweep_args(tmp_path)]
+    args += ["--algo", "tac", "--q", "1", "--seed", "0", "--steps", "1500", "--workers", "1"]
+    run = tmp_path / TAC_RUN
+    proc = subprocess.Popen(
+        args,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env=ENV,
+        start_new_session=True,
+    )
+    try:
+        _wait_for(lambda: _last_step(run / "losses.csv") >= 750, proc)
+        proc.send_signal(signal.SIGINT)  # to the driver only, as from a batch scheduler
+        output = proc.communicate(timeout=60)[0]
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 130, output
+    assert "stopping: every running run checkpoints and returns" in output
+    status = _status(run)
+    assert status["state"] == "running" and 750 <= status["step"] < 1500
+    assert status["reason"].startswith(f"interrupted at step {status['step']}; resume with: ")
+    assert "tacbench sweep --preset smoke" in status["reason"]
+    summary = json.loads((tmp_path / "sweep" / "summary.json").read_text())
+    assert summary["interrupted"] is True and summary["counts"]["partial"] == 1
+    assert not (tmp_path / "sweep" / "lock").exists()
+    again = subprocess.run(args, capture_output=True, text=True, env=ENV, timeout=120)
+    assert again.returncode == 0, again.stdout + again.stderr
+    _assert_complete_rows(run, 1500)
+
+
+def test_a_failing_run_is_recorded_and_retried_and_the_others_complete(tmp_path: Path) -> None:
+    tiny = {"total_steps": 400, "learning_starts": 200, "batch_size": 32, "eval_every": 200}
+    tiny |= {"eval_episodes": 1, "checkpoint_every": 100, "log_every": 100}
+    preset = Preset(
+        "failing",
+        "Humanoid's joint ln_q overflows float32 at the first update (docs/tac.md, Numerics)",
+        (
+            Entry("tac", ("Humanoid",), (0,), (1.2,), MappingProxyType({**tiny, "lnq": "joint"})),
+            Entry("tac", ("Hopper",), (0,), (1.0,), MappingProxyType(tiny)),
+        ),
+    )
+    options = driver.Options(workers=2, max_retries=1)
+    result = driver.run_sweep(preset, tmp_path, options)
+    assert result.exit_code == 1
+    counts = result.summary["counts"]
+    assert (counts["complete"], counts["failed"], counts["given_up"]) == (1, 1, 1)
+    (failed,) = result.summary["unfinished"]
+    assert failed["run"] == "runs/tac/Humanoid-v4/q1.2-a0.05-joint-ls200-bs32/seed0"
+    assert [f["step"] for f in failed["failures"]] == [200, 200]  # retried from step 100
+    assert all(f["reason"].startswith("non-finite loss_v") for f in failed["failures"])
+    assert "given up at step 200 after 2 failed attempts" in result.text
+    run = tmp_path / "runs/tac/Hopper-v4/q1-a0.2-ls200-bs32/seed0"
+    assert pd.read_csv(run / "eval.csv")["step"].tolist() == [200, 400]
+    again = driver.run_sweep(preset, tmp_path, options)  # given up: not retried again
+    assert again.exit_code == 1
+    assert len(again.summary["unfinished"][0]["failures"]) == 2

@@ -1,0 +1,208 @@
+"""Sweep planning from run directories (counts, steps left, units), the failure history, the
+lock, the cost estimate and the worker's helpers, on hand-made run directories."""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+from click.testing import CliRunner
+
+from tacbench import runs
+from tacbench.cli import cli
+from tacbench.errors import TacbenchError
+from tacbench.sweep import cost, driver, plan, state, summary, worker
+from tacbench.sweep.presets import Narrowing, get_preset, narrow
+
+pytestmark = pytest.mark.unit
+
+SMOKE = get_preset("smoke")
+
+
+def _fake_run(out: Path, run: plan.Run, status: dict[str, Any] | None, **config: Any) -> Path:
+    directory = out / run.key
+    directory.mkdir(parents=True)
+    data = {**run.config.to_dict(), **config}
+    runs.atomic_write_json(directory / "config.json", {"config": data, "members": [0]})
+    if status is not None:
+        runs.atomic_write_json(directory / "status.json", status)
+    return directory
+
+
+def _plan(out: Path, options: driver.Options | None = None) -> plan.Plan:
+    return driver.load_plan(SMOKE, out, options or driver.Options(), save=False)[0]
+
+
+@pytest.fixture
+def smoke_out(tmp_path: Path) -> tuple[Path, list[plan.Run]]:
+    """smoke's 8 runs: 1 complete, 1 partial at 500, 1 failed at 700, 5 not started."""
+    all_runs = plan.build_runs(SMOKE)
+    _fake_run(tmp_path, all_runs[0], {"state": "complete", "step": 1000})
+    _fake_run(tmp_path, all_runs[1], {"state": "running", "step": 500})
+    _fake_run(tmp_path, all_runs[4], {"state": "failed", "step": 700, "reason": "non-finite"})
+    return tmp_path, all_runs
+
+
+def test_counts_and_steps_left_match_a_hand_count(smoke_out: tuple[Path, list[plan.Run]]) -> None:
+    out, all_runs = smoke_out
+    work = _plan(out)
+    assert summary.counts(work) == {
+        "runs": 8,
+        "complete": 1,
+        "partial": 1,
+        "failed": 1,
+        "new": 5,
+        "to_retry": 1,
+        "given_up": 0,
+    }
+    assert work.steps_left() == 5 * 1000 + (1000 - 500) + (1000 - 700) == 5800
+    assert [p.action for p in work.runs] == [
+        "skip",
+        "train",
+        *["train"] * 2,
+        "retry",
+        *["train"] * 3,
+    ]
+    assert len(work.units) == 7
+    retry = [u for u in work.units if u.retry]
+    assert retry == [plan.Unit((all_runs[4],), retry=(all_runs[4].key,))]
+    text = summary.describe_plan(work, workers=2, group_seeds=False)
+    assert "8 runs: 1 complete, 1 partial, 1 failed (1 to retry, 0 given up" in text
+    assert "5 not started" in text and "environment steps left: 5,800 of 8,000" in text
+
+
+def test_a_run_failed_more_than_max_retries_is_given_up(
+    smoke_out: tuple[Path, list[plan.Run]],
+) -> None:
+    out, all_runs = smoke_out
+    history = state.SweepState(out)
+    key = all_runs[4].key
+    history.add_failure(key, 300, "worker process killed by SIGKILL")
+    history.add_failure(key, 700, "non-finite")
+    history.note_failed_status(key, 700, "non-finite")  # already the last one: not added again
+    assert [f.step for f in state.SweepState(out).failures(key)] == [300, 700]
+    work = _plan(out, driver.Options(max_retries=1))
+    assert work.count(action="give-up") == 1 and work.count(action="retry") == 0
+    assert work.steps_left() == 5000 + 500
+    assert _plan(out, driver.Options(max_retries=2)).count(action="retry") == 1
+
+
+def test_another_config_in_a_run_directory_stops_the_plan(tmp_path: Path) -> None:
+    run = plan.build_runs(SMOKE)[0]
+    _fake_run(tmp_path, run, {"state": "running", "step": 0}, eval_every=123)
+    with pytest.raises(TacbenchError, match=r"another config \(eval_every: 123 -> 500\)"):
+        _plan(tmp_path)
+    # result-neutral fields (threads, device, checkpoint_every) may differ
+    other = tmp_path / "other"
+    _fake_run(other, run, {"state": "running", "step": 0}, threads=4, checkpoint_every=7)
+    assert _plan(other).runs[0].status == plan.Status("partial", 0)
+
+
+def test_group_seeds_makes_member_units_at_equal_resume_steps(tmp_path: Path) -> None:
+    tac = narrow(SMOKE, Narrowing(algos=("tac", "ppo")))
+    all_runs = plan.build_runs(tac)
+    _fake_run(tmp_path, all_runs[3], {"state": "running", "step": 500})  # q2 seed 10
+    work = driver.load_plan(tac, tmp_path, driver.Options(group_seeds=True), save=False)[0]
+    assert [u.key for u in work.units] == [
+        "runs/tac/Hopper-v4/q1-a0.2-ls500-bs32/seeds0,10",
+        "runs/tac/Hopper-v4/q2-a0.2-ls500-bs32/seed0",
+        "runs/tac/Hopper-v4/q2-a0.2-ls500-bs32/seed10",
+        *(r.key for r in all_runs[4:]),  # baselines are never grouped
+    ]
+    assert "5 units to train (one process or Ray task each; TAC seeds grouped as members)" in (
+        summary.describe_plan(work, 1, True)
+    )
+
+
+def test_measured_throughput_replaces_the_default(tmp_path: Path) -> None:
+    run = plan.build_runs(SMOKE)[0]
+    directory = _fake_run(tmp_path, run, {"state": "complete", "step": 1000})
+    metadata = runs.read_json(directory / "config.json")
+    runs.atomic_write_json(directory / "config.json", {**metadata, "members": [0, 10]})
+    (directory / "eval.csv").write_text(
+        "step,wall_s,return_mean,return_std,length_mean\n"
+        "250,0.5,1,0,1\n500,1.0,1,0,1\n750,2.0,1,0,1\n1000,3.0,1,0,1\n"
+    )
+    # second half of the evaluations: (3.0 - 1.0) s / 500 steps, shared by 2 members
+    assert cost.run_seconds_per_step(directory) == pytest.approx(0.002)
+    rates = cost.rates(tmp_path, [("tac", "Hopper-v4"), ("trpo", "Hopper-v4")])
+    assert rates[("tac", "Hopper-v4")] == cost.Rate(0.002, f"measured: 1 run under {tmp_path}")
+    assert rates[("trpo", "Hopper-v4")].source == cost.DEFAULT_SOURCE
+    assert rates[("trpo", "Hopper-v4")].seconds_per_step > 0
+
+
+def test_defaults_cover_every_paper_pair() -> None:
+    pairs = {(r.config.algo, r.config.env) for r in plan.build_runs(get_preset("paper-comparison"))}
+    assert pairs <= set(cost.DEFAULT_SECONDS_PER_STEP)
+    assert all(0 < v < 0.1 for v in cost.DEFAULT_SECONDS_PER_STEP.values())
+
+
+def test_lock_refuses_a_live_sweep_and_takes_over_a_dead_ones(tmp_path: Path) -> None:
+    with state.Lock(tmp_path), pytest.raises(TacbenchError, match="another sweep"):
+        state.Lock(tmp_path).__enter__()
+    assert not (tmp_path / "sweep" / "lock").exists()
+    dead = subprocess.run(
+        [sys.executable, "-c", "import os; print(os.getpid())"],
+        text=True,
+        capture_output=True,
+        check=True,
+    )
+    lock = {"pid": int(dead.stdout), "host": socket.gethostname(), "started": "then"}
+    (tmp_path / "sweep" / "lock").write_text(json.dumps(lock))
+    with state.Lock(tmp_path):
+        assert json.loads((tmp_path / "sweep" / "lock").read_text())["pid"] == os.getpid()
+
+
+def test_reset_failed_and_stop_hook(tmp_path: Path) -> None:
+    runs.atomic_write_json(
+        tmp_path / "status.json", {"state": "failed", "step": 7, "reason": "nan", "updated": "x"}
+    )
+    worker.reset_failed(tmp_path)
+    status = runs.read_json(tmp_path / "status.json")
+    assert (status["state"], status["step"], status["reason"]) == (
+        "running",
+        7,
+        "retrying after: nan",
+    )
+    calls: list[int] = []
+    hook = worker.StopHook(lambda step: calls.append(step) or step >= 5, every_s=3600)
+    assert [hook(s) for s in range(10)] == [False] * 10  # asked once, at step 0
+    assert calls == [0]
+    eager = worker.StopHook(lambda step: step >= 5, every_s=0)
+    assert [eager(s) for s in (4, 5)] == [False, True]
+
+
+def test_cli_sweep_dry_run_and_option_errors(tmp_path: Path) -> None:
+    runner = CliRunner()
+    dry = runner.invoke(
+        cli,
+        [
+            "sweep",
+            "--preset",
+            "paper-q-grid",
+            "--dry-run",
+            "--out",
+            str(tmp_path),
+            "--workers",
+            "4",
+        ],
+    )
+    assert dry.exit_code == 0, dry.output
+    assert "540 runs: 0 complete, 0 partial, 0 failed" in dry.output
+    assert "environment steps left: 540,000,000 of 540,000,000" in dry.output
+    assert "with 4 workers about" in dry.output
+    assert not (tmp_path / "sweep").exists()  # a dry run writes nothing
+    for args, message in [
+        (["--address", "auto"], "are Ray options: add --executor ray"),
+        (["--max-retries", "-1"], "--max-retries must be 0 or more"),
+        (["--env", "Walker2d"], "the presets train the paper's tasks"),
+        (["--steps", "0"], "total_steps must be an integer >= 1"),
+    ]:
+        result = runner.invoke(cli, ["sweep", "--preset", "smoke", "--dry-run", *args])
+        assert (result.exit_code, message in result.output) == (2, True), result.output

@@ -1,0 +1,96 @@
+"""The sweep presets against hand counts from the paper, and narrowing (tacbench.sweep.presets)."""
+
+from __future__ import annotations
+
+from collections import Counter
+
+import pytest
+
+from tacbench.config import PAPER_ALPHA, PAPER_BEST_Q, PAPER_SEEDS, TOTAL_STEPS
+from tacbench.envs import SUITE
+from tacbench.errors import TacbenchError
+from tacbench.sweep.plan import build_runs
+from tacbench.sweep.presets import PRESETS, Narrowing, get_preset, narrow
+
+pytestmark = pytest.mark.unit
+
+Q_GRID = {0.5, 0.7, 1.0, 1.2, 1.5, 1.7, 2.0, 3.0, 5.0}  # paper, line 797
+
+
+def _runs(name: str, **by: object) -> list:
+    preset = get_preset(name)
+    return build_runs(narrow(preset, Narrowing(**by)) if by else preset)  # type: ignore[arg-type]
+
+
+def test_paper_q_grid_is_9_q_by_6_tasks_by_10_seeds() -> None:
+    runs = _runs("paper-q-grid")
+    assert len(runs) == 9 * 6 * 10 == 540
+    assert len({r.key for r in runs}) == 540
+    configs = [r.config for r in runs]
+    assert {c.algo for c in configs} == {"tac"}
+    assert {c.q for c in configs} == Q_GRID
+    assert {c.env for c in configs} == set(SUITE.values())
+    assert Counter(c.seed for c in configs) == dict.fromkeys(PAPER_SEEDS, 54)
+    assert {c.total_steps for c in configs} == {TOTAL_STEPS} == {1_000_000}
+    for c in configs:
+        task = c.env.split("-v")[0]
+        assert c.alpha == PAPER_ALPHA[task] == (0.05 if task == "Humanoid" else 0.2)
+    assert runs[0].key == "runs/tac/HalfCheetah-v4/q0.5-a0.2/seed0"
+
+
+def test_paper_comparison_is_tac_best_q_sac_and_four_baselines() -> None:
+    runs = _runs("paper-comparison")
+    assert len(runs) == 6 * 6 * 10 == 360
+    by_algo = Counter(r.config.algo for r in runs)
+    assert by_algo == {"tac": 120, "ddpg": 60, "td3": 60, "ppo": 60, "trpo": 60}
+    tac = [r for r in runs if r.config.algo == "tac"]
+    sac = [r for r in tac if r.label == "SAC"]
+    assert len(sac) == 60 and {r.config.q for r in sac} == {1.0}
+    for r in tac:
+        if r.label == "TAC":
+            assert r.config.q == PAPER_BEST_Q[r.config.env.split("-v")[0]]
+    assert {r.config.total_steps for r in runs} == {1_000_000}
+    assert {r.config.seed for r in runs} == set(PAPER_SEEDS)
+
+
+def test_smoke_preset_is_small() -> None:
+    runs = _runs("smoke")
+    assert len(runs) == 8
+    assert {r.config.total_steps for r in runs} == {1000}
+    assert Counter(r.config.algo for r in runs) == {"tac": 4, "td3": 2, "ppo": 2}
+
+
+def test_narrowing() -> None:
+    assert len(_runs("paper-q-grid", tasks=("hopper",), q=(1.5,))) == 10
+    assert len(_runs("paper-q-grid", tasks=("Ant-v4", "Humanoid"), seeds=(0, 90))) == 2 * 9 * 2
+    sac = _runs("paper-comparison", q=(1.0,))
+    assert len(sac) == 60 and {r.config.q for r in sac} == {1.0}
+    best = _runs("paper-comparison", q=(1.5,))  # HalfCheetah's and Ant's best q
+    assert {r.config.env for r in best} == {"HalfCheetah-v4", "Ant-v4"} and len(best) == 20
+    ppo = _runs("paper-comparison", algos=("ppo",), seeds=(0,))
+    assert len(ppo) == 6 and {r.config.env for r in ppo} == set(SUITE.values())
+    assert {r.config.algo for r in ppo} == {"ppo"} and {r.config.seed for r in ppo} == {0}
+    short = _runs("smoke", algos=("tac",), steps=400, checkpoint_every=100)
+    assert {(r.config.total_steps, r.config.checkpoint_every) for r in short} == {(400, 100)}
+
+
+@pytest.mark.parametrize(
+    ("by", "message"),
+    [
+        ({"tasks": ("Hopper-v5",)}, "the presets train the paper's tasks"),
+        ({"q": (4.0,)}, "--q 4: not in this preset, which has 0.5, 0.7, 1, 1.2"),
+        ({"seeds": (5,)}, "--seed 5: not in this preset"),
+        ({"algos": ("sac-sb3",)}, "--algo sac-sb3: not in this preset"),
+    ],
+)
+def test_narrowing_mistakes_say_what_exists(by: dict, message: str) -> None:
+    with pytest.raises(TacbenchError, match=message):
+        narrow(get_preset("paper-q-grid"), Narrowing(**by))
+
+
+def test_narrowing_to_nothing_and_unknown_preset() -> None:
+    with pytest.raises(TacbenchError, match="leave no run"):
+        narrow(get_preset("paper-comparison"), Narrowing(q=(1.5,), tasks=("Hopper",)))
+    with pytest.raises(TacbenchError, match="choose one of paper-q-grid"):
+        get_preset("paper")
+    assert list(PRESETS) == ["paper-q-grid", "paper-comparison", "smoke"]
