@@ -229,6 +229,20 @@ def _command_line(ctx: click.Context) -> str:
 )
 @click.option("--threads", type=int, default=1, show_default=True, help="torch CPU threads.")
 @click.option(
+    "--impl",
+    type=click.Choice(config.IMPLS),
+    default="fused",
+    show_default=True,
+    help="TAC's update: fused (hand-written gradients, fast) or eager (autograd, the reference); "
+    "the same maths (docs/performance.md).",
+)
+@click.option(
+    "--compile",
+    "compile_",
+    is_flag=True,
+    help="torch.compile TAC's fused update (a CPU needs a C++ compiler; falls back without).",
+)
+@click.option(
     "--out",
     type=click.Path(file_okay=False, path_type=Path),
     default=Path("results"),
@@ -257,6 +271,8 @@ def run(
     checkpoint_every: int,
     device: str,
     threads: int,
+    impl: str,
+    compile_: bool,
     out: Path,
     resume: bool,
     force: bool,
@@ -293,6 +309,8 @@ def run(
         checkpoint_every=checkpoint_every,
         device=training.resolve_device(device),
         threads=threads,
+        impl=impl,
+        compile=compile_,
     )
     for note in notes:
         click.echo(note)
@@ -438,6 +456,83 @@ def sweep(ctx: click.Context, preset: str, **p: Any) -> None:
     click.echo(result.text)
     click.echo(f"wrote {p['out'] / 'sweep' / 'summary.json'} and summary.txt")
     ctx.exit(result.exit_code)
+
+
+@cli.command()
+@click.option("--env", default="HalfCheetah-v4", show_default=True, help="Task to train on.")
+@click.option(
+    "--members", type=int, default=10, show_default=True, help="K of the multi-member rows."
+)
+@click.option(
+    "--steps",
+    type=int,
+    default=1500,
+    show_default=True,
+    help="Timed steps per learner, split into --rounds turns.",
+)
+@click.option("--rounds", type=int, default=5, show_default=True, help="Turns per learner.")
+@click.option(
+    "--learning-starts",
+    type=int,
+    default=1000,
+    show_default=True,
+    help="Untimed random steps before learning starts.",
+)
+@click.option("--compile", "compile_", is_flag=True, help="Add rows for TAC under torch.compile.")
+@click.option("--no-sb3", is_flag=True, help="Leave out stable-baselines3's SAC.")
+@click.option("--no-eager", is_flag=True, help="Leave out TAC's eager (reference) update.")
+@click.option(
+    "--device", type=click.Choice(["cpu", "cuda", "auto"]), default="cpu", show_default=True
+)
+@click.option("--threads", type=int, default=1, show_default=True, help="torch CPU threads.")
+@click.option(
+    "--json",
+    "json_path",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=None,
+    help="Also write every measurement to this JSON file.",
+)
+def bench(
+    env: str,
+    members: int,
+    steps: int,
+    rounds: int,
+    learning_starts: int,
+    compile_: bool,
+    no_sb3: bool,
+    no_eager: bool,
+    device: str,
+    threads: int,
+    json_path: Path | None,
+) -> None:
+    """TAC (eager and fused; one and --members members) against stable-baselines3's SAC with
+    the paper's settings, side by side in this process: steps/s and ratios (docs/performance.md).
+    """
+    import json
+
+    from tacbench import bench as measure  # torch and SB3 only when this command runs
+    from tacbench import envs, training
+
+    env_id = envs.resolve_env_id(env)
+    envs.env_info(env_id)
+    options = measure.BenchOptions(
+        env=env_id,
+        members=members,
+        steps=steps,
+        rounds=rounds,
+        learning_starts=learning_starts,
+        compile=compile_,
+        sb3=not no_sb3,
+        eager=not no_eager,
+        device=training.resolve_device(device),
+        threads=threads,
+    )
+    before = measure.machine()
+    results = measure.run_bench(options, report=lambda line: click.echo(line, err=True))
+    click.echo(measure.summary(results, options, before))
+    if json_path is not None:
+        json_path.write_text(json.dumps(measure.results_json(results, options), indent=1) + "\n")
+        click.echo(f"wrote {json_path}")
 
 
 @cli.command(name="envs")

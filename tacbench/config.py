@@ -65,6 +65,7 @@ PAPER_BEST_Q: dict[str, float] = {
 DEFAULT_Q = 1.0  # tasks the paper did not run have no best q: q = 1 (Shannon entropy, i.e. SAC)
 
 UPDATE_SCHEDULES = ("step", "episode")
+IMPLS = ("fused", "eager")  # issue 7: fused (fast, default) or eager (autograd: the reference)
 LNQ_MODES = ("joint", "per-dim")
 Q_SCHEDULES = ("constant", "linear")
 
@@ -104,6 +105,10 @@ class RunConfig:
     log_every: int = LOG_EVERY
     device: str = "cpu"
     threads: int = 1
+    # issue 7: how the update is computed; the same maths either way (docs/performance.md), but
+    # not the same rounding, so a run keeps its choice (resume refuses another)
+    impl: str = "fused"
+    compile: bool = False  # torch.compile the fused update (docs/performance.md)
 
     def __post_init__(self) -> None:
         from tacbench.tsallis import check_alpha, check_q  # imports torch: not at CLI start-up
@@ -115,6 +120,11 @@ class RunConfig:
         _check_choice("--lnq", self.lnq, LNQ_MODES)
         _check_choice("--q-schedule", self.q_schedule, Q_SCHEDULES)
         _check_choice("--device", self.device, ("cpu", "cuda"))
+        _check_choice("--impl", self.impl, IMPLS)
+        if not isinstance(self.compile, bool):
+            raise TacbenchError(f"compile must be true or false (got {self.compile!r}).")
+        if self.compile and self.impl != "fused":
+            raise TacbenchError("--compile compiles the fused update: use it with --impl fused.")
         if self.algo != "tac":
             raise TacbenchError(f"RunConfig is TAC's config; got algo={self.algo!r}.")
         for name, minimum in (

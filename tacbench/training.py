@@ -31,6 +31,7 @@ from tacbench.config import RESULT_NEUTRAL_FIELDS, RunConfig
 from tacbench.errors import TacbenchError
 from tacbench.tac.agent import METRICS, TacAgent
 from tacbench.tac.buffer import ReplayBuffer
+from tacbench.tac.speed import reuse_freed_memory
 
 StopCheck = Callable[[int], bool]
 LOSS_COLUMNS = ("q", "updates", *METRICS)
@@ -118,12 +119,36 @@ def train(
         active.append((config, directory))
     if active:
         torch.set_num_threads(active[0][0].threads)
+        reuse_freed_memory()
         trainer = _Trainer([c for c, _ in active], [d for _, d in active], command, quiet)
         with _stop_signals() as received:
             outcomes += trainer.run(
                 lambda step: bool(received) or (stop is not None and stop(step))
             )
     return sorted(outcomes, key=lambda o: o.seed)
+
+
+@contextmanager
+def stepper(configs: Sequence[RunConfig], out: Path) -> Iterator[Callable[[int], int]]:
+    """For benchmarks and profiles: fresh members ``configs`` (run directories under ``out``)
+    and a function that advances them by n steps (fewer at the end or when all have failed)
+    and returns the step reached. No signal handling; everything is closed on exit."""
+    directories = [runs.run_directory(out, c.algo, c.env, c.variant, c.seed) for c in configs]
+    torch.set_num_threads(configs[0].threads)
+    reuse_freed_memory()
+    trainer = _Trainer(list(configs), directories, "", quiet=True)
+
+    def advance(n: int) -> int:
+        for _ in range(n):
+            if trainer.step >= trainer.config.total_steps or not trainer.alive:
+                break
+            trainer.advance()
+        return trainer.step
+
+    try:
+        yield advance
+    finally:
+        trainer.close()
 
 
 class _Trainer:
@@ -152,6 +177,7 @@ class _Trainer:
         self.episode_length = np.zeros(k, dtype=np.int64)
         self.loss_sum = torch.zeros(k, len(METRICS), device=self.agent.device)
         self.loss_count = 0
+        self.alive = list(range(k))  # live members, kept on the host (no device sync to read)
         self.wall_offset = 0.0
         self.finished_length = np.zeros(k, dtype=np.int64)  # length of episodes just ended
         self.chunk_added, self.chunk_rows = 0, np.zeros(k, dtype=np.int64)
@@ -236,7 +262,7 @@ class _Trainer:
         return self.wall_offset + time.perf_counter() - self._t0
 
     def _alive(self) -> list[int]:
-        return [int(k) for k in torch.nonzero(self.agent.alive).flatten().tolist()]
+        return list(self.alive)
 
     def run(self, stop: StopCheck) -> list[Outcome]:
         """Step until done, stopped or every member failed; then close everything."""
@@ -247,20 +273,31 @@ class _Trainer:
                     if self.step:  # at step 0 there is nothing to keep: resume starts afresh
                         self._checkpoint()
                     return outcomes + self._finish("interrupted")
-                done = self._env_step()
-                outcomes += self._learn(done)
-                eval_mean = self._maybe_evaluate()
-                every = config.checkpoint_every
-                if (every and self.step % every == 0) or self.step == config.total_steps:
-                    self._checkpoint()
-                self.progress.update(self.step, eval_mean)
+                outcomes += self.advance()
             return outcomes + self._finish("complete")
         finally:
-            self.progress.close()
-            for writer in self.writers:
-                writer.close()
-            for env in [*self.envs, *(e for group in self.eval_envs for e in group)]:
-                env.close()
+            self.close()
+
+    def advance(self) -> list[Outcome]:
+        """One step of every live member and what is due after it: updates, evaluation,
+        checkpoint, progress. Returns the members that failed in it."""
+        config = self.config
+        done = self._env_step()
+        outcomes = self._learn(done)
+        eval_mean = self._maybe_evaluate()
+        every = config.checkpoint_every
+        if (every and self.step % every == 0) or self.step == config.total_steps:
+            self._checkpoint()
+        self.progress.update(self.step, eval_mean)
+        return outcomes
+
+    def close(self) -> None:
+        """Close the progress display, the writers and the environments."""
+        self.progress.close()
+        for writer in self.writers:
+            writer.close()
+        for env in [*self.envs, *(e for group in self.eval_envs for e in group)]:
+            env.close()
 
     def _finish(self, state: str) -> list[Outcome]:
         """Mark every live member complete, or interrupted (status "running", how to resume)."""
@@ -319,10 +356,13 @@ class _Trainer:
                 metrics = self.agent.update(self.buffer.sample(self.rngs, config.batch_size), q)
                 self.loss_sum += metrics
                 self.loss_count += 1
-                bad = self.agent.alive & ~torch.isfinite(metrics).all(dim=-1)
+                finite = torch.isfinite(metrics)
+                if bool(finite.all()):  # the common case, in one reduction
+                    continue
+                bad = self.agent.alive & ~finite.all(dim=-1)
                 if bad.any():
                     outcomes += self._fail(bad, metrics)
-                    if not self.agent.alive.any():
+                    if not self.alive:
                         break
         if self.loss_count and (
             self.step % config.log_every == 0 or self.step == config.total_steps
@@ -337,8 +377,8 @@ class _Trainer:
         return outcomes
 
     def _fail(self, bad: torch.Tensor, metrics: torch.Tensor) -> list[Outcome]:
-        outcomes = []
-        for k in torch.nonzero(bad).flatten().tolist():
+        outcomes, failed = [], torch.nonzero(bad).flatten().tolist()
+        for k in failed:
             values = dict(zip(METRICS, metrics[k].tolist(), strict=True))
             names = ", ".join(n for n, v in values.items() if not np.isfinite(v))
             reason = f"non-finite {names} at step {self.step} (mean log pi {values['log_pi']:.4g})"
@@ -354,6 +394,7 @@ class _Trainer:
                 Outcome(self.seeds[k], self.writers[k].directory, "failed", self.step, reason)
             )
         self.agent.alive &= ~bad
+        self.alive = [k for k in self.alive if k not in failed]
         return outcomes
 
     def _maybe_evaluate(self) -> float | None:

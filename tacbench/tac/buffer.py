@@ -8,7 +8,15 @@ reset), about half of what storing ``s`` and ``s'`` takes. Observations are kept
 Transitions are added for all K members in lockstep (one ring position per step); rows are
 per member (episodes end at different steps). With at most two rows per transition, a row
 ring of ``2 * capacity + 2`` rows always holds every row the last ``capacity`` transitions use.
-Arrays are ``np.zeros``, so memory is only committed as rows are written.
+Memory is only committed as rows are written (about ``1 + 1/L`` rows per step for episodes of
+mean length L): the row ring is an anonymous mapping that reserves nothing (Linux), because the
+kernel refuses a plain ``np.zeros`` reservation larger than RAM, e.g. 28 GiB for 10 Humanoid
+members of 1M transitions, of which about 15 GiB are ever written.
+
+Each transition's action, reward and terminal flag sit side by side in one float32 array
+``(K, capacity, A + 2)`` and its two row indices in one ``(K, capacity, 2)`` array, so
+:meth:`sample` gathers a minibatch of all K members with three ``np.take`` calls and returns
+views of them (no further copies).
 
 :meth:`save_chunk` writes what member k added since the previous chunk; loading a run's chunks
 in order rebuilds its buffer exactly (:meth:`load_chunk`).
@@ -16,6 +24,9 @@ in order rebuilds its buffer exactly (:meth:`load_chunk`).
 
 from __future__ import annotations
 
+import mmap
+import platform
+import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -26,6 +37,21 @@ import numpy.typing as npt
 IntArray = npt.NDArray[np.int64]
 FloatArray = npt.NDArray[np.float32]
 
+# Linux's MAP_NORESERVE (asm-generic/mman.h; Python's mmap module names it from 3.13 only)
+_MAP_NORESERVE = getattr(mmap, "MAP_NORESERVE", 0x4000)
+_NORESERVE_OK = sys.platform == "linux" and platform.machine() in ("x86_64", "aarch64")
+
+
+def lazy_zeros(shape: tuple[int, ...], dtype: type[np.generic]) -> npt.NDArray[Any]:
+    """Zeros whose memory is committed page by page as it is written and never reserved up
+    front (an anonymous ``MAP_NORESERVE`` mapping on Linux x86-64 and aarch64; ``np.zeros``
+    elsewhere)."""
+    size = int(np.prod(shape)) * np.dtype(dtype).itemsize
+    if not _NORESERVE_OK or size == 0:
+        return np.zeros(shape, dtype=dtype)
+    region = mmap.mmap(-1, size, flags=mmap.MAP_PRIVATE | _MAP_NORESERVE)
+    return np.frombuffer(region, dtype=dtype).reshape(shape)
+
 
 class ReplayBuffer:
     """Replay memory for K members; ``capacity`` transitions each, oldest overwritten first."""
@@ -33,16 +59,19 @@ class ReplayBuffer:
     def __init__(self, n_members: int, obs_dim: int, act_dim: int, capacity: int) -> None:
         self.capacity = capacity
         self.row_capacity = 2 * capacity + 2
-        self.rows = np.zeros((n_members, self.row_capacity, obs_dim), dtype=np.float32)
-        self.obs_row = np.zeros((n_members, capacity), dtype=np.int64)
-        self.next_row = np.zeros((n_members, capacity), dtype=np.int64)
-        self.action = np.zeros((n_members, capacity, act_dim), dtype=np.float32)
-        self.reward = np.zeros((n_members, capacity), dtype=np.float32)
-        self.terminated = np.zeros((n_members, capacity), dtype=np.float32)
+        self.rows = lazy_zeros((n_members, self.row_capacity, obs_dim), np.float32)
+        self.row_index = np.zeros((n_members, capacity, 2), dtype=np.int64)  # s and s' rows
+        self.obs_row, self.next_row = self.row_index[..., 0], self.row_index[..., 1]
+        self.transitions = np.zeros((n_members, capacity, act_dim + 2), dtype=np.float32)
+        self.action = self.transitions[..., :act_dim]
+        self.reward = self.transitions[..., act_dim]
+        self.terminated = self.transitions[..., act_dim + 1]
         self.n_added = 0  # transitions ever added (per member; all members alike)
         self.n_rows = np.zeros(n_members, dtype=np.int64)  # rows ever added, per member
         self.current_row = np.full(n_members, -1, dtype=np.int64)  # row of each member's s
         self._members = np.arange(n_members)
+        self._first_transition = self._members[:, None] * capacity  # member k's flat offset
+        self._first_row = self._members[:, None, None] * self.row_capacity
 
     @property
     def size(self) -> int:
@@ -81,16 +110,22 @@ class ReplayBuffer:
 
     def sample(self, rngs: Sequence[np.random.Generator], batch_size: int) -> dict[str, Any]:
         """``batch_size`` transitions per member, uniformly with replacement, member k's indices
-        drawn from ``rngs[k]``. Arrays shaped ``(K, B, ...)``: obs, action, reward,
-        next_obs, terminated."""
+        drawn from ``rngs[k]``. Arrays shaped ``(K, B, ...)`` (views of two gathered arrays):
+        obs, action, reward, next_obs, terminated."""
+        n_members, capacity, width = self.transitions.shape
         index = np.stack([rng.integers(0, self.size, batch_size) for rng in rngs])
-        k = self._members[:, None]
+        index += self._first_transition
+        transitions = np.take(self.transitions.reshape(n_members * capacity, width), index, 0)
+        rows = np.take(self.row_index.reshape(n_members * capacity, 2), index, 0)
+        rows += self._first_row
+        obs = np.take(self.rows.reshape(n_members * self.row_capacity, -1), rows, 0)
+        act_dim = width - 2
         return {
-            "obs": self.rows[k, self.obs_row[k, index]],
-            "action": self.action[k, index],
-            "reward": self.reward[k, index],
-            "next_obs": self.rows[k, self.next_row[k, index]],
-            "terminated": self.terminated[k, index],
+            "obs": obs[:, :, 0],
+            "action": transitions[..., :act_dim],
+            "reward": transitions[..., act_dim],
+            "next_obs": obs[:, :, 1],
+            "terminated": transitions[..., act_dim + 1],
         }
 
     def counters(self, member: int) -> dict[str, int]:

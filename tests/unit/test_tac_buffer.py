@@ -3,6 +3,7 @@ independence and incremental save/load."""
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -133,3 +134,20 @@ def test_chunks_store_only_what_was_added(tmp_path: Path) -> None:
     with np.load(tmp_path / "b.npz") as chunk:
         assert len(chunk["reward"]) == 20
         assert len(chunk["rows"]) == buffer.n_rows[0] - 101
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc/self/statm")
+def test_rows_commit_memory_only_as_they_are_written() -> None:
+    """A 1M-transition buffer reserves 2M + 2 rows; only the rows written take memory."""
+
+    def resident_bytes() -> int:
+        return int(Path("/proc/self/statm").read_text().split()[1]) * 4096
+
+    before = resident_bytes()
+    buffer = ReplayBuffer(2, 376, 17, capacity=1_000_000)  # 6 GB of rows reserved
+    assert buffer.rows.nbytes > 6e9
+    buffer.start_episodes([0, 1], np.ones((2, 376)))
+    for _ in range(1000):
+        buffer.add(np.zeros((2, 17)), np.zeros(2), np.zeros(2), np.ones((2, 376)))
+    assert buffer.rows[:, :1001].all() and not buffer.rows[:, 1001:1100].any()
+    assert resident_bytes() - before < 200e6  # 2 x 1001 rows of 1.5 kB, not 6 GB

@@ -1,0 +1,271 @@
+"""``tacbench bench``: TAC's training loop against stable-baselines3's SAC, side by side.
+
+Every contestant trains on the same task with the paper's networks and update rate (one hidden
+layer of 300 ReLU units, batch 100, Adam lr 1e-3, one update per environment step, a 1M
+replay buffer) in this one process, under the same thread count and heap setting
+(:func:`tacbench.tac.speed.reuse_freed_memory`). After ``learning_starts`` steps of random
+actions (not timed) and a few updates of warm-up (where ``torch.compile`` compiles), the
+contestants take turns: each round, each one trains ``steps / rounds`` more steps while its
+time is measured. Taking turns spreads a shared machine's load over all of them, so the
+ratios are fairer than the absolute rates; both are reported, with the load average.
+
+The TAC contestants run :func:`tacbench.training.stepper`, the real training loop (run
+directories in a temporary folder, evaluation and checkpoints off). SB3's SAC is SAC v2 (no V
+network), with a constant entropy coefficient equal to TAC's alpha.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime
+import os
+import platform
+import tempfile
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from tacbench import envs, training
+from tacbench.config import RunConfig, make_run_configs
+from tacbench.errors import TacbenchError
+from tacbench.tac.speed import reuse_freed_memory
+
+Advance = Callable[[int], int]
+WARMUP_UPDATES = 50  # untimed updates after learning starts (compilation happens here)
+
+
+@dataclass(frozen=True)
+class Contestant:
+    """One row of the table: a learner and how many members it trains at once."""
+
+    name: str
+    members: int
+    impl: str = ""  # TAC's impl; "" for SB3
+    compile: bool = False
+
+
+@dataclass
+class Result:
+    """A contestant's measured rounds: steps and seconds, one pair per round."""
+
+    contestant: Contestant
+    steps: list[int] = field(default_factory=list)
+    seconds: list[float] = field(default_factory=list)
+
+    @property
+    def rate(self) -> float:
+        """Lockstep environment steps per second over all rounds."""
+        return sum(self.steps) / sum(self.seconds)
+
+    @property
+    def member_rate(self) -> float:
+        """Member-steps per second: every member takes one step per lockstep step."""
+        return self.rate * self.contestant.members
+
+    @property
+    def spread(self) -> tuple[float, float]:
+        """The slowest and fastest round's steps per second."""
+        rates = [s / t for s, t in zip(self.steps, self.seconds, strict=True)]
+        return min(rates), max(rates)
+
+
+@dataclass(frozen=True)
+class BenchOptions:
+    """What ``tacbench bench`` measures."""
+
+    env: str = "HalfCheetah-v4"
+    members: int = 10
+    steps: int = 1500
+    rounds: int = 5
+    learning_starts: int = 1000
+    compile: bool = False
+    sb3: bool = True
+    eager: bool = True
+    device: str = "cpu"
+    threads: int = 1
+
+    def __post_init__(self) -> None:
+        for name in ("members", "rounds", "threads"):
+            if getattr(self, name) < 1:
+                raise TacbenchError(f"--{name} must be at least 1.")
+        if self.steps < self.rounds:
+            raise TacbenchError("--steps must be at least --rounds (steps are split into rounds).")
+        if self.learning_starts < 1:
+            raise TacbenchError("--learning-starts must be at least 1.")
+
+
+def contestants(options: BenchOptions) -> list[Contestant]:
+    """SB3's SAC, then TAC eager and fused (and compiled) at K = 1 and K = ``members``."""
+    rows = [Contestant("SB3 SAC", 1)] if options.sb3 else []
+    for k in dict.fromkeys((1, options.members)):
+        if options.eager:
+            rows.append(Contestant("TAC eager", k, "eager"))
+        rows.append(Contestant("TAC fused", k, "fused"))
+        if options.compile:
+            rows.append(Contestant("TAC fused+compile", k, "fused", compile=True))
+    return rows
+
+
+def _tac_configs(options: BenchOptions, contestant: Contestant) -> list[RunConfig]:
+    configs, _ = make_run_configs(
+        options.env,
+        envs.paper_task(options.env),
+        list(range(0, 10 * contestant.members, 10)),  # the paper's seeds 0, 10, 20, ...
+        learning_starts=options.learning_starts,
+        eval_every=0,
+        checkpoint_every=0,
+        impl=contestant.impl,
+        compile=contestant.compile,
+        device=options.device,
+        threads=options.threads,
+    )
+    return configs
+
+
+@contextlib.contextmanager
+def _sb3_sac(options: BenchOptions) -> Iterator[Advance]:
+    """SB3's SAC with TAC's paper settings; advance(n) trains n more steps."""
+    import warnings
+
+    from stable_baselines3 import SAC
+
+    q_alpha = make_run_configs(options.env, envs.paper_task(options.env), [0])[0][0]
+    env = envs.make_env(options.env)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # SB3's notes on the env wrapper and on v4 tasks
+        model = SAC(
+            "MlpPolicy",
+            env,
+            learning_rate=q_alpha.learning_rate,
+            buffer_size=q_alpha.buffer_size,
+            learning_starts=options.learning_starts,
+            batch_size=q_alpha.batch_size,
+            tau=q_alpha.tau,
+            gamma=q_alpha.gamma,
+            train_freq=1,
+            gradient_steps=1,
+            ent_coef=q_alpha.alpha,
+            policy_kwargs={"net_arch": list(q_alpha.hidden_sizes)},
+            seed=0,
+            device=options.device,
+            verbose=0,
+        )
+
+    def advance(n: int) -> int:
+        model.learn(n, reset_num_timesteps=False, progress_bar=False)
+        return int(model.num_timesteps)
+
+    try:
+        yield advance
+    finally:
+        env.close()
+
+
+@contextlib.contextmanager
+def _learner(options: BenchOptions, contestant: Contestant, out: Path) -> Iterator[Advance]:
+    if not contestant.impl:
+        with _sb3_sac(options) as advance:
+            yield advance
+        return
+    directory = out / f"{contestant.name.replace(' ', '_')}-{contestant.members}"
+    with training.stepper(_tac_configs(options, contestant), directory) as advance:
+        yield advance
+
+
+def run_bench(options: BenchOptions, report: Callable[[str], None] = print) -> list[Result]:
+    """Measure every contestant in turns (see the module docstring); ``report`` gets progress
+    lines. Returns one :class:`Result` per contestant, in :func:`contestants` order."""
+    torch.set_num_threads(options.threads)
+    reuse_freed_memory()
+    results = [Result(c) for c in contestants(options)]
+    chunk = max(1, options.steps // options.rounds)
+    with tempfile.TemporaryDirectory() as tmp, contextlib.ExitStack() as stack:
+        learners = []
+        for result in results:
+            name = f"{result.contestant.name} K={result.contestant.members}"
+            report(f"warming up {name} ...")
+            advance = stack.enter_context(_learner(options, result.contestant, Path(tmp)))
+            advance(options.learning_starts + WARMUP_UPDATES)
+            learners.append(advance)
+        for round_index in range(options.rounds):
+            report(f"round {round_index + 1}/{options.rounds}")
+            for result, advance in zip(results, learners, strict=True):
+                start, t0 = advance(0), time.perf_counter()
+                reached = advance(chunk)
+                result.seconds.append(time.perf_counter() - t0)
+                result.steps.append(reached - start)
+    return results
+
+
+def machine() -> dict[str, Any]:
+    """Where and when the numbers were taken."""
+    return {
+        "date": datetime.date.today().isoformat(),
+        "cpu": _cpu_name(),
+        "cores": os.cpu_count(),
+        "load_average": [round(x, 2) for x in os.getloadavg()],
+        "torch": torch.__version__,
+        "python": platform.python_version(),
+    }
+
+
+def _cpu_name() -> str:
+    with contextlib.suppress(OSError):
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    return platform.processor() or "unknown"
+
+
+def table(results: list[Result], options: BenchOptions) -> str:
+    """The side-by-side table: steps/s, member-steps/s and the ratio to SB3's SAC."""
+    sb3 = next((r for r in results if not r.contestant.impl), None)
+    lines = [
+        "| learner | members | steps/s | member-steps/s | vs SB3 SAC | rounds (steps/s) |",
+        "|---|---|---|---|---|---|",
+    ]
+    for r in results:
+        ratio = f"{r.member_rate / sb3.rate:.2f}x" if sb3 else "-"
+        low, high = r.spread
+        lines.append(
+            f"| {r.contestant.name} | {r.contestant.members} | {r.rate:.0f} | "
+            f"{r.member_rate:.0f} | {ratio} | {low:.0f}-{high:.0f} |"
+        )
+    return "\n".join(lines)
+
+
+def summary(results: list[Result], options: BenchOptions, before: dict[str, Any]) -> str:
+    """The table with a header that says what was measured, where and under what load."""
+    after = machine()
+    head = (
+        f"{options.env}, batch 100, 1x300 ReLU, one update per step, {options.threads} torch "
+        f"thread(s), device {options.device}; {options.rounds} rounds of "
+        f"{max(1, options.steps // options.rounds)} steps after {options.learning_starts} "
+        f"random steps and {WARMUP_UPDATES} warm-up updates.\n"
+        f"{after['date']}, {after['cpu']}, {after['cores']} cores; load average "
+        f"{before['load_average']} at start, {after['load_average']} at end "
+        "(a load above the thread count means other work shared the cores)."
+    )
+    return f"{head}\n\n{table(results, options)}"
+
+
+def results_json(results: list[Result], options: BenchOptions) -> dict[str, Any]:
+    """Everything measured, for the record."""
+    return {
+        "options": asdict(options),
+        "machine": machine(),
+        "results": [
+            {
+                **asdict(r.contestant),
+                "steps": r.steps,
+                "seconds": r.seconds,
+                "steps_per_s": r.rate,
+                "member_steps_per_s": r.member_rate,
+            }
+            for r in results
+        ],
+    }

@@ -1,0 +1,110 @@
+"""TAC microbenchmarks: one update, one act, one replay sample, one evaluation round.
+
+HalfCheetah-v4 sizes (17 observations, 6 actions), the paper's networks (one hidden layer of
+300), batch 100, at K = 1 and K = 10 members; the update on each path (eager, fused, fused
+under torch.compile). Run with ``tox -e bench``, which compares them with the saved baseline in
+``tests/bench/baseline`` (docs/performance.md says how to save a new one).
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+import torch
+from pytest_benchmark.fixture import BenchmarkFixture
+
+from tacbench import envs
+from tacbench.config import RunConfig
+from tacbench.tac.agent import METRICS, TacAgent
+from tacbench.tac.buffer import ReplayBuffer
+from tacbench.tac.speed import reuse_freed_memory
+
+pytestmark = pytest.mark.bench
+
+ENV = "HalfCheetah-v4"
+OBS, ACT, BATCH = 17, 6, 100
+FILLED = 5000  # transitions in the buffer
+
+
+@pytest.fixture(scope="module", autouse=True)
+def one_thread() -> Iterator[None]:
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    reuse_freed_memory()
+    yield
+    torch.set_num_threads(threads)
+
+
+def _agent(k: int, impl: str = "fused", compile: bool = False) -> TacAgent:
+    config = RunConfig(env=ENV, q=1.5, alpha=0.2, impl=impl, compile=compile)
+    return TacAgent(OBS, ACT, config, list(range(0, 10 * k, 10)), torch.device("cpu"))
+
+
+def _buffer(k: int) -> tuple[ReplayBuffer, list[np.random.Generator]]:
+    buffer = ReplayBuffer(k, OBS, ACT, capacity=100_000)
+    rng = np.random.default_rng(0)
+    buffer.start_episodes(range(k), rng.normal(size=(k, OBS)))
+    for _ in range(FILLED):
+        buffer.add(
+            rng.uniform(-1, 1, (k, ACT)), rng.normal(size=k), np.zeros(k), rng.normal(size=(k, OBS))
+        )
+    return buffer, [np.random.default_rng(seed) for seed in range(k)]
+
+
+@pytest.mark.parametrize("k", [1, 10])
+@pytest.mark.parametrize("path", ["eager", "fused", "compiled"])
+def test_update(benchmark: BenchmarkFixture, path: str, k: int) -> None:
+    agent = _agent(k, "eager" if path == "eager" else "fused", compile=path == "compiled")
+    buffer, rngs = _buffer(k)
+    batch = buffer.sample(rngs, BATCH)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # torch.compile's notes while compiling
+        for _ in range(3):  # compile, allocate
+            agent.update(batch, 1.5)
+    metrics = benchmark(agent.update, batch, 1.5)
+    assert metrics.shape == (k, len(METRICS))
+    assert torch.isfinite(metrics).all()
+
+
+@pytest.mark.parametrize("k", [1, 10])
+def test_act(benchmark: BenchmarkFixture, k: int) -> None:
+    agent = _agent(k)
+    obs = np.random.default_rng(0).normal(size=(k, OBS))
+    action = benchmark(agent.act, obs)
+    assert action.shape == (k, ACT)
+    assert np.abs(action).max() <= 1.0
+
+
+@pytest.mark.parametrize("k", [1, 10])
+def test_sample(benchmark: BenchmarkFixture, k: int) -> None:
+    buffer, rngs = _buffer(k)
+    batch = benchmark(buffer.sample, rngs, BATCH)
+    assert batch["obs"].shape == batch["next_obs"].shape == (k, BATCH, OBS)
+    assert batch["action"].shape == (k, BATCH, ACT)
+    assert np.isin(batch["obs"][0], buffer.rows[0]).all()
+
+
+def test_evaluation_round(benchmark: BenchmarkFixture) -> None:
+    """The reference protocol at K = 1: 10 deterministic 1,000-step episodes, stepped in
+    lockstep with one batched policy call per step."""
+    agent, info = _agent(1), envs.env_info(ENV)
+    eval_envs = [envs.make_env(ENV) for _ in range(10)]
+
+    def policy(obs: np.ndarray) -> np.ndarray:
+        return envs.to_env_action(agent.act_deterministic(obs[None])[0], info)
+
+    try:
+        returns, lengths = benchmark.pedantic(
+            envs.evaluate,
+            args=(policy, eval_envs, envs.eval_seeds(0, 5000, 10)),
+            rounds=3,
+            iterations=1,
+        )
+    finally:
+        for env in eval_envs:
+            env.close()
+    assert (lengths == info.max_episode_steps).all()
+    assert np.isfinite(returns).all()
