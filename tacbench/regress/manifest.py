@@ -1,0 +1,193 @@
+"""Provenance, manifests and runs shared by the tiers.
+
+Each tier's reference directory holds a ``manifest.json``: the tier, the command that
+regenerates it, when and from which commit it was made, the library versions and platform, and
+what each reference run was (its exact command). :func:`run_command` runs one recorded
+``tacbench run`` command in this process, as a user would type it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import importlib.metadata
+import io
+import platform
+import shlex
+import shutil
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from tacbench import runs
+from tacbench.errors import TacbenchError
+
+FORMAT = 1  # the manifest layout; a reader refuses another
+RECORDED_PACKAGES = ("torch", "numpy", "gymnasium", "mujoco", "stable_baselines3", "sb3_contrib")
+MANIFEST = "manifest.json"
+WALL_CLOCK = "wall_s"
+
+
+def environment() -> dict[str, Any]:
+    """What must be equal for a run to reproduce a reference to the last digit: the library
+    versions, the operating system, the CPU architecture and the CPU instruction set that
+    torch's kernels dispatch on (which changes float rounding)."""
+    import torch
+
+    versions: dict[str, str | None] = {"python": platform.python_version()}
+    for package in RECORDED_PACKAGES:
+        try:
+            versions[package] = importlib.metadata.version(package.replace("_", "-"))
+        except importlib.metadata.PackageNotFoundError:
+            versions[package] = None
+    return {
+        "versions": versions,
+        "system": platform.system(),
+        "machine": platform.machine(),
+        "cpu_capability": torch.backends.cpu.get_cpu_capability(),
+    }
+
+
+def environment_differences(recorded: Mapping[str, Any], current: Mapping[str, Any]) -> list[str]:
+    """``"torch 2.3.0 recorded, 2.4.0 here"`` for each entry that differs."""
+    flat = {
+        **recorded.get("versions", {}),
+        **{k: v for k, v in recorded.items() if k != "versions"},
+    }
+    here = {**current.get("versions", {}), **{k: v for k, v in current.items() if k != "versions"}}
+    return [
+        f"{name} {flat.get(name)} recorded, {here.get(name)} here"
+        for name in sorted(set(flat) | set(here))
+        if flat.get(name) != here.get(name)
+    ]
+
+
+def regenerate_command(tier: str, reference: Path) -> str:
+    """The command that rewrites ``tier``'s references under ``reference``."""
+    return shlex.join(
+        ["tacbench", "regress", "--update", "--tier", tier, "--against", str(reference)]
+    )
+
+
+def provenance(tier: str, reference: Path) -> dict[str, Any]:
+    """A manifest's header: tier, format, regeneration command, date, commit, environment."""
+    return {
+        "tier": tier,
+        "format": FORMAT,
+        "regenerate": regenerate_command(tier, reference),
+        "created": runs.now_iso(),
+        "git_commit": runs.git_commit(),
+        "platform": platform.platform(),
+        "environment": environment(),
+    }
+
+
+def write_manifest(directory: Path, manifest: Mapping[str, Any]) -> None:
+    """``<directory>/manifest.json``, written atomically."""
+    runs.atomic_write_json(directory / MANIFEST, manifest)
+
+
+def read_manifest(reference: Path, tier: str) -> dict[str, Any]:
+    """The manifest of ``tier`` under ``reference``; a TacbenchError says how to create it."""
+    path = reference / tier / MANIFEST
+    if not path.is_file():
+        raise TacbenchError(
+            f"no {tier} references at {path.parent}; create them with: "
+            f"{regenerate_command(tier, reference)}"
+        )
+    manifest = runs.read_json(path)
+    if manifest.get("tier") != tier or manifest.get("format") != FORMAT:
+        raise TacbenchError(
+            f"{path} is not a format-{FORMAT} {tier} manifest; regenerate it with: "
+            f"{regenerate_command(tier, reference)}"
+        )
+    return manifest
+
+
+def select(entries: list[dict[str, Any]], names: Sequence[str], reference: Path) -> list[Any]:
+    """The manifest entries named in ``names`` (all of them when it is empty)."""
+    known = [e["name"] for e in entries]
+    unknown = sorted(set(names) - set(known))
+    if unknown:
+        raise TacbenchError(
+            f"no reference named {', '.join(unknown)} under {reference}; known: {', '.join(known)}"
+        )
+    return [e for e in entries if not names or e["name"] in names]
+
+
+def provenance_note(manifest: dict[str, Any]) -> str:
+    """One line: when, at which commit and with which versions a reference was made."""
+    versions = ", ".join(f"{k} {v}" for k, v in manifest["environment"]["versions"].items())
+    return (
+        f"recorded {manifest['created']} at commit {manifest['git_commit']} with {versions}; "
+        f"regenerate: {manifest['regenerate']}"
+    )
+
+
+def staging_directory(reference: Path, tier: str) -> Path:
+    """An empty ``<reference>/.<tier>.new`` to build the new references in."""
+    staging = reference / f".{tier}.new"
+    if staging.exists():
+        shutil.rmtree(staging)
+    staging.mkdir(parents=True)
+    return staging
+
+
+def replace_directory(staging: Path, target: Path) -> None:
+    """Put ``staging`` where ``target`` was (same parent, so the rename is cheap)."""
+    if target.exists():
+        shutil.rmtree(target)
+    staging.rename(target)
+
+
+def without_wall_clock(text: str) -> str:
+    """A CSV's text with its ``wall_s`` column removed (the only column that is not
+    deterministic); every other character is kept."""
+    lines = text.splitlines()
+    if not lines or WALL_CLOCK not in lines[0].split(","):
+        return text
+    col = lines[0].split(",").index(WALL_CLOCK)
+    kept = [",".join(v for i, v in enumerate(line.split(",")) if i != col) for line in lines]
+    return "\n".join(kept) + "\n"
+
+
+@dataclass(frozen=True)
+class CommandResult:
+    """How one in-process ``tacbench run`` ended: exit status, its output, and the run
+    directories it wrote (one per seed)."""
+
+    exit_code: int
+    output: str
+    directories: tuple[Path, ...]
+
+    @property
+    def last_line(self) -> str:
+        """The last non-empty line of the output (the error, when the command was refused)."""
+        lines = [line for line in self.output.splitlines() if line.strip()]
+        return lines[-1] if lines else ""
+
+
+def command_line(args: Sequence[str]) -> str:
+    """The recorded form of a run: ``tacbench run ARGS --out DIR``."""
+    return shlex.join(["tacbench", "run", *args]) + " --out DIR"
+
+
+def run_command(args: Sequence[str], out: Path) -> CommandResult:
+    """Run ``tacbench run ARGS --out OUT`` in this process, its output captured. A command this
+    tacbench refuses (a flag renamed since it was recorded) ends with exit status 2 and the
+    error as the last line of its output, as on the command line."""
+    import click
+
+    from tacbench.cli import cli
+
+    buffer = io.StringIO()
+    with contextlib.redirect_stdout(buffer), contextlib.redirect_stderr(buffer):
+        try:
+            code = cli.main(
+                ["run", *args, "--out", str(out)], prog_name="tacbench", standalone_mode=False
+            )
+        except click.ClickException as err:
+            print(f"Error: {err.format_message()}")
+            code = err.exit_code
+    directories = tuple(sorted((out / "runs").glob("*/*/*/seed*")))
+    return CommandResult(int(code or 0), buffer.getvalue(), directories)

@@ -1,0 +1,100 @@
+"""The exact tier (``tox -e regression``, CI): the committed short runs and the theory CSVs are
+reproduced to the last digit, and changes planted in what tacbench computes are caught.
+
+On library versions or a platform other than the references' the runs are skipped with the
+reason (the theory CSVs are still compared).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+from click.testing import CliRunner
+
+from baselines import hyperparams
+from tacbench import envs, regress
+from tacbench.cli import cli
+from tacbench.regress import manifest as mf
+from tacbench.regress.outcome import TierResult, format_result
+from tests.regression.conftest import REFERENCE
+
+pytestmark = pytest.mark.regression
+
+MANIFEST = mf.read_manifest(REFERENCE, "exact")
+TAC_RUN, BASELINE_RUN = "tac-Hopper-v4-q2", "ppo-Humanoid-v4"  # cheap ones to plant changes in
+
+
+@pytest.fixture(scope="module")
+def exact_check() -> dict[str, TierResult]:
+    """One check of the whole exact tier (theory CSVs included), shared by the tests below."""
+    return {result.tier: result for result in regress.check(REFERENCE, "exact")}
+
+
+def _statuses(result: TierResult, name: str) -> dict[str, str]:
+    if result.skipped:
+        pytest.skip(result.skipped)
+    return {row.part: row.status for row in result.rows if row.item == name}
+
+
+def test_theory_csvs_reproduce(exact_check: dict[str, TierResult]) -> None:
+    result = exact_check["theory"]
+    assert [row.item for row in result.rows] == mf.read_manifest(REFERENCE, "theory")["files"]
+    assert all(row.status == "match" for row in result.rows), format_result(result)
+
+
+@pytest.mark.parametrize("name", [run["name"] for run in MANIFEST["runs"]])
+def test_reference_run_reproduces(exact_check: dict[str, TierResult], name: str) -> None:
+    statuses = _statuses(exact_check["exact"], name)
+    assert list(statuses) == ["status", *MANIFEST["files"]]
+    assert set(statuses.values()) == {"match"}, format_result(exact_check["exact"])
+
+
+def test_planted_polyak_rate_is_caught_with_exit_status_one(
+    plant_tac_setting: Callable[..., None], tmp_path: Path
+) -> None:
+    plant_tac_setting(tau=0.01)
+    args = ["regress", "--only", TAC_RUN, "--against", str(REFERENCE), "--work", str(tmp_path)]
+    result = CliRunner().invoke(cli, args)
+    if "SKIPPED" in result.output:
+        pytest.skip(result.output)
+    assert result.exit_code == 1, result.output
+    assert f"{TAC_RUN}  losses.csv  DRIFT" in result.output
+    assert f"{TAC_RUN}  eval.csv    DRIFT" in result.output
+    assert f"{TAC_RUN}: config differs from the reference's: tau: 0.005 -> 0.01" in result.output
+    assert "REGRESSION" in result.output.splitlines()[-1]
+
+
+def test_planted_evaluation_seed_changes_eval_csv_alone(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    original = envs.eval_seeds
+    monkeypatch.setattr(envs, "eval_seeds", lambda seed, step, n: original(seed + 1, step, n))
+    (result,) = regress.check(REFERENCE, "exact", tmp_path, [TAC_RUN, BASELINE_RUN])
+    for name in (TAC_RUN, BASELINE_RUN):
+        assert _statuses(result, name) == {
+            "status": "match",
+            "eval.csv": "drift",  # other episodes evaluated ...
+            "train.csv": "match",  # ... and training untouched by evaluation
+            "losses.csv": "match",
+        }, format_result(result)
+    assert not any("config differs" in note for note in result.notes)
+
+
+def test_planted_hyperparameter_table_change_is_caught(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    original = hyperparams.resolve
+
+    def planted(algo: str, env: str, task: str | None) -> tuple[dict[str, Any], list[str]]:
+        table, sections = original(algo, env, task)
+        return {**table, "gamma": 0.9}, sections
+
+    monkeypatch.setattr(hyperparams, "resolve", planted)
+    (result,) = regress.check(REFERENCE, "exact", tmp_path, [BASELINE_RUN])
+    statuses = _statuses(result, BASELINE_RUN)
+    assert statuses["eval.csv"] == statuses["losses.csv"] == "drift", format_result(result)
+    assert result.verdict == "REGRESSION"
+    assert any("'gamma': 0.9" in note for note in result.notes)

@@ -1,0 +1,273 @@
+"""The regression checks' logic without training: CSV comparison, the permutation test on
+synthetic distributions, manifests, version gating, and the ``tacbench regress`` exit codes."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from tacbench import regress
+from tacbench.cli import cli
+from tacbench.errors import TacbenchError
+from tacbench.regress import exact, stat
+from tacbench.regress import manifest as mf
+from tacbench.regress.outcome import Row, TierResult, format_result
+from tacbench.regress.specs import EXACT_RUNS, STAT_ALPHA, STAT_GROUPS
+
+pytestmark = pytest.mark.unit
+
+REFERENCE = Path(__file__).resolve().parents[2] / "results" / "reference"
+CSV = "step,q,loss\n1000,1.5,0.25\n2000,1.5,0.125\n"
+
+
+# --- comparing CSV text ---------------------------------------------------------------------
+
+
+def test_identical_csv_text_matches() -> None:
+    assert exact.compare_csv(CSV, CSV) == ("match", "2 rows")
+
+
+def test_a_changed_last_digit_is_drift_with_where_and_how_much() -> None:
+    status, detail = exact.compare_csv(CSV, CSV.replace("0.125", "0.12500000000000003"))
+    assert status == "drift"
+    assert "from row 2 (step 2000)" in detail
+    assert "1 values differ, most in loss: 0.125 -> 0.12500000000000003" in detail
+    assert "relative 2.2e-16" in detail
+
+
+def test_missing_rows_and_changed_columns_are_drift() -> None:
+    status, detail = exact.compare_csv(CSV, "\n".join(CSV.splitlines()[:2]) + "\n")
+    assert status == "drift"
+    assert "2 -> 1 rows" in detail
+    assert "from row 2 (step 2000)" in detail
+    status, detail = exact.compare_csv(CSV, CSV.replace("loss", "loss_pi"))
+    assert status == "drift"
+    assert "columns" in detail and "loss_pi" in detail
+
+
+def test_wall_clock_column_is_dropped_and_nothing_else() -> None:
+    text = "step,wall_s,return_mean\n500,0.091,32.48253645959404\n1000,0.789,48.1\n"
+    assert mf.without_wall_clock(text) == "step,return_mean\n500,32.48253645959404\n1000,48.1\n"
+    assert mf.without_wall_clock(CSV) == CSV
+
+
+# --- the permutation test on synthetic distributions -------------------------------------------
+
+
+def test_permutation_pvalue_is_exact_on_small_samples() -> None:
+    # 4 scores, 6 splits; the observed split is the most extreme downwards
+    assert stat.permutation_pvalue([1.0, 2.0], [-1.0, 0.0]) == pytest.approx(1 / 6)
+    assert stat.permutation_pvalue([1.0, 2.0], [3.0, 4.0]) == 1.0
+    # ties: every split gives the same difference, so nothing is evidence of a drop
+    assert stat.permutation_pvalue([5.0, 5.0, 5.0], [5.0, 5.0, 5.0]) == 1.0
+
+
+def test_permutation_pvalue_falls_back_to_monte_carlo_on_large_samples() -> None:
+    rng = np.random.default_rng(1)
+    ref, fresh = rng.normal(0, 1, 15), rng.normal(-3, 1, 15)  # C(30, 15) > 1.5e8 splits
+    p = stat.permutation_pvalue(ref, fresh)
+    assert p == pytest.approx(1 / (stat.MONTE_CARLO_DRAWS + 1))
+
+
+def test_false_alarm_rate_is_at_most_alpha_for_same_distribution() -> None:
+    rng = np.random.default_rng(7)
+    trials, alpha = 2000, 0.05
+    alarms = sum(
+        stat.permutation_pvalue(rng.normal(1000, 400, 5), rng.normal(1000, 400, 5)) < alpha
+        for _ in range(trials)
+    )
+    # exact test: P(p < alpha) <= alpha; 2000 trials give a standard error of about 0.005
+    assert alarms / trials <= alpha + 0.015
+
+
+def test_same_distribution_passes_and_a_real_drop_is_flagged() -> None:
+    """Hopper-like score spreads (8 vs 8 seeds, the statistical tier's size): noise passes, a
+    weakened agent (mean halved) is a drop, an improvement is not."""
+    rng = np.random.default_rng(3)
+    ref = rng.normal(1500, 500, 8)
+    same = stat.compare_scores("g", ref, rng.normal(1500, 500, 8), STAT_ALPHA / 2)
+    assert same.status == "ok", same.detail
+    weak = stat.compare_scores("g", ref, rng.normal(400, 150, 8), STAT_ALPHA / 2)
+    assert weak.status == "drop"
+    assert "mean 1276.0 -> 449.0 (-827.0, -65%" in weak.detail
+    assert "p = 0.0029, a drop if p < 0.0250" in weak.detail
+    better = stat.compare_scores("g", ref, ref + 800, STAT_ALPHA / 2)
+    assert better.status == "ok"
+
+
+def test_power_against_a_halved_return_with_eight_seeds() -> None:
+    rng = np.random.default_rng(11)
+    flagged = [
+        stat.permutation_pvalue(rng.normal(1500, 500, 8), rng.normal(750, 250, 8)) < 0.025
+        for _ in range(50)
+    ]
+    assert np.mean(flagged) >= 0.9
+
+
+def test_bootstrap_interval_covers_the_shift() -> None:
+    rng = np.random.default_rng(5)
+    low, high = stat.bootstrap_interval(rng.normal(0, 1, 50), rng.normal(-2, 1, 50))
+    assert low < -2 < high and high < 0
+
+
+def test_committed_scores_against_synthetic_fresh_sets() -> None:
+    """The committed reference scores: a resample of themselves passes, half of them is a
+    drop (at the Bonferroni level of a full check)."""
+    manifest = mf.read_manifest(REFERENCE, "stat")
+    alpha = manifest["alpha"] / len(manifest["groups"])
+    for group in manifest["groups"]:
+        scores = np.array(list(group["scores"].values()))
+        assert stat.compare_scores("g", scores, scores[::-1] * 1.02, alpha).status == "ok"
+        assert stat.compare_scores("g", scores, scores * 0.5, alpha).status == "drop"
+
+
+def test_score_is_the_mean_of_the_last_evaluations(tmp_path: Path) -> None:
+    path = tmp_path / "eval.csv"
+    path.write_text("step,return_mean\n1,10\n2,20\n3,30\n4,50\n")
+    assert stat.score(path, 3) == pytest.approx(100 / 3)
+    with pytest.raises(TacbenchError, match="has 4 evaluations; the score needs 5"):
+        stat.score(path, 5)
+
+
+# --- manifests, gating, specs ------------------------------------------------------------------
+
+
+def test_specs_cover_every_task_q_and_baseline() -> None:
+    args = [dict(zip(s.args[::2], s.args[1::2], strict=False)) for s in EXACT_RUNS]
+    from tacbench.envs import SUITE
+
+    assert {a["--env"] for a in args} == set(SUITE.values())
+    assert {a["--env"] for a in args if "--algo" not in a} == set(SUITE.values())
+    assert {a["--q"] for a in args if "--q" in a} == {"1", "1.5", "2"}
+    assert {a["--algo"] for a in args if "--algo" in a} == {"ddpg", "td3", "sac-sb3", "ppo", "trpo"}
+    assert len({s.name for s in EXACT_RUNS}) == len(EXACT_RUNS)
+    for group in STAT_GROUPS:
+        assert not set(group.reference_seeds) & set(group.check_seeds)
+
+
+def test_committed_manifests_record_provenance() -> None:
+    for tier in ("exact", "theory", "stat"):
+        manifest = mf.read_manifest(REFERENCE, tier)
+        assert manifest["regenerate"].startswith(f"tacbench regress --update --tier {tier}")
+        assert set(manifest["environment"]["versions"]) == {"python", *mf.RECORDED_PACKAGES}
+        assert {"created", "git_commit", "platform"} <= set(manifest)
+    runs = mf.read_manifest(REFERENCE, "exact")["runs"]
+    assert [r["name"] for r in runs] == [s.name for s in EXACT_RUNS]
+    assert all(r["command"].startswith("tacbench run ") for r in runs)
+
+
+def test_environment_differences_name_what_changed() -> None:
+    here = mf.environment()
+    assert mf.environment_differences(here, here) == []
+    old = json.loads(json.dumps(here))
+    old["versions"]["torch"], old["cpu_capability"] = "0.0.1", "NONE"
+    assert mf.environment_differences(old, here) == [
+        f"cpu_capability NONE recorded, {here['cpu_capability']} here",
+        f"torch 0.0.1 recorded, {here['versions']['torch']} here",
+    ]
+
+
+def test_missing_or_foreign_manifest_says_how_to_regenerate(tmp_path: Path) -> None:
+    with pytest.raises(TacbenchError, match="tacbench regress --update --tier exact --against"):
+        mf.read_manifest(tmp_path, "exact")
+    (tmp_path / "stat").mkdir()
+    (tmp_path / "stat" / mf.MANIFEST).write_text('{"tier": "stat", "format": 99}')
+    with pytest.raises(TacbenchError, match="not a format-1 stat manifest"):
+        mf.read_manifest(tmp_path, "stat")
+
+
+def _copy_reference(tmp_path: Path, tier: str) -> Path:
+    copy = tmp_path / "reference"
+    shutil.copytree(REFERENCE / tier, copy / tier)
+    return copy
+
+
+def test_exact_tier_is_skipped_with_the_reason_on_other_versions(tmp_path: Path) -> None:
+    reference = _copy_reference(tmp_path, "exact")
+    path = reference / "exact" / mf.MANIFEST
+    manifest = json.loads(path.read_text())
+    manifest["environment"]["versions"]["torch"] = "1.0.0"
+    path.write_text(json.dumps(manifest))
+    (result,) = regress.check(reference, "exact", names=["tac-Hopper-v4-q2"])
+    assert result.verdict == "SKIPPED" and not result.rows
+    assert "torch 1.0.0 recorded" in result.skipped
+    assert "tacbench regress --update --tier exact" in result.skipped
+
+
+def test_a_recorded_command_that_is_refused_is_a_regression(tmp_path: Path) -> None:
+    reference = _copy_reference(tmp_path, "exact")
+    path = reference / "exact" / mf.MANIFEST
+    manifest = json.loads(path.read_text())
+    manifest["runs"][0]["args"].append("--no-such-flag")
+    path.write_text(json.dumps(manifest))
+    name = manifest["runs"][0]["name"]
+    (result,) = regress.check(reference, "exact", names=[name])
+    if result.skipped:
+        pytest.skip(result.skipped)
+    (row,) = result.rows
+    assert (row.item, row.part, row.status) == (name, "run", "missing")
+    assert "(exit status 2): Error: No such option '--no-such-flag'" in row.detail
+    assert result.verdict == "REGRESSION"
+
+
+# --- the CLI ---------------------------------------------------------------------------------
+
+
+def _fake_theory(monkeypatch: pytest.MonkeyPatch, csvs: dict[str, str]) -> None:
+    monkeypatch.setattr(exact, "_theory_csvs", lambda work: dict(csvs))
+
+
+def test_regress_cli_exit_codes_on_theory_csvs(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    reference = tmp_path / "ref"
+    _fake_theory(monkeypatch, {"a.csv": CSV})
+    result = CliRunner().invoke(
+        cli, ["regress", "--update", "--tier", "theory", "--against", str(reference)]
+    )
+    assert result.exit_code == 0, result.output
+    assert (reference / "theory" / "a.csv").read_text() == CSV
+    result = CliRunner().invoke(cli, ["regress", "--tier", "theory", "--against", str(reference)])
+    assert result.exit_code == 0 and "PASS (1 match" in result.output
+    _fake_theory(monkeypatch, {"a.csv": CSV.replace("0.25", "0.5"), "b.csv": CSV})
+    result = CliRunner().invoke(cli, ["regress", "--tier", "theory", "--against", str(reference)])
+    assert result.exit_code == 1
+    assert "a.csv  csv   DRIFT" in result.output
+    assert "loss: 0.25 -> 0.5 (relative 0.5)" in result.output
+    assert "not in the references (regenerate to include): b.csv" in result.output
+    assert "REGRESSION (1 drift" in result.output
+
+
+def test_regress_cli_usage_errors_exit_two(tmp_path: Path) -> None:
+    runner = CliRunner()
+    result = runner.invoke(cli, ["regress", "--against", str(tmp_path / "nowhere")])
+    assert result.exit_code == 2 and "no such folder" in result.output
+    result = runner.invoke(cli, ["regress", "--tier", "stat", "--against", str(tmp_path)])
+    assert result.exit_code == 2 and "tacbench regress --update --tier stat" in result.output
+    result = runner.invoke(cli, ["regress", "--update", "--only", "x"])
+    assert result.exit_code == 2 and "--only selects what to check" in result.output
+    (tmp_path / "work").mkdir()
+    (tmp_path / "work" / "old").write_text("")
+    result = runner.invoke(cli, ["regress", "--work", str(tmp_path / "work")])
+    assert result.exit_code == 2 and "is not an empty folder" in result.output
+    result = runner.invoke(cli, ["regress", "--only", "nope", "--against", str(REFERENCE)])
+    assert result.exit_code == 2 and "no reference named nope" in result.output
+
+
+def test_format_result_lists_rows_notes_and_verdict() -> None:
+    result = TierResult(
+        "exact",
+        "ref/exact",
+        (Row("run-a", "eval.csv", "match", "4 rows"), Row("run-b", "losses.csv", "drift", "x")),
+        ("recorded ...",),
+        seconds=3.2,
+    )
+    text = format_result(result)
+    assert text.splitlines()[0] == "== exact tier against ref/exact"
+    assert "run-b  losses.csv  DRIFT   x" in text
+    assert text.splitlines()[-1] == "REGRESSION (1 match, 1 drift; 3 s)"
