@@ -28,6 +28,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.logger import Logger
 
 from tacbench import runs
+from tacbench.progress import Progress
 
 
 class Interrupted(Exception):
@@ -105,7 +106,7 @@ class RunCallback(BaseCallback):
         log_every: int,
         on_policy: bool,
         writer: runs.RunWriter,
-        progress: runs.Progress,
+        progress: Progress,
         losses: LossLogger,
         evaluate: Callable[[int], float],
         checkpoint: Callable[[int], None],

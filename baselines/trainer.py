@@ -10,7 +10,6 @@ deterministic actions, one episode on each of ``eval_episodes`` separate env ins
 
 from __future__ import annotations
 
-import shutil
 import time
 from pathlib import Path
 from typing import Any
@@ -23,9 +22,9 @@ from baselines import algos, checkpoint, hyperparams
 from baselines.callbacks import Diverged, Interrupted, LossLogger, RunCallback
 from baselines.config import BaselineConfig
 from tacbench import envs, runs
-from tacbench.config import RESULT_NEUTRAL_FIELDS
 from tacbench.errors import TacbenchError
-from tacbench.training import Outcome, StopCheck, _stop_signals
+from tacbench.launch import Outcome, StopCheck, plan_runs, stop_signals
+from tacbench.progress import Progress
 
 
 def metadata(config: BaselineConfig, command: str) -> dict[str, Any]:
@@ -68,19 +67,8 @@ def train(
     if not configs or len({c.seed for c in configs}) != len(configs):
         raise TacbenchError("give each baseline run a different seed.")
     envs.env_info(configs[0].env)  # an unusable task fails before any directory is touched
-    outcomes, active = [], []
-    for config in configs:
-        directory = runs.run_directory(out, config.algo, config.env, config.variant, config.seed)
-        plan = runs.plan_run(
-            directory, config.to_dict(), resume=resume, force=force, neutral=RESULT_NEUTRAL_FIELDS
-        )
-        if plan.action == "skip":
-            outcomes.append(Outcome(config.seed, directory, "skipped", -1, plan.message))
-        else:
-            if plan.action == "start" and directory.exists():
-                shutil.rmtree(directory)
-            active.append((config, directory))
-    with _stop_signals() as received:
+    outcomes, active = plan_runs(configs, out, resume=resume, force=force)
+    with stop_signals() as received:
         for config, directory in active:
             torch.set_num_threads(config.threads)
             run = _Run(config, directory, command, quiet)
@@ -123,9 +111,7 @@ class _Run:
         self.model.set_logger(self.losses)
         self.checkpoint_step = self.step
         label = f"{algos.DISPLAY_NAMES[config.algo]} {config.env} seed {config.seed}"
-        self.progress = runs.Progress(
-            label, config.total_steps, self.step, config.eval_every, quiet
-        )
+        self.progress = Progress(label, config.total_steps, self.step, config.eval_every, quiet)
         self._t0 = time.perf_counter()
 
     def wall_s(self) -> float:

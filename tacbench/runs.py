@@ -20,9 +20,6 @@ import math
 import platform
 import socket
 import subprocess
-import sys
-import time
-from collections import deque
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -268,89 +265,3 @@ class RunWriter:
         for log in self._logs.values():
             log.close()
         self._logs.clear()
-
-
-class Progress:
-    """A progress display for one training process: a rich bar (steps, steps/s, last evaluation
-    return, ETA) on a terminal; plain lines at each evaluation, or every 5% without evaluation,
-    when the output is not a terminal or ``quiet`` is set."""
-
-    def __init__(
-        self,
-        label: str,
-        total: int,
-        start: int,
-        every: int,
-        quiet: bool,
-        stream: IO[str] | None = None,
-    ) -> None:
-        self.label, self.total, self.start_step = label, total, start
-        self.every = every if every > 0 else max(1, total // 20)
-        self.stream = stream if stream is not None else sys.stderr
-        self.last_eval = "-"
-        self._step = start
-        self._bar: Any = None
-        if not quiet and self.stream.isatty():
-            from rich.console import Console
-            from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeRemainingColumn
-            from rich.progress import Progress as RichProgress
-
-            self._bar = RichProgress(
-                TextColumn("{task.description}"),
-                BarColumn(),
-                MofNCompleteColumn(),
-                TextColumn("{task.fields[rate]} steps/s"),
-                TextColumn("eval {task.fields[last_eval]}"),
-                TimeRemainingColumn(),
-                console=Console(file=self.stream),
-            )
-            self._task = self._bar.add_task(
-                label, total=total, completed=start, rate="-", last_eval="-"
-            )
-            self._bar.start()
-        # steps/s over the last ~2,000 steps (bar) or since the previous line (plain)
-        window = 20 if self._bar is not None else 2
-        self._window: deque[tuple[float, int]] = deque([(time.perf_counter(), start)], window)
-
-    def _rate(self) -> float:
-        self._window.append((time.perf_counter(), self._step))
-        (t_first, s_first), (t_last, s_last) = self._window[0], self._window[-1]
-        return (s_last - s_first) / (t_last - t_first) if t_last > t_first else 0.0
-
-    def update(self, step: int, eval_return: float | None = None) -> None:
-        """Record progress to ``step`` (cheap enough to call every step)."""
-        previous, self._step = self._step, step
-        if eval_return is not None:
-            self.last_eval = f"{eval_return:.1f}"
-        if self._bar is not None:
-            if eval_return is not None or step // 100 != previous // 100 or step == self.total:
-                self._bar.update(
-                    self._task, completed=step, rate=f"{self._rate():.0f}", last_eval=self.last_eval
-                )
-        elif step // self.every != previous // self.every or step == self.total:
-            rate = self._rate()
-            eta = (self.total - step) / rate if rate > 0 else math.inf
-            self.message(
-                f"{self.label}: step {step}/{self.total} | {rate:.0f} steps/s | "
-                f"eval {self.last_eval} | ETA {_duration(eta)}"
-            )
-
-    def message(self, text: str) -> None:
-        """Print a line (above the bar when there is one)."""
-        if self._bar is not None:
-            self._bar.console.print(text, highlight=False, markup=False)
-        else:
-            print(text, file=self.stream, flush=True)
-
-    def close(self) -> None:
-        """Stop the bar."""
-        if self._bar is not None:
-            self._bar.stop()
-
-
-def _duration(seconds: float) -> str:
-    if not math.isfinite(seconds):
-        return "-"
-    minutes, secs = divmod(int(seconds), 60)
-    hours, minutes = divmod(minutes, 60)
-    return f"{hours}h{minutes:02d}m" if hours else f"{minutes}m{secs:02d}s"

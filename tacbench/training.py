@@ -13,13 +13,9 @@ latter written incrementally (only what was added since the previous checkpoint)
 
 from __future__ import annotations
 
-import shutil
-import signal
-import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -27,26 +23,16 @@ import numpy as np
 import torch
 
 from tacbench import envs, runs
-from tacbench.config import RESULT_NEUTRAL_FIELDS, RunConfig
+from tacbench.config import RunConfig
 from tacbench.errors import TacbenchError
+from tacbench.launch import Outcome, StopCheck, plan_runs, stop_signals
+from tacbench.progress import Progress
 from tacbench.tac.agent import METRICS, TacAgent
 from tacbench.tac.buffer import ReplayBuffer
 from tacbench.tac.speed import reuse_freed_memory
 
-StopCheck = Callable[[int], bool]
 LOSS_COLUMNS = ("q", "updates", *METRICS)
 _STATE_FILE = "state.pt"
-
-
-@dataclass(frozen=True)
-class Outcome:
-    """How one member's run ended in this call."""
-
-    seed: int
-    directory: Path
-    state: str  # "complete", "failed", "interrupted" or "skipped"
-    step: int
-    message: str = ""
 
 
 def resolve_device(name: str) -> str:
@@ -56,29 +42,6 @@ def resolve_device(name: str) -> str:
     if name == "cuda" and not torch.cuda.is_available():
         raise TacbenchError("--device cuda: no CUDA device is visible here; use --device cpu.")
     return name
-
-
-@contextmanager
-def _stop_signals() -> Iterator[dict[str, int]]:
-    """While active, a first SIGINT or SIGTERM only records itself (the loop then checkpoints
-    and stops); a second one raises KeyboardInterrupt at once (no checkpoint). The previous
-    handlers come back afterwards. No-op outside the main thread."""
-    received: dict[str, int] = {}
-    if threading.current_thread() is not threading.main_thread():
-        yield received
-        return
-
-    def handler(signum: int, _frame: Any) -> None:
-        if received:
-            raise KeyboardInterrupt
-        received["signal"] = signum
-
-    previous = {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        yield received
-    finally:
-        for sig, old in previous.items():
-            signal.signal(sig, old)
 
 
 def train(
@@ -105,23 +68,12 @@ def train(
     ):
         raise TacbenchError("members must share every setting but the seed, and differ in seed.")
     envs.env_info(configs[0].env)  # an unusable task fails before any directory is touched
-    outcomes, active = [], []
-    for config in configs:
-        directory = runs.run_directory(out, config.algo, config.env, config.variant, config.seed)
-        plan = runs.plan_run(
-            directory, config.to_dict(), resume=resume, force=force, neutral=RESULT_NEUTRAL_FIELDS
-        )
-        if plan.action == "skip":
-            outcomes.append(Outcome(config.seed, directory, "skipped", -1, plan.message))
-            continue
-        if plan.action == "start" and directory.exists():
-            shutil.rmtree(directory)
-        active.append((config, directory))
+    outcomes, active = plan_runs(configs, out, resume=resume, force=force)
     if active:
         torch.set_num_threads(active[0][0].threads)
         reuse_freed_memory()
         trainer = _Trainer([c for c, _ in active], [d for _, d in active], command, quiet)
-        with _stop_signals() as received:
+        with stop_signals() as received:
             outcomes += trainer.run(
                 lambda step: bool(received) or (stop is not None and stop(step))
             )
@@ -184,9 +136,7 @@ class _Trainer:
         self._resume_or_start(configs, directories)
         seeds = ",".join(map(str, self.seeds))
         label = f"TAC {config.env} q={config.q:g} seed{'s' if k > 1 else ''} {seeds}"
-        self.progress = runs.Progress(
-            label, config.total_steps, self.step, config.eval_every, quiet
-        )
+        self.progress = Progress(label, config.total_steps, self.step, config.eval_every, quiet)
         self._t0 = time.perf_counter()
 
     # --- start and resume ----------------------------------------------------------------

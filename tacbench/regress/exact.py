@@ -127,9 +127,7 @@ def update_exact(
         seconds=round(time.perf_counter() - start, 1),
         runs=entries,
     )
-    mf.write_manifest(staging, manifest)
-    mf.replace_directory(staging, reference / "exact")
-    return reference / "exact" / mf.MANIFEST
+    return mf.publish(staging, manifest, reference, "exact")
 
 
 def check_exact(
@@ -210,9 +208,7 @@ def update_theory(reference: Path, work: Path) -> Path:
         (staging / name).write_text(text)
     manifest = mf.provenance("theory", reference)
     manifest.update(command=THEORY_COMMAND, files=sorted(csvs))
-    mf.write_manifest(staging, manifest)
-    mf.replace_directory(staging, reference / "theory")
-    return reference / "theory" / mf.MANIFEST
+    return mf.publish(staging, manifest, reference, "theory")
 
 
 def check_theory(reference: Path, work: Path) -> TierResult:

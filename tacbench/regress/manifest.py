@@ -133,11 +133,16 @@ def staging_directory(reference: Path, tier: str) -> Path:
     return staging
 
 
-def replace_directory(staging: Path, target: Path) -> None:
-    """Put ``staging`` where ``target`` was (same parent, so the rename is cheap)."""
+def publish(staging: Path, manifest: Mapping[str, Any], reference: Path, tier: str) -> Path:
+    """Write ``manifest`` into ``staging`` (:func:`staging_directory`), then put ``staging``
+    where ``<reference>/<tier>`` was (same parent, so the rename is cheap); returns the new
+    manifest's path."""
+    write_manifest(staging, manifest)
+    target = reference / tier
     if target.exists():
         shutil.rmtree(target)
     staging.rename(target)
+    return target / MANIFEST
 
 
 def without_wall_clock(text: str) -> str:

@@ -170,9 +170,7 @@ def update_stat(
         seconds=round(time.perf_counter() - start, 1),
         groups=entries,
     )
-    mf.write_manifest(staging, manifest)
-    mf.replace_directory(staging, reference / "stat")
-    return reference / "stat" / mf.MANIFEST
+    return mf.publish(staging, manifest, reference, "stat")
 
 
 def check_stat(

@@ -13,17 +13,14 @@ last checkpoints).
 from __future__ import annotations
 
 import os
-import signal
-import threading
 from collections import deque
-from collections.abc import Iterator
-from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
 
 from tacbench import runs
 from tacbench.errors import TacbenchError
+from tacbench.launch import stop_signals
 from tacbench.sweep import executors, plan, state, summary
 from tacbench.sweep.presets import Preset
 from tacbench.sweep.progress import SweepProgress
@@ -124,7 +121,7 @@ def run_sweep(preset: Preset, out: Path, options: Options, stream: IO[str] | Non
         work, history = load_plan(preset, out, options)
         executor = _executor(out, options)
         driver = _Driver(work, history, executor, options, stream)
-        with _signals() as received:
+        with stop_signals(second_interrupts=False) as received:
             interrupted = driver.run(received)
         final, history = load_plan(preset, out, options)
         result = summary.summarize(final, history, command=options.command, interrupted=interrupted)
@@ -246,24 +243,3 @@ def _note_resume(directory: Path, command: str) -> None:
     if command and str(status.get("reason", "")).startswith("interrupted"):
         status["reason"] = f"interrupted at step {status.get('step')}; resume with: {command}"
         runs.atomic_write_json(path, status)
-
-
-@contextmanager
-def _signals() -> Iterator[dict[str, int]]:
-    """Count SIGINT/SIGTERM while the sweep runs (the driver stops on the first, at once on the
-    second); the previous handlers come back afterwards. No-op outside the main thread."""
-    received: dict[str, int] = {}
-    if threading.current_thread() is not threading.main_thread():
-        yield received
-        return
-
-    def handler(signum: int, _frame: Any) -> None:
-        received["count"] = received.get("count", 0) + 1
-        received["signal"] = signum
-
-    previous = {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        yield received
-    finally:
-        for sig, old in previous.items():
-            signal.signal(sig, old)

@@ -9,9 +9,9 @@ from pathlib import Path
 from typing import Any
 
 from tacbench import runs
+from tacbench.progress import duration
 from tacbench.sweep import cost, state
 from tacbench.sweep.plan import Plan, PlannedRun
-from tacbench.sweep.progress import duration
 
 
 def counts(plan: Plan) -> dict[str, int]:

@@ -31,7 +31,7 @@ from tacbench.errors import TacbenchError
 from tacbench.sweep.plan import Unit
 
 if TYPE_CHECKING:
-    from tacbench.training import Outcome
+    from tacbench.launch import Outcome
 
 Report = Callable[[int], bool]  # step -> whether to stop
 LOG_TAIL_BYTES = 64_000  # how much of an attempt's log a Ray task sends back to the driver

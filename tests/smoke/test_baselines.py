@@ -25,7 +25,7 @@ from baselines import ALGOS, OFF_POLICY, algos, callbacks, hyperparams
 from baselines.config import BaselineConfig, make_configs
 from baselines.trainer import train
 from tacbench.cli import cli
-from tacbench.training import Outcome
+from tacbench.launch import Outcome
 
 pytestmark = pytest.mark.smoke
 

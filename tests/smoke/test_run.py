@@ -21,7 +21,8 @@ from click.testing import CliRunner
 from tacbench.cli import cli
 from tacbench.config import PAPER_ALPHA, PAPER_BEST_Q, RunConfig
 from tacbench.envs import SUITE
-from tacbench.training import LOSS_COLUMNS, Outcome, train
+from tacbench.launch import Outcome
+from tacbench.training import LOSS_COLUMNS, train
 
 pytestmark = pytest.mark.smoke
 

@@ -7,14 +7,15 @@ import pytest
 from click.testing import CliRunner
 
 from tacbench import __version__
-from tacbench.cli import _Group, cli
+from tacbench.cli import cli
+from tacbench.cli.common import Group
 from tacbench.errors import TacbenchError
 
 pytestmark = pytest.mark.unit
 
 
 def test_user_error_exits_with_status_two_and_no_traceback() -> None:
-    @click.group(cls=_Group)
+    @click.group(cls=Group)
     def group() -> None:
         pass
 
@@ -29,7 +30,7 @@ def test_user_error_exits_with_status_two_and_no_traceback() -> None:
 
 
 def test_other_exceptions_are_not_swallowed() -> None:
-    @click.group(cls=_Group)
+    @click.group(cls=Group)
     def group() -> None:
         pass
 

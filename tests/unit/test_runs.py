@@ -10,6 +10,7 @@ import pytest
 
 from tacbench import runs
 from tacbench.errors import TacbenchError
+from tacbench.progress import Progress
 
 pytestmark = pytest.mark.unit
 
@@ -132,7 +133,7 @@ def test_run_writer_files(tmp_path: Path) -> None:
 
 def test_plain_progress_prints_a_line_per_interval() -> None:
     stream = io.StringIO()
-    progress = runs.Progress("TAC Hopper-v4", 3000, 0, 1000, quiet=False, stream=stream)
+    progress = Progress("TAC Hopper-v4", 3000, 0, 1000, quiet=False, stream=stream)
     for step in range(1, 3001):
         progress.update(step, 42.5 if step % 1000 == 0 else None)
     progress.close()

@@ -1,0 +1,33 @@
+"""The ``tacbench`` command line: parse flags, build a config, call the library. No logic here.
+
+One module per family of commands: ``run`` (train one run), ``sweep`` (grids), ``results``
+(report, figures, envs), ``tools`` (bench, regress); ``common`` holds what they share.
+"""
+
+from __future__ import annotations
+
+import click
+
+from tacbench import __version__
+from tacbench.cli.common import Group
+from tacbench.cli.results import envs_command, figures, report
+from tacbench.cli.run import run
+from tacbench.cli.sweep import sweep
+from tacbench.cli.tools import bench, regress
+
+__all__ = ["cli", "main"]
+
+
+@click.group(cls=Group, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="tacbench")
+def cli() -> None:
+    """tacbench: train, sweep and report Tsallis Actor-Critic and its baselines."""
+
+
+for command in (figures, report, run, sweep, bench, regress, envs_command):
+    cli.add_command(command)
+
+
+def main() -> None:
+    """Console-script entry point."""
+    cli()

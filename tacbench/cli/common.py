@@ -1,0 +1,58 @@
+"""What the command modules share: errors as click shows them, and the command line as recorded."""
+
+from __future__ import annotations
+
+import shlex
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any
+
+import click
+
+from tacbench.errors import TacbenchError
+
+if TYPE_CHECKING:
+    from tacbench.launch import Outcome
+
+
+class UserError(click.ClickException):
+    """A :class:`TacbenchError` as click shows it: ``Error: <message>``, exit status 2."""
+
+    exit_code = 2
+
+
+class Group(click.Group):
+    """A click group that turns :class:`TacbenchError` into a clean message and exit status 2."""
+
+    def invoke(self, ctx: click.Context) -> Any:
+        try:
+            return super().invoke(ctx)
+        except TacbenchError as err:
+            raise UserError(str(err)) from None
+
+
+def command_line(ctx: click.Context) -> str:
+    """The flags the user gave, in canonical form (defaults left out): recorded in config.json."""
+    parts = ["tacbench", ctx.info_name or "run"]
+    for param in ctx.command.params:
+        name = param.name or ""
+        if ctx.get_parameter_source(name) != click.core.ParameterSource.COMMANDLINE:
+            continue
+        flag, value = param.opts[0], ctx.params[name]
+        if isinstance(param, click.Option) and param.is_flag:
+            parts.append(flag)
+        else:
+            for item in value if isinstance(value, tuple) else (value,):
+                parts += [flag, str(item)]
+    return shlex.join(parts)
+
+
+def report_outcomes(ctx: click.Context, outcomes: Sequence[Outcome]) -> None:
+    """One line per seed; exit status 130 if interrupted, 1 if a run failed."""
+    for outcome in outcomes:
+        detail = f" ({outcome.message})" if outcome.message else ""
+        click.echo(f"seed {outcome.seed}: {outcome.state}, {outcome.directory}{detail}")
+    states = {outcome.state for outcome in outcomes}
+    if "interrupted" in states:
+        ctx.exit(130)
+    if "failed" in states:
+        ctx.exit(1)

@@ -1,0 +1,122 @@
+"""``tacbench report``, ``tacbench figures`` and ``tacbench envs``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from tacbench import config
+
+
+@click.command()
+@click.option(
+    "--out",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=Path("results/figures"),
+    show_default=True,
+    help="Directory for the PNGs and CSVs (created if missing).",
+)
+def figures(out: Path) -> None:
+    """Write the paper's theory figures (PNG) and the numbers they plot (CSV)."""
+    from tacbench.figures import write_figures  # matplotlib only when this command runs
+
+    for path in write_figures(out):
+        click.echo(f"wrote {path}")
+
+
+@click.command()
+@click.option(
+    "--results",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=Path("results"),
+    show_default=True,
+    help="Folder holding runs/<algo>/<env>/<variant>/seed<k>/ (or the run folders themselves).",
+)
+@click.option(
+    "--out",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=Path("results/report"),
+    show_default=True,
+    help="Folder for index.html, report.md, the figures and the CSV tables (created if missing).",
+)
+@click.option(
+    "--metric",
+    type=click.Choice(["eval", "train"]),
+    default="eval",
+    show_default=True,
+    help="eval: evaluation returns (eval.csv); train: training-episode returns (train.csv).",
+)
+@click.option(
+    "--format",
+    "fmt",
+    type=click.Choice(["png", "svg", "pdf"]),
+    default="png",
+    show_default=True,
+    help="File format of the figures.",
+)
+@click.option(
+    "--reps",
+    type=int,
+    default=2000,
+    show_default=True,
+    help="Bootstrap replications for every confidence interval.",
+)
+@click.option(
+    "--last",
+    type=int,
+    default=10,
+    show_default=True,
+    help="Final return = mean of each run's last N logged returns.",
+)
+@click.option(
+    "--grid-points",
+    type=int,
+    default=200,
+    show_default=True,
+    help="At most this many points on the common step grid the curves are put on, per task.",
+)
+def report(
+    results: Path, out: Path, metric: str, fmt: str, reps: int, last: int, grid_points: int
+) -> None:
+    """Figures, tables and rliable statistics from the run directories under --results."""
+    from tacbench.report import ReportOptions, analyse, write_report  # pandas etc. only here
+
+    options = ReportOptions(
+        results=results,
+        out=out,
+        metric=metric,
+        fmt=fmt,
+        reps=reps,
+        last=last,
+        grid_points=grid_points,
+    )
+    analysed = analyse(options)
+    write_report(analysed)
+    runs, skipped = analysed.runset.runs, analysed.runset.skipped
+    click.echo(
+        f"{len(runs)} runs loaded ({int(runs['partial'].sum())} partial), {len(skipped)} skipped"
+        f"{' (see skipped.csv)' if skipped else ''}; wrote {out / 'index.html'} and "
+        f"{out / 'report.md'}"
+    )
+
+
+@click.command(name="envs")
+def envs_command() -> None:
+    """List the paper's task suite with its Gymnasium ids and the paper's alpha and best q."""
+    from tacbench.envs import suite_table
+
+    header = (
+        f"{'task':<12} {'env':<16} {'obs':>4} {'act':>4} {'limit':>6} {'alpha':>6} {'best q':>7}"
+    )
+    click.echo(header + "  loads")
+    for row in suite_table():
+        click.echo(
+            f"{row['task']:<12} {row['env']:<16} {row['obs']!s:>4} {row['act']!s:>4} "
+            f"{row['limit']!s:>6} {config.PAPER_ALPHA[row['task']]:>6g} "
+            f"{config.PAPER_BEST_Q[row['task']]:>7g}  {row['ok']}"
+        )
+    click.echo(
+        "alpha and best q: paper appendix, per-task table. Any other registered Gymnasium id "
+        "with continuous actions also works with --env (default q = 1, alpha = 0.2)."
+    )

@@ -1,0 +1,97 @@
+"""``tacbench sweep``: the paper's grids, locally or on Ray."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import click
+
+from baselines import ALGOS as BASELINES
+from tacbench.cli.common import command_line
+from tacbench.sweep.presets import PRESETS as SWEEP_PRESETS
+
+
+@click.command()
+@click.option(
+    "--preset",
+    type=click.Choice(list(SWEEP_PRESETS)),
+    required=True,
+    help="paper-q-grid (TAC, 9 q x 6 tasks x 10 seeds), paper-comparison (TAC best q, SAC = "
+    "TAC q=1, DDPG, TD3, PPO, TRPO), smoke (tiny budgets). Sources: docs/sweep.md.",
+)
+@click.option("--env", "envs", multiple=True, help="Repeatable: keep only these tasks (Ant).")
+@click.option("--q", "qs", type=float, multiple=True, help="Repeatable: keep only these TAC q.")
+@click.option(
+    "--algo",
+    "algos",
+    type=click.Choice(["tac", *BASELINES]),
+    multiple=True,
+    help="Repeatable: keep only these algorithms.",
+)
+@click.option("--seed", "seeds", type=int, multiple=True, help="Repeatable: keep only these seeds.")
+@click.option("--steps", type=int, default=None, help="Environment steps per run (budget).")
+@click.option("--checkpoint-every", type=int, default=None, help="Steps between checkpoints.")
+@click.option("--executor", type=click.Choice(["local", "ray"]), default="local", show_default=True)
+@click.option(
+    "--workers",
+    type=int,
+    default=None,
+    help="Units at once. [default: local: the core count; ray: what the cluster has room for]",
+)
+@click.option("--address", default=None, help="Ray cluster: auto, HOST:6379 or ray://HOST:10001.")
+@click.option("--cpus-per-run", type=float, default=1.0, show_default=True, help="Ray request.")
+@click.option("--gpus-per-run", type=float, default=0.0, show_default=True, help="Ray; > 0: cuda.")
+@click.option(
+    "--scratch",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=None,
+    help="Ray: run directories and checkpoints on each node.  [default: $TMPDIR/tacbench-sweep]",
+)
+@click.option("--shared-fs", is_flag=True, help="Ray: --out is the same path on every node.")
+@click.option("--group-seeds", is_flag=True, help="TAC runs differing in seed share a process.")
+@click.option("--max-retries", type=int, default=2, show_default=True, help="Per failed run.")
+@click.option(
+    "--out",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=Path("results"),
+    show_default=True,
+    help="Results folder: runs/... as `tacbench run`, and sweep/ (state, summary, logs).",
+)
+@click.option("--dry-run", is_flag=True, help="Print the plan and cost estimate; train nothing.")
+@click.pass_context
+def sweep(ctx: click.Context, preset: str, **p: Any) -> None:
+    """Train a preset grid of runs (or what is left of it) locally or on Ray; rerun the same
+    command to resume after Ctrl-C or a crash (docs/sweep.md).
+
+    Exit status: 0 when every run is complete, 1 when a run failed more than --max-retries
+    times, 130 when interrupted (rerun to resume), 2 for a usage error.
+    """
+    from tacbench.sweep import driver, presets, summary  # torch only when this command runs
+
+    grid = presets.narrow(
+        presets.get_preset(preset),
+        presets.Narrowing(
+            p["envs"], p["qs"], p["algos"], p["seeds"], p["steps"], p["checkpoint_every"]
+        ),
+    )
+    options = driver.Options(
+        executor=p["executor"],
+        workers=p["workers"],
+        address=p["address"],
+        cpus_per_run=p["cpus_per_run"],
+        gpus_per_run=p["gpus_per_run"],
+        scratch=p["scratch"],
+        shared_fs=p["shared_fs"],
+        group_seeds=p["group_seeds"],
+        max_retries=p["max_retries"],
+        command=command_line(ctx),
+    )
+    if p["dry_run"]:
+        work, _ = driver.load_plan(grid, p["out"], options, save=False)
+        click.echo(summary.describe_plan(work, options.worker_count(), options.group_seeds))
+        return
+    result = driver.run_sweep(grid, p["out"], options)
+    click.echo(result.text)
+    click.echo(f"wrote {p['out'] / 'sweep' / 'summary.json'} and summary.txt")
+    ctx.exit(result.exit_code)
