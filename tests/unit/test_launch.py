@@ -1,0 +1,75 @@
+"""What the trainers and the sweep share: planning a call's run directories and stop signals."""
+
+from __future__ import annotations
+
+import os
+import signal
+from pathlib import Path
+
+import pytest
+
+from tacbench import runs
+from tacbench.config import RunConfig
+from tacbench.errors import TacbenchError
+from tacbench.launch import plan_runs, stop_signals
+
+pytestmark = pytest.mark.unit
+
+
+def _configs(*seeds: int) -> list[RunConfig]:
+    return [RunConfig(env="Hopper-v4", q=1.5, alpha=0.2, seed=seed) for seed in seeds]
+
+
+def _store(directory: Path, config: RunConfig, state: str, step: int) -> None:
+    directory.mkdir(parents=True)
+    runs.atomic_write_json(directory / "config.json", {"config": config.to_dict()})
+    runs.atomic_write_json(directory / "status.json", {"state": state, "step": step})
+
+
+def test_plan_runs_skips_complete_runs_and_empties_the_ones_that_start_afresh(
+    tmp_path: Path,
+) -> None:
+    done, fresh, forced = _configs(0, 10, 20)
+    folder = {
+        c.seed: runs.run_directory(tmp_path, c.algo, c.env, c.variant, c.seed)
+        for c in (done, fresh, forced)
+    }
+    _store(folder[0], done, "complete", 1000)
+    _store(folder[20], forced, "failed", 10)
+    (folder[20] / "leftover.csv").write_text("x\n")
+    skipped, active = plan_runs([done, fresh], tmp_path, resume=False, force=False)
+    assert [(o.seed, o.state) for o in skipped] == [(0, "skipped")]
+    assert "already complete" in skipped[0].message
+    assert active == [(fresh, folder[10])]
+    _, active = plan_runs([forced], tmp_path, resume=False, force=True)
+    assert active == [(forced, folder[20])] and not folder[20].exists()
+
+
+def test_plan_runs_refuses_an_unfinished_run_without_resume_and_touches_nothing(
+    tmp_path: Path,
+) -> None:
+    (config,) = _configs(0)
+    directory = runs.run_directory(tmp_path, config.algo, config.env, config.variant, 0)
+    _store(directory, config, "running", 500)
+    with pytest.raises(TacbenchError, match="--resume"):
+        plan_runs([config], tmp_path, resume=False, force=False)
+    assert (directory / "status.json").exists()
+    _, active = plan_runs([config], tmp_path, resume=True, force=False)
+    assert active == [(config, directory)] and (directory / "status.json").exists()
+
+
+def test_stop_signals_record_then_interrupt_on_the_second_and_restore_the_handlers() -> None:
+    before = signal.getsignal(signal.SIGINT)
+    with stop_signals() as received:
+        os.kill(os.getpid(), signal.SIGTERM)
+        assert received == {"count": 1, "signal": signal.SIGTERM}
+        with pytest.raises(KeyboardInterrupt):
+            os.kill(os.getpid(), signal.SIGINT)
+    assert signal.getsignal(signal.SIGINT) is before
+
+
+def test_stop_signals_can_count_instead_of_interrupting() -> None:
+    with stop_signals(second_interrupts=False) as received:
+        os.kill(os.getpid(), signal.SIGINT)
+        os.kill(os.getpid(), signal.SIGINT)
+    assert received == {"count": 2, "signal": signal.SIGINT}
