@@ -37,21 +37,16 @@ class BaselineConfig:
 
     def __post_init__(self) -> None:
         hyperparams.check_algo(self.algo)
-        for name, minimum in (
-            ("total_steps", 1),
-            ("eval_every", 0),
-            ("eval_episodes", 1),
-            ("checkpoint_every", 0),
-            ("log_every", 1),
-            ("threads", 1),
-            ("seed", 0),
-        ):
-            value = getattr(self, name)
-            if not isinstance(value, int) or isinstance(value, bool) or value < minimum:
-                flag = "--" + name.replace("_", "-")
-                raise TacbenchError(
-                    f"{name} must be an integer >= {minimum} (got {value!r}); {flag}."
-                )
+        tac_config.check_integers(
+            self,
+            total_steps=1,
+            eval_every=0,
+            eval_episodes=1,
+            checkpoint_every=0,
+            log_every=1,
+            threads=1,
+            seed=0,
+        )
         if self.device not in ("cpu", "cuda"):
             raise TacbenchError(f"--device must be cpu or cuda (got {self.device!r}).")
         missing = sorted(set(hyperparams.ALGO_KEYS[self.algo]) - set(self.hyperparams))

@@ -127,24 +127,19 @@ class RunConfig:
             raise TacbenchError("--compile compiles the fused update: use it with --impl fused.")
         if self.algo != "tac":
             raise TacbenchError(f"RunConfig is TAC's config; got algo={self.algo!r}.")
-        for name, minimum in (
-            ("total_steps", 1),
-            ("learning_starts", 0),
-            ("batch_size", 1),
-            ("buffer_size", 1),
-            ("eval_every", 0),
-            ("eval_episodes", 1),
-            ("checkpoint_every", 0),
-            ("log_every", 1),
-            ("threads", 1),
-            ("seed", 0),
-        ):
-            value = getattr(self, name)
-            if not isinstance(value, int) or isinstance(value, bool) or value < minimum:
-                flag = "--" + name.replace("_", "-")
-                raise TacbenchError(
-                    f"{name} must be an integer >= {minimum} (got {value!r}); {flag}."
-                )
+        check_integers(
+            self,
+            total_steps=1,
+            learning_starts=0,
+            batch_size=1,
+            buffer_size=1,
+            eval_every=0,
+            eval_episodes=1,
+            checkpoint_every=0,
+            log_every=1,
+            threads=1,
+            seed=0,
+        )
         if not self.hidden_sizes or min(self.hidden_sizes) < 1:
             raise TacbenchError(
                 f"hidden_sizes must be positive layer widths (got {self.hidden_sizes})."
@@ -234,6 +229,16 @@ _ABBREVIATIONS = {
     "q_schedule_start": "qstart",
     "q_schedule_end": "qend",
 }
+
+
+def check_integers(config: object, **minimums: int) -> None:
+    """Each named field of ``config`` is an integer (not a bool) at least its minimum; else a
+    TacbenchError names the flag."""
+    for name, minimum in minimums.items():
+        value = getattr(config, name)
+        if not isinstance(value, int) or isinstance(value, bool) or value < minimum:
+            flag = "--" + name.replace("_", "-")
+            raise TacbenchError(f"{name} must be an integer >= {minimum} (got {value!r}); {flag}.")
 
 
 def _check_choice(flag: str, value: str, choices: Sequence[str]) -> None:
