@@ -34,7 +34,8 @@ SEEDS = (0, 10, 20, 30, 40)  # the first five of the paper's seeds (0, 10, ..., 
 STEPS = 100_000
 FRACTION = 0.1  # final return: the evaluations in the last 10% of the steps
 REPS = 10_000
-METHODS = {"tac": "TAC q=1", "sac-sb3": "SAC (SB3)"}
+TAC, TAC_TWIN_Q, SB3 = "TAC q=1", "TAC q=1 twin-q", "SAC (SB3)"
+METHODS = (TAC, TAC_TWIN_Q, SB3)  # the paper's TAC (target V), TAC with SAC v2's target, SB3
 
 
 def commands(
@@ -43,35 +44,39 @@ def commands(
     steps: int = STEPS,
     out: str = "results/parity",
 ) -> list[str]:
-    """The ``tacbench run`` commands of the study: per task, TAC at q = 1 (the seeds as members
-    of one process) and sac-sb3 (the seeds one after another)."""
+    """The ``tacbench run`` commands of the study: per task, TAC at q = 1 with the paper's
+    target V and with ``--critic-target twin-q`` (the seeds as members of one process), and
+    sac-sb3 (the seeds one after another)."""
     seed_flags = [flag for seed in seeds for flag in ("--seed", str(seed))]
     lines = []
     for env in envs:
         alpha = PAPER_ALPHA[paper_task(env) or ""]
         common = ["--env", env, *seed_flags, "--steps", str(steps), "--out", out, "--quiet"]
-        lines.append(shlex.join(["tacbench", "run", "--q", "1", "--alpha", f"{alpha:g}", *common]))
+        tac = ["tacbench", "run", "--q", "1", "--alpha", f"{alpha:g}"]
+        lines.append(shlex.join([*tac, *common]))
+        lines.append(shlex.join([*tac, "--critic-target", "twin-q", *common]))
         lines.append(shlex.join(["tacbench", "run", "--algo", "sac-sb3", *common]))
     return lines
 
 
 def load(results: Path) -> pd.DataFrame:
-    """Evaluation returns of the study's runs: TAC at q = 1 and sac-sb3, complete runs only.
-    Columns: method, env, seed, step, return."""
+    """Evaluation returns of the study's runs (TAC at q = 1, with either critic target, and
+    sac-sb3), complete runs only. Columns: method (one of :data:`METHODS`), env, seed, step,
+    return."""
     runset = load_runs(results, "eval")
     runs = runset.runs
     chosen = runs[((runs["algo"] == "tac") & (runs["q"] == 1.0)) | (runs["algo"] == "sac-sb3")]
-    chosen = chosen[chosen["state"] == "complete"]
-    several = chosen.groupby(["algo", "env"])["variant"].nunique()
+    chosen = chosen[chosen["state"] == "complete"].copy()
+    twin_q = chosen["variant"].str.contains("-twinq", regex=False)
+    chosen["method"] = np.where(chosen["algo"] == "sac-sb3", SB3, np.where(twin_q, TAC_TWIN_Q, TAC))
+    several = chosen.groupby(["method", "env"])["variant"].nunique()
     if (several > 1).any():
         raise TacbenchError(
-            f"several variants of one algorithm on one task under {results}: "
-            f"{several[several > 1].to_dict()}; keep one per algorithm and task."
+            f"several variants of one method on one task under {results}: "
+            f"{several[several > 1].to_dict()}; keep one per method and task."
         )
-    data = runset.data[runset.data["run"].isin(chosen["run"])]
-    frame = data[["algo", "env", "seed", "step", "return"]].copy()
-    frame.insert(0, "method", frame.pop("algo").map(METHODS))
-    return frame.reset_index(drop=True)
+    data = runset.data.merge(chosen[["run", "method"]], on="run")
+    return data[["method", "env", "seed", "step", "return"]].reset_index(drop=True)
 
 
 def curves(data: pd.DataFrame) -> pd.DataFrame:
@@ -102,19 +107,25 @@ def bootstrap_difference(
 
 
 def summary(finals: pd.DataFrame, reps: int = REPS) -> pd.DataFrame:
-    """Per task: each method's final return (mean, std, seeds) and TAC minus SB3 with its CI."""
+    """Per task and TAC method present: its final return and SB3's (mean, std, seeds), and
+    TAC minus SB3 with its 95% bootstrap interval."""
     rows = []
     for env, group in finals.groupby("env"):
-        values = {m: group.loc[group["method"] == m, "return"].to_numpy() for m in METHODS.values()}
-        tac, sb3 = values["TAC q=1"], values["SAC (SB3)"]
-        row: dict[str, object] = {"env": env}
-        for name, scores in (("TAC q=1", tac), ("SAC (SB3)", sb3)):
-            row[f"{name} mean"] = scores.mean() if len(scores) else np.nan
-            row[f"{name} std"] = scores.std(ddof=1) if len(scores) > 1 else np.nan
-            row[f"{name} seeds"] = len(scores)
-        if len(tac) and len(sb3):
-            row["TAC - SB3"], row["CI low"], row["CI high"] = bootstrap_difference(tac, sb3, reps)
-        rows.append(row)
+        sb3 = group.loc[group["method"] == SB3, "return"].to_numpy()
+        for method in (TAC, TAC_TWIN_Q):
+            tac = group.loc[group["method"] == method, "return"].to_numpy()
+            if not len(tac):
+                continue
+            row: dict[str, object] = {"env": env, "method": method}
+            for name, scores in (("TAC", tac), ("SB3", sb3)):
+                row[f"{name} mean"] = scores.mean() if len(scores) else np.nan
+                row[f"{name} std"] = scores.std(ddof=1) if len(scores) > 1 else np.nan
+                row[f"{name} seeds"] = len(scores)
+            if len(sb3):
+                row["TAC - SB3"], row["CI low"], row["CI high"] = bootstrap_difference(
+                    tac, sb3, reps
+                )
+            rows.append(row)
     return pd.DataFrame(rows)
 
 
@@ -128,8 +139,10 @@ def plot(table: pd.DataFrame, path: Path) -> None:
     envs = sorted(table["env"].unique())
     fig, axes = plt.subplots(1, len(envs), figsize=(5 * len(envs), 3.6), squeeze=False)
     for ax, env in zip(axes[0], envs, strict=True):
-        for method, color in zip(METHODS.values(), ("tab:blue", "tab:orange"), strict=True):
+        for method, color in zip(METHODS, ("tab:blue", "tab:green", "tab:orange"), strict=True):
             rows = table[(table["env"] == env) & (table["method"] == method)]
+            if rows.empty:
+                continue
             std = rows["std"].fillna(0.0)
             ax.plot(rows["step"], rows["mean"], color=color, label=method)
             low, high = rows["mean"] - std, rows["mean"] + std

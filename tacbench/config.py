@@ -67,6 +67,7 @@ DEFAULT_Q = 1.0  # tasks the paper did not run have no best q: q = 1 (Shannon en
 UPDATE_SCHEDULES = ("step", "episode")
 IMPLS = ("fused", "eager")  # issue 7: fused (fast, default) or eager (autograd: the reference)
 LNQ_MODES = ("joint", "per-dim")
+CRITIC_TARGETS = ("v", "twin-q")
 Q_SCHEDULES = ("constant", "linear")
 
 # Fields that cannot change any number a run writes; a resumed run may differ in these.
@@ -88,6 +89,10 @@ class RunConfig:
     # reference code: sum of per-dimension ln_q, what produced the paper's curves; "joint" (the
     # appendix's formula) overflows on Ant, Humanoid, Pusher at their paper q (docs/tac.md)
     lnq: str = "per-dim"
+    # paper eqn:q_obj and reference code (SAC v1): the Q target bootstraps from a target V;
+    # "twin-q" (SAC v2, as stable-baselines3): from target Q1, Q2 at a' ~ pi(.|s'), no V
+    # (docs/parity.md says why it is offered)
+    critic_target: str = "v"
     q_schedule: str = "constant"  # paper; "linear": 1 -> q between the two fractions below
     q_schedule_start: float = Q_SCHEDULE_START
     q_schedule_end: float = Q_SCHEDULE_END
@@ -118,6 +123,7 @@ class RunConfig:
         object.__setattr__(self, "hidden_sizes", tuple(int(h) for h in self.hidden_sizes))
         _check_choice("--update-schedule", self.update_schedule, UPDATE_SCHEDULES)
         _check_choice("--lnq", self.lnq, LNQ_MODES)
+        _check_choice("--critic-target", self.critic_target, CRITIC_TARGETS)
         _check_choice("--q-schedule", self.q_schedule, Q_SCHEDULES)
         _check_choice("--device", self.device, ("cpu", "cuda"))
         _check_choice("--impl", self.impl, IMPLS)
@@ -159,7 +165,12 @@ class RunConfig:
         that changes training (``-joint``, ``-episode``, ``-qlinear``, ``-ls100000``, ...)."""
         name = f"q{self.q:g}-a{self.alpha:g}"
         defaults = RunConfig(env=self.env, q=self.q, alpha=self.alpha)
-        short = {"lnq": "joint", "update_schedule": "episode", "q_schedule": "qlinear"}
+        short = {
+            "lnq": "joint",
+            "critic_target": "twinq",
+            "update_schedule": "episode",
+            "q_schedule": "qlinear",
+        }
         for key in _TRAINING_FIELDS:
             value = getattr(self, key)
             if value == getattr(defaults, key):
@@ -207,6 +218,7 @@ class RunConfig:
 # env and seed (their own path components), total_steps, evaluation, logging and hardware.
 _TRAINING_FIELDS = (
     "lnq",
+    "critic_target",
     "update_schedule",
     "q_schedule",
     "q_schedule_start",

@@ -81,6 +81,14 @@ from tacbench.errors import TacbenchError
     "dimensions, see docs/tac.md).",
 )
 @click.option(
+    "--critic-target",
+    type=click.Choice(config.CRITIC_TARGETS),
+    default="v",
+    show_default=True,
+    help="v: the Q target bootstraps from a target V (paper, reference code: SAC v1); twin-q: "
+    "from target Q1, Q2 at a' ~ pi(s') without V (SAC v2, as stable-baselines3; docs/parity.md).",
+)
+@click.option(
     "--q-schedule",
     type=click.Choice(config.Q_SCHEDULES),
     default="constant",
@@ -131,6 +139,7 @@ def run(
     eval_episodes: int,
     update_schedule: str,
     lnq: str,
+    critic_target: str,
     q_schedule: str,
     checkpoint_every: int,
     device: str,
@@ -169,6 +178,7 @@ def run(
         eval_episodes=eval_episodes,
         update_schedule=update_schedule,
         lnq=lnq,
+        critic_target=critic_target,
         q_schedule=q_schedule,
         checkpoint_every=checkpoint_every,
         device=training.resolve_device(device),
@@ -184,7 +194,15 @@ def run(
     report_outcomes(ctx, outcomes)
 
 
-_TAC_ONLY = ("q", "alpha", "learning_starts", "update_schedule", "lnq", "q_schedule")
+_TAC_ONLY = (
+    "q",
+    "alpha",
+    "learning_starts",
+    "update_schedule",
+    "lnq",
+    "critic_target",
+    "q_schedule",
+)
 
 
 def _run_baseline(ctx: click.Context, algo: str, env_id: str, hp: tuple[str, ...]) -> None:

@@ -57,6 +57,15 @@ class TacAgent:
         self.q2 = Critic(obs_dim, act_dim, hidden, gens)
         self.v = Critic(obs_dim, 0, hidden, gens)
         self.v_target = copy.deepcopy(self.v).requires_grad_(False)
+        # critic_target twin-q (SAC v2): target copies of Q1 and Q2 replace the target V
+        self.critic_targets = (
+            (
+                copy.deepcopy(self.q1).requires_grad_(False),
+                copy.deepcopy(self.q2).requires_grad_(False),
+            )
+            if config.critic_target == "twin-q"
+            else None
+        )
         self._flatten(device)
         self.optimizer = torch.optim.Adam(
             [p for net in (self.policy, self.q1, self.q2, self.v) for p in net.parameters()],
@@ -68,7 +77,10 @@ class TacAgent:
         self._gradients: Callable[..., torch.Tensor] = fused_gradients
         if config.compile:
             persistent = [t for nets in (self._nets, self._grads) for t in _tensors(nets)]
-            self._gradients = compile_gradients(device, persistent + _tensors(self._target_layers))
+            persistent += _tensors(self._target_layers)
+            if self._critic_target_layers is not None:
+                persistent += _tensors(self._critic_target_layers)
+            self._gradients = compile_gradients(device, persistent)
 
     def _flatten(self, device: torch.device) -> None:
         """Move every parameter into flat buffers and rebind the networks to views of them.
@@ -99,6 +111,21 @@ class TacAgent:
         self._nets = _fused_nets(self.params.blocks, n_layers)
         self._grads = _fused_nets(self.params.grad_blocks, n_layers)
         self._target_layers = _layers(self.target.blocks, 0, n_layers)
+        self._critic_blocks = (2 * n_layers, 4 * n_layers)  # Q1 and Q2's range of blocks
+        self._critic_target_layers: Layers | None = None
+        if self.critic_targets is not None:  # the critic pair's layout, so one lerp_ updates it
+            pair = [t.net for t in self.critic_targets]
+            groups = [
+                [getattr(net, kind)[i] for net in pair]
+                for i in range(n_layers)
+                for kind in ("weights", "biases")
+            ]
+            self.critic_target = FlatParameters(groups, device, trainable=False)
+            for b, block in enumerate(self.critic_target.blocks):
+                for j, net in enumerate(pair):
+                    plist = net.weights if b % 2 == 0 else net.biases
+                    plist[b // 2] = nn.Parameter(block[j], requires_grad=False)
+            self._critic_target_layers = _layers(self.critic_target.blocks, 0, n_layers)
         self._flat_state_registered = False
 
     def _register_flat_adam_state(self) -> None:
@@ -160,29 +187,42 @@ class TacAgent:
         """
         tensors = Batch(*(self._tensor(batch[name]) for name in Batch._fields))
         eps = self._noise(tensors.action.shape[1], self.act_dim)
+        eps_next = None
+        if self.critic_targets is not None:  # the noise of a' ~ pi(.|s'), after eps
+            eps_next = self._noise(tensors.action.shape[1], self.act_dim)
+        tau = self.config.tau
         if self.config.impl == "fused":
             with torch.no_grad():
-                metrics = self._fused_gradients(tensors, eps, q)
+                metrics = self._fused_gradients(tensors, eps, q, eps_next)
                 self.params.adam_step(self.config.learning_rate)
-                # target V: psi- <- (1 - tau) psi- + tau psi (paper appendix), all at once
-                self.target.data.lerp_(self.params.span(*self._v_blocks), self.config.tau)
+                if self.critic_targets is None:
+                    # target V: psi- <- (1 - tau) psi- + tau psi (paper appendix), all at once
+                    self.target.data.lerp_(self.params.span(*self._v_blocks), tau)
+                else:
+                    self.critic_target.data.lerp_(self.params.span(*self._critic_blocks), tau)
             return metrics
-        metrics = self._eager_gradients(tensors, eps, q)
+        metrics = self._eager_gradients(tensors, eps, q, eps_next)
         self.optimizer.step()
-        with torch.no_grad():  # target V: psi- <- (1 - tau) psi- + tau psi (paper appendix)
-            for target, source in zip(self.v_target.parameters(), self.v.parameters(), strict=True):
-                target.lerp_(source, self.config.tau)
+        with torch.no_grad():
+            if self.critic_targets is None:  # target V: psi- <- (1 - tau) psi- + tau psi
+                for target, source in zip(
+                    self.v_target.parameters(), self.v.parameters(), strict=True
+                ):
+                    target.lerp_(source, tau)
+            else:  # target critics, the same Polyak average (SAC v2)
+                self.critic_target.data.lerp_(self.params.span(*self._critic_blocks), tau)
         return metrics
 
     def gradients(
-        self, batch: Batch, eps: torch.Tensor, q: float
+        self, batch: Batch, eps: torch.Tensor, q: float, eps_next: torch.Tensor | None = None
     ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         """The metrics of :meth:`update` and the gradient of every trained parameter (named as
-        in :meth:`member_state`) for one minibatch and reparameterisation noise ``eps``, by
-        this agent's ``impl``, without changing any weight. For comparing the paths."""
+        in :meth:`member_state`) for one minibatch and reparameterisation noise ``eps`` (and,
+        with twin-q, ``eps_next``), by this agent's ``impl``, without changing any weight. For
+        comparing the paths."""
         if self.config.impl == "fused":
             with torch.no_grad():
-                metrics = self._fused_gradients(batch, eps, q)
+                metrics = self._fused_gradients(batch, eps, q, eps_next)
             blocks = self.params.grad_blocks
             grads = {
                 name: blocks[self._slots[param][0]][self._slots[param][1]].clone()
@@ -190,7 +230,7 @@ class TacAgent:
                 if param in self._slots
             }
         else:
-            metrics = self._eager_gradients(batch, eps, q)
+            metrics = self._eager_gradients(batch, eps, q, eps_next)
             grads = {
                 name: param.grad.clone()
                 for name, param in self._named_parameters()
@@ -198,7 +238,9 @@ class TacAgent:
             }
         return metrics, grads
 
-    def _eager_gradients(self, batch: Batch, eps: torch.Tensor, q: float) -> torch.Tensor:
+    def _eager_gradients(
+        self, batch: Batch, eps: torch.Tensor, q: float, eps_next: torch.Tensor | None
+    ) -> torch.Tensor:
         """The reference path: ``losses.tac_losses`` and autograd, gradients in ``.grad``."""
         losses = tac_losses(
             self.policy,
@@ -212,6 +254,8 @@ class TacAgent:
             alpha=self.config.alpha,
             gamma=self.config.gamma,
             lnq=self.config.lnq,
+            target_critics=self.critic_targets,
+            eps_next=eps_next,
         )
         per_member = torch.stack([losses.q1, losses.q2, losses.v, losses.pi], dim=-1)
         total = torch.where(self.alive, per_member.sum(dim=-1), 0.0).sum()
@@ -219,7 +263,9 @@ class TacAgent:
         total.backward()
         return torch.cat([per_member.detach(), losses.diagnostics], dim=-1)
 
-    def _fused_gradients(self, batch: Batch, eps: torch.Tensor, q: float) -> torch.Tensor:
+    def _fused_gradients(
+        self, batch: Batch, eps: torch.Tensor, q: float, eps_next: torch.Tensor | None
+    ) -> torch.Tensor:
         """The fused path: ``fused.fused_gradients``, gradients in the flat buffer."""
         self._register_flat_adam_state()
         if self._scalars is None or self._scalars_q != q:  # made again only when q changes
@@ -229,7 +275,15 @@ class TacAgent:
                 q, c.alpha, c.gamma, c.lnq, c.log_std_min, c.log_std_max, self.device
             )
         return self._gradients(
-            self._nets, self._grads, self._target_layers, batch, eps, self.alive, self._scalars
+            self._nets,
+            self._grads,
+            self._target_layers,
+            batch,
+            eps,
+            self.alive,
+            self._scalars,
+            self._critic_target_layers,
+            eps_next,
         )
 
     # --- per-member state (checkpoints hold one member each) ----------------------------------
@@ -241,6 +295,11 @@ class TacAgent:
             ("q2", self.q2),
             ("v", self.v),
             ("v_target", self.v_target),
+            *(
+                zip(("q1_target", "q2_target"), self.critic_targets, strict=True)
+                if self.critic_targets is not None
+                else ()
+            ),
         ):
             for name, param in net.named_parameters():
                 yield f"{prefix}.{name}", param

@@ -155,6 +155,80 @@ def _log_q(log_p: torch.Tensor, c: TacScalars) -> tuple[torch.Tensor, torch.Tens
     return e / c.q_minus_one, e + 1.0
 
 
+class _Sample(NamedTuple):
+    """a~ = tanh(mu + eps sigma) and what its log-density and gradients need."""
+
+    action: torch.Tensor
+    std: torch.Tensor
+    tanh_raw: torch.Tensor
+    log_jacobian: torch.Tensor
+    log_jacobian_eps: torch.Tensor
+    log_prob_dims: torch.Tensor
+
+
+def _sample(out: torch.Tensor, eps: torch.Tensor, c: TacScalars) -> _Sample:
+    """The reparameterised action from the policy's output ``(mu, raw)`` and its per-dimension
+    log-density (losses.squashed_gaussian_sample)."""
+    act_dim = eps.shape[-1]
+    mu, raw = out[..., :act_dim], out[..., act_dim:]
+    tanh_raw = torch.tanh(raw)
+    span = c.log_std_max - c.log_std_min
+    log_std = c.log_std_min + 0.5 * span * (tanh_raw + 1.0)
+    std = log_std.exp()
+    z = mu + eps * std
+    log_jacobian = 2.0 * (math.log(2.0) - z - F.softplus(-2.0 * z))
+    log_jacobian_eps = torch.logaddexp(log_jacobian, log_jacobian.new_full((), JACOBIAN_EPS_LOG))
+    log_prob_dims = (-0.5 * eps.square() - log_std - _HALF_LOG_2PI) - log_jacobian_eps
+    return _Sample(torch.tanh(z), std, tanh_raw, log_jacobian, log_jacobian_eps, log_prob_dims)
+
+
+def _lnq(
+    log_prob_dims: torch.Tensor, c: TacScalars, scale: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """``ln_q pi`` ``(K, B)`` (losses.lnq_of_policy) and the gradient of ``scale * ln_q pi``
+    with respect to each log pi_i ``(K, B, A)``; clamp passes the gradient only inside its
+    bounds."""
+    cap = c.log_cap if c.capped else None
+    if c.lnq == "joint":
+        log_prob = log_prob_dims.sum(dim=-1)
+        lnq_pi, slope = _log_q(log_prob if cap is None else log_prob.clamp(max=cap), c)
+        grad_log_prob = scale if slope is None else slope * scale
+        if cap is not None:
+            grad_log_prob = grad_log_prob * (log_prob <= cap)
+        return lnq_pi, grad_log_prob.unsqueeze(-1)
+    floored = log_prob_dims.clamp(min=LOG_DENSITY_FLOOR)
+    lnq_dims, slope = _log_q(floored if cap is None else floored.clamp(max=cap), c)
+    inside = log_prob_dims >= LOG_DENSITY_FLOOR
+    if cap is not None:
+        inside &= log_prob_dims <= cap
+    grad_log_prob_dims = scale.unsqueeze(-1) * inside
+    if slope is not None:
+        grad_log_prob_dims = grad_log_prob_dims * slope
+    return lnq_dims.sum(dim=-1), grad_log_prob_dims
+
+
+def _for_both_critics(pairs: torch.Tensor) -> torch.Tensor:
+    """``(K, R, in)`` inputs repeated for the 2K-member critic pair: ``(2K, R, in)``."""
+    n_members, rows, width = pairs.shape
+    return pairs.expand(2, n_members, rows, width).reshape(-1, rows, width)
+
+
+def _soft_value(
+    policy: Layers,
+    target_critics: Layers,
+    next_obs: torch.Tensor,
+    eps_next: torch.Tensor,
+    c: TacScalars,
+    w: torch.Tensor,
+) -> torch.Tensor:
+    """twin-q's value of s': ``min(Q1-, Q2-)(s', a') - alpha ln_q pi(a'|s')``, a' ~ pi(.|s')."""
+    sample = _sample(forward(policy, next_obs)[0], eps_next, c)
+    lnq_next, _ = _lnq(sample.log_prob_dims, c, w)
+    pairs = torch.cat([next_obs, sample.action], dim=-1)
+    q_next = forward(target_critics, _for_both_critics(pairs))[0].view(2, *eps_next.shape[:2])
+    return torch.minimum(q_next[0], q_next[1]) - c.alpha * lnq_next
+
+
 def fused_gradients(
     nets: FusedNets,
     grads: FusedNets,
@@ -163,52 +237,31 @@ def fused_gradients(
     eps: torch.Tensor,
     alive: torch.Tensor,
     c: TacScalars,
+    target_critics: Layers | None = None,
+    eps_next: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """TAC's losses on one minibatch with their gradients written into ``grads``.
+
+    With ``target_critics`` (``critic_target`` twin-q: the 2K target critics, and ``eps_next``,
+    the noise of a' ~ pi(.|s')) the Q target uses their soft value of s' instead of the target
+    V, and V gets no gradient (its loss is reported as 0, its value as that soft value).
 
     Returns the per-member metrics ``(K, 9)``: the Q1, Q2, V and policy losses, then
     ``losses.DIAGNOSTICS``, as ``TacAgent.update`` reports them. Members with ``alive`` False
     get zero gradients (a non-finite member gets non-finite ones, as in the eager path; members
     never mix).
     """
-    n_members, batch_size, act_dim = eps.shape
+    n_members, batch_size, _ = eps.shape
     obs_dim = batch.obs.shape[-1]
+    if (target_critics is None) != (eps_next is None):
+        raise ValueError("twin-q needs both the target critics and eps_next")
     w = (alive.to(eps.dtype) / batch_size)[:, None]  # (K, 1): d mean / d sample, 0 if dead
 
-    # a~ ~ pi(.|s) by the reparameterisation trick (losses.squashed_gaussian_sample)
+    # a~ ~ pi(.|s) by the reparameterisation trick, and ln_q pi(a~|s)
     out, policy_inputs = forward(nets.policy, batch.obs)
-    mu, raw = out[..., :act_dim], out[..., act_dim:]
-    tanh_raw = torch.tanh(raw)
-    span = c.log_std_max - c.log_std_min
-    log_std = c.log_std_min + 0.5 * span * (tanh_raw + 1.0)
-    std = log_std.exp()
-    z = mu + eps * std
-    new_action = torch.tanh(z)
-    log_jacobian = 2.0 * (math.log(2.0) - z - F.softplus(-2.0 * z))
-    log_jacobian_eps = torch.logaddexp(log_jacobian, log_jacobian.new_full((), JACOBIAN_EPS_LOG))
-    log_prob_dims = (-0.5 * eps.square() - log_std - _HALF_LOG_2PI) - log_jacobian_eps
-
-    # ln_q pi(a~|s) (losses.lnq_of_policy) and the gradient of the policy loss's alpha ln_q term
-    # with respect to each log pi_i; clamp passes the gradient only inside its bounds.
-    cap = c.log_cap if c.capped else None
-    scale = c.alpha * w
-    if c.lnq == "joint":
-        log_prob = log_prob_dims.sum(dim=-1)
-        lnq_pi, slope = _log_q(log_prob if cap is None else log_prob.clamp(max=cap), c)
-        grad_log_prob = scale if slope is None else slope * scale
-        if cap is not None:
-            grad_log_prob = grad_log_prob * (log_prob <= cap)
-        grad_log_prob_dims = grad_log_prob.unsqueeze(-1)
-    else:
-        floored = log_prob_dims.clamp(min=LOG_DENSITY_FLOOR)
-        lnq_dims, slope = _log_q(floored if cap is None else floored.clamp(max=cap), c)
-        lnq_pi = lnq_dims.sum(dim=-1)
-        inside = log_prob_dims >= LOG_DENSITY_FLOOR
-        if cap is not None:
-            inside &= log_prob_dims <= cap
-        grad_log_prob_dims = scale.unsqueeze(-1) * inside
-        if slope is not None:
-            grad_log_prob_dims = grad_log_prob_dims * slope
+    sample = _sample(out, eps, c)
+    new_action, std, log_prob_dims = sample.action, sample.std, sample.log_prob_dims
+    lnq_pi, grad_log_prob_dims = _lnq(log_prob_dims, c, c.alpha * w)
 
     # Q1 and Q2 (2K members) on (s, a) and (s, a~) at once: rows :B and B: of a (2K, 2B) batch
     pairs = torch.cat(
@@ -218,23 +271,28 @@ def fused_gradients(
         ],
         dim=-1,
     )
-    width = obs_dim + act_dim
-    pairs = pairs.expand(2, n_members, 2 * batch_size, width).reshape(-1, 2 * batch_size, width)
-    q_out, critic_inputs = forward(nets.critics, pairs)
+    q_out, critic_inputs = forward(nets.critics, _for_both_critics(pairs))
     q_values = q_out.view(2, n_members, 2 * batch_size)
     q_data, q_new = q_values[..., :batch_size], q_values[..., batch_size:]
 
-    # eqn:q_obj, with the target V's value of s'; only a true terminal drops the bootstrap
-    v_next = forward(v_target, batch.next_obs)[0].squeeze(-1)
+    # eqn:q_obj, with the target V's value of s' (or, twin-q, the target critics' soft value of
+    # s'); only a true terminal drops the bootstrap
+    if target_critics is None or eps_next is None:
+        v_next = forward(v_target, batch.next_obs)[0].squeeze(-1)
+    else:
+        v_next = _soft_value(nets.policy, target_critics, batch.next_obs, eps_next, c, w)
     q_target = batch.reward + c.gamma * (1.0 - batch.terminated) * v_next
     q_error = q_data - q_target  # (2, K, B)
     loss_q = 0.5 * q_error.square().mean(dim=-1)
 
-    # eqn:v_obj, y = min(Q1, Q2)(s, a~) - alpha ln_q pi(a~|s)
-    v_out, v_inputs = forward(nets.v, batch.obs)
-    v_value = v_out.squeeze(-1)
-    v_error = v_value - (torch.minimum(q_new[0], q_new[1]) - c.alpha * lnq_pi)
-    loss_v = 0.5 * v_error.square().mean(dim=-1)
+    # eqn:v_obj, y = min(Q1, Q2)(s, a~) - alpha ln_q pi(a~|s); no V network with twin-q
+    if target_critics is None:
+        v_out, v_inputs = forward(nets.v, batch.obs)
+        v_value = v_out.squeeze(-1)
+        v_error = v_value - (torch.minimum(q_new[0], q_new[1]) - c.alpha * lnq_pi)
+        loss_v = 0.5 * v_error.square().mean(dim=-1)
+    else:
+        v_value, loss_v = v_next, torch.zeros_like(loss_q[0])
 
     # eqn:pol_obj, alpha ln_q pi(a~|s) - Q1(s, a~) with Q1's weights frozen
     q1_new = q_new[0]
@@ -242,7 +300,8 @@ def fused_gradients(
 
     # gradients of the Q and V losses reach only their own networks' weights
     backward(nets.critics, grads.critics, critic_inputs, (q_error * w).view(-1, batch_size, 1))
-    backward(nets.v, grads.v, v_inputs, (v_error * w).unsqueeze(-1))
+    if target_critics is None:
+        backward(nets.v, grads.v, v_inputs, (v_error * w).unsqueeze(-1))
 
     # the policy loss: dL/da~ through Q1 (frozen: its input gradient only), then the sample
     g = (-w).unsqueeze(-1).expand(n_members, batch_size, 1)
@@ -257,10 +316,11 @@ def fused_gradients(
     grad_z = torch.addcmul(
         grad_new_action * (1.0 - new_action.square()),
         grad_log_prob_dims,
-        2.0 * new_action * (log_jacobian - log_jacobian_eps).exp(),
+        2.0 * new_action * (sample.log_jacobian - sample.log_jacobian_eps).exp(),
     )
     grad_log_std = torch.addcmul(-grad_log_prob_dims, grad_z, eps * std)
-    grad_raw = grad_log_std * (0.5 * span) * (1.0 - tanh_raw.square())
+    span = c.log_std_max - c.log_std_min
+    grad_raw = grad_log_std * (0.5 * span) * (1.0 - sample.tanh_raw.square())
     backward(nets.policy, grads.policy, policy_inputs, torch.cat([grad_z, grad_raw], dim=-1))
 
     return torch.stack(

@@ -96,13 +96,22 @@ def tac_losses(
     alpha: float,
     gamma: float,
     lnq: str,
+    target_critics: tuple[Critic, Critic] | None = None,
+    eps_next: torch.Tensor | None = None,
 ) -> TacLosses:
     """TAC's Q, V and policy losses on one minibatch (SAC v1 with ``log`` replaced by ``ln_q``).
 
     ``eps`` ``(K, B, A)`` is the standard normal noise of the reparameterised action. Each loss's
     graph reaches only the parameters it trains: Q losses -> Q1, Q2; V loss -> V; policy loss ->
     policy (Q1 is evaluated there with frozen weights). The target V is never trained here.
+
+    ``target_critics`` (``critic_target`` twin-q, SAC v2's target of Haarnoja et al. 2018b)
+    replace the target V in the Q target by ``min(Q1-, Q2-)(s', a') - alpha ln_q pi(a'|s')``,
+    a' ~ pi(.|s') drawn with ``eps_next``; there is then no V loss (reported as 0) and the
+    ``v`` diagnostic is that soft value of s'.
     """
+    if (target_critics is None) != (eps_next is None):
+        raise ValueError("twin-q needs both the target critics and eps_next")
     # a~ ~ pi(.|s) by the reparameterisation trick, and ln_q pi(a~|s)
     mu, log_std = policy(batch.obs)
     new_action, log_prob_dims = squashed_gaussian_sample(mu, log_std, eps)
@@ -110,18 +119,33 @@ def tac_losses(
 
     # eqn:q_obj  J_theta = E[ 1/2 (Q_theta(s,a) - r - gamma V_psi-(s'))^2 ]; time-limit ends
     # are not terminal, so only a true terminal state drops the bootstrap (reference code).
+    # twin-q: V_psi-(s') is replaced by the target critics' soft value of s' (SAC v2).
     with torch.no_grad():
-        q_target = batch.reward + gamma * (1.0 - batch.terminated) * v_target(batch.next_obs)
+        if target_critics is None or eps_next is None:
+            v_next = v_target(batch.next_obs)
+        else:
+            next_mu, next_log_std = policy(batch.next_obs)
+            next_action, next_log_prob_dims = squashed_gaussian_sample(
+                next_mu, next_log_std, eps_next
+            )
+            q1_next, q2_next = (net(batch.next_obs, next_action) for net in target_critics)
+            v_next = torch.minimum(q1_next, q2_next) - alpha * lnq_of_policy(
+                next_log_prob_dims, q, lnq
+            )
+        q_target = batch.reward + gamma * (1.0 - batch.terminated) * v_next
     loss_q1 = 0.5 * (q1(batch.obs, batch.action) - q_target).square().mean(dim=-1)
     loss_q2 = 0.5 * (q2(batch.obs, batch.action) - q_target).square().mean(dim=-1)
 
     # eqn:v_obj  J_psi = E[ 1/2 (y - V_psi(s))^2 ], y = min(Q1, Q2)(s, a~) - alpha ln_q pi(a~|s)
     # with a~ drawn from the current policy (reference code; the paper's a_t is ambiguous).
-    with torch.no_grad():
-        q_min = torch.minimum(q1(batch.obs, new_action), q2(batch.obs, new_action))
-        v_target_value = q_min - alpha * lnq_pi
-    v_value = v(batch.obs)
-    loss_v = 0.5 * (v_value - v_target_value).square().mean(dim=-1)
+    if target_critics is None:
+        with torch.no_grad():
+            q_min = torch.minimum(q1(batch.obs, new_action), q2(batch.obs, new_action))
+            v_target_value = q_min - alpha * lnq_pi
+        v_value = v(batch.obs)
+        loss_v = 0.5 * (v_value - v_target_value).square().mean(dim=-1)
+    else:
+        v_value, loss_v = v_next, torch.zeros_like(loss_q1)
 
     # eqn:pol_obj  J_phi = E[ alpha ln_q pi(a~|s) - Q(s, a~) ], with Q = Q1 (reference code)
     q1_pi = q1(batch.obs, new_action, frozen=True)

@@ -284,3 +284,17 @@ def test_ctrl_c_checkpoints_and_resume_completes(tmp_path: Path) -> None:
     assert evals["step"].tolist() == [500, 1000, 1500, 2000]
     train_steps = pd.read_csv(run / "train.csv")["step"]
     assert train_steps.is_monotonic_increasing and not train_steps.duplicated().any()
+
+
+def test_twin_q_critic_target_trains_and_resumes_exactly(tmp_path: Path) -> None:
+    config = _config(critic_target="twin-q")
+    (reference,) = _train(tmp_path / "reference", config)
+    assert reference.state == "complete"
+    assert reference.directory.parent.name == "q1.5-a0.2-twinq-ls1000-bs32"
+    (stopped,) = _train(tmp_path / "resumed", config, stop=lambda step: step >= 1234)
+    assert stopped.state == "interrupted"
+    (resumed,) = _train(tmp_path / "resumed", config, resume=True)
+    assert resumed.state == "complete"
+    _same_results(reference.directory, resumed.directory)
+    losses = pd.read_csv(resumed.directory / "losses.csv")
+    assert (losses["loss_v"] == 0).all() and losses["loss_q1"].gt(0).all()

@@ -13,15 +13,17 @@ from baselines import parity
 pytestmark = pytest.mark.unit
 
 
-def test_commands_run_tac_at_q1_and_sac_sb3_on_the_same_seeds_and_budget() -> None:
+def test_commands_run_both_tacs_at_q1_and_sac_sb3_on_the_same_seeds_and_budget() -> None:
     lines = parity.commands(["Hopper-v4", "Humanoid-v4"], [0, 10], 5000, "out")
     assert [shlex.split(line)[:4] for line in lines] == [
         ["tacbench", "run", "--q", "1"],
+        ["tacbench", "run", "--q", "1"],
         ["tacbench", "run", "--algo", "sac-sb3"],
     ] * 2
+    assert ["--critic-target" in line for line in lines] == [False, True, False] * 2
     for line in lines:
         assert "--seed 0 --seed 10 --steps 5000 --out out --quiet" in line
-    assert "--alpha 0.05 --env Humanoid-v4" in lines[2]  # the paper's alpha per task
+    assert "--alpha 0.05 --critic-target twin-q --env Humanoid-v4" in lines[4]  # paper alpha
 
 
 def _frame() -> pd.DataFrame:
@@ -46,11 +48,13 @@ def test_curves_and_summary() -> None:
     first = table[(table["method"] == "TAC q=1") & (table["step"] == 5000)]
     assert first["mean"].item() == pytest.approx(100 + 10 + 5) and first["seeds"].item() == 3
     assert first["std"].item() == pytest.approx(10.0)
-    summary = parity.summary(parity.final_returns(data), reps=2000).iloc[0]
-    assert summary["TAC - SB3"] == pytest.approx(100.0)
+    summary = parity.summary(parity.final_returns(data), reps=2000)
+    assert list(summary["method"]) == [parity.TAC]  # no twin-q runs in this frame
+    row = summary.iloc[0]
+    assert row["TAC - SB3"] == pytest.approx(100.0)
     # seeds (returns 0, 10, 20 above the method's offset) are resampled independently per method
-    assert 80.0 <= summary["CI low"] < 100.0 < summary["CI high"] <= 120.0
-    assert summary["TAC q=1 seeds"] == summary["SAC (SB3) seeds"] == 3
+    assert 80.0 <= row["CI low"] < 100.0 < row["CI high"] <= 120.0
+    assert row["TAC seeds"] == row["SB3 seeds"] == 3
 
 
 def test_bootstrap_interval_covers_the_difference_of_means() -> None:

@@ -76,6 +76,30 @@ def test_fused_losses_and_gradients_equal_the_eager_ones(
         assert not grads[name][1].any(), name  # the retired member
 
 
+@pytest.mark.parametrize(("q", "lnq"), [(1.0, "per-dim"), (1.5, "per-dim"), (3.0, "joint")])
+def test_twin_q_fused_losses_and_gradients_equal_the_eager_ones(q: float, lnq: str) -> None:
+    eager = _agent("eager", lnq=lnq, critic_target="twin-q")
+    fused = _agent("fused", lnq=lnq, critic_target="twin-q")
+    for agent in (eager, fused):
+        agent.alive[1] = False
+        with torch.no_grad():  # target critics that differ from the online ones
+            for target in agent.critic_targets or ():
+                target.net.biases[-1].add_(0.5)
+    batch, eps = _batch()
+    eps_next = torch.randn(eps.shape, generator=torch.Generator().manual_seed(9))
+    reference, reference_grads = eager.gradients(batch, eps, q, eps_next)
+    metrics, grads = fused.gradients(batch, eps, q, eps_next)
+    for i, name in enumerate(METRICS):
+        _close(metrics[:, i], reference[:, i], 2e-6, name)
+    assert not reference[:, METRICS.index("loss_v")].any()
+    for name, grad in grads.items():
+        if name.startswith("v."):  # no V network with twin-q: no gradient on either path
+            assert name not in reference_grads and not grad.any(), name
+            continue
+        _close(grad, reference_grads[name], 2e-6, name)
+        assert not grad[1].any(), name
+
+
 def test_the_comparison_covers_the_floor_and_the_cap() -> None:
     """The batch above puts per-dimension log-densities below the 1e-6 floor and above the
     q = 3 cap (log 10^4), so the clamps' gradient masks are compared, not just their insides."""

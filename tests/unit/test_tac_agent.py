@@ -130,3 +130,39 @@ def test_member_state_round_trip_continues_identically() -> None:
     for k in range(2):
         for name, value in _params(agent, k).items():
             assert torch.equal(value, _params(restored, k)[name]), name
+
+
+@pytest.mark.parametrize("impl", ["fused", "eager"])
+def test_twin_q_moves_the_target_critics_by_tau_and_leaves_v_alone(impl: str) -> None:
+    agent = _agent([0], tau=0.005, critic_target="twin-q", impl=impl)
+    before = _params(agent, 0)
+    for name in ("weights.0", "biases.0", "weights.1"):
+        for net in ("q1", "q2"):  # the targets start as copies
+            assert torch.equal(before[f"{net}_target.net.{name}"], before[f"{net}.net.{name}"])
+    metrics = agent.update(_batch(1), q=1.5)
+    after = _params(agent, 0)
+    assert metrics[0, METRICS.index("loss_v")] == 0.0
+    for net in ("q1", "q2"):
+        for name in ("weights.0", "biases.1"):
+            target, online = f"{net}_target.net.{name}", f"{net}.net.{name}"
+            expected = 0.995 * before[target] + 0.005 * after[online]
+            torch.testing.assert_close(after[target], expected)
+    for name, value in before.items():  # V is not trained and the target V not averaged
+        if name.startswith(("v.", "v_target.")):
+            assert torch.equal(after[name], value), name
+
+
+def test_twin_q_member_state_round_trip_continues_identically() -> None:
+    agent = _agent([7, 8], critic_target="twin-q")
+    for step in range(2):
+        agent.update(_batch(2, seed=step), q=1.5)
+    restored = _agent([0, 1], critic_target="twin-q")
+    restored.load_member_states([agent.member_state(0), agent.member_state(1)])
+    assert "q1_target.net.weights.0" in agent.member_state(0)["params"]
+    batch = _batch(2, seed=5)
+    torch.testing.assert_close(
+        agent.update(batch, q=1.5), restored.update(batch, q=1.5), rtol=0, atol=0
+    )
+    for k in range(2):
+        for name, value in _params(agent, k).items():
+            assert torch.equal(value, _params(restored, k)[name]), name

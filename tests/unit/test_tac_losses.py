@@ -123,6 +123,43 @@ def test_q_equal_one_gives_sac_v1_losses() -> None:
             torch.testing.assert_close(ours, theirs, rtol=1e-5, atol=1e-5)
 
 
+def test_twin_q_at_q_equal_one_gives_sac_v2_critic_losses() -> None:
+    """critic_target twin-q: SAC v2's Q target (Haarnoja et al. 2018b) from the target critics
+    at a' ~ pi(.|s'), written independently; no V loss, and the target V plays no part."""
+    nets = _nets([3, 4])
+    policy, q1, q2, _, v_target = nets
+    gens = [torch.Generator().manual_seed(s) for s in (5, 6)]
+    targets = (Critic(OBS, ACT, HIDDEN, gens), Critic(OBS, ACT, HIDDEN, gens))
+    with torch.no_grad():
+        policy.net.weights[-1].mul_(0.05)
+        policy.net.biases[-1][..., ACT:] = math.atanh(20.0 / 11.0 - 1.0)
+    batch, eps = _batch(2, 16)
+    eps_next = torch.randn(eps.shape, generator=torch.Generator().manual_seed(1))
+    alpha, gamma = 0.2, 0.99
+    tac = _losses(
+        nets, batch, eps, q=1.0, alpha=alpha, gamma=gamma, target_critics=targets, eps_next=eps_next
+    )
+
+    mu, log_std = policy(batch.next_obs)
+    normal = torch.distributions.Normal(mu, log_std.exp())
+    z = mu + log_std.exp() * eps_next
+    next_action = torch.tanh(z)
+    log_pi = (normal.log_prob(z) - torch.log(1 - next_action.pow(2) + 1e-6)).sum(-1)
+    soft = torch.min(*(t(batch.next_obs, next_action) for t in targets)) - alpha * log_pi
+    y_q = batch.reward + gamma * (1 - batch.terminated) * soft
+    torch.testing.assert_close(tac.q1, 0.5 * (q1(batch.obs, batch.action) - y_q).pow(2).mean(-1))
+    torch.testing.assert_close(tac.q2, 0.5 * (q2(batch.obs, batch.action) - y_q).pow(2).mean(-1))
+    assert not tac.v.any()
+    with torch.no_grad():
+        v_target.net.biases[-1].add_(10.0)
+    again = _losses(
+        nets, batch, eps, q=1.0, alpha=alpha, gamma=gamma, target_critics=targets, eps_next=eps_next
+    )
+    assert torch.equal(again.q1, tac.q1)
+    with pytest.raises(ValueError, match="twin-q needs both"):
+        _losses(nets, batch, eps, target_critics=targets)
+
+
 def test_squashed_gaussian_log_density_matches_torch_distributions() -> None:
     mu = torch.tensor([[[0.1, -0.4, 1.2]]])
     log_std = torch.tensor([[[-0.5, 0.2, -1.0]]])
