@@ -8,6 +8,7 @@ from typing import Any
 import click
 
 from baselines import ALGOS as BASELINES
+from tacbench import config
 from tacbench.cli.common import command_line
 from tacbench.sweep.presets import PRESETS as SWEEP_PRESETS
 
@@ -32,6 +33,12 @@ from tacbench.sweep.presets import PRESETS as SWEEP_PRESETS
 @click.option("--seed", "seeds", type=int, multiple=True, help="Repeatable: keep only these seeds.")
 @click.option("--steps", type=int, default=None, help="Environment steps per run (budget).")
 @click.option("--checkpoint-every", type=int, default=None, help="Steps between checkpoints.")
+@click.option(
+    "--critic-target",
+    type=click.Choice(config.CRITIC_TARGETS),
+    default=None,
+    help="TAC runs' Q target: v (the paper's, default) or twin-q (SAC v2; docs/parity.md).",
+)
 @click.option("--executor", type=click.Choice(["local", "ray"]), default="local", show_default=True)
 @click.option(
     "--workers",
@@ -72,7 +79,13 @@ def sweep(ctx: click.Context, preset: str, **p: Any) -> None:
     grid = presets.narrow(
         presets.get_preset(preset),
         presets.Narrowing(
-            p["envs"], p["qs"], p["algos"], p["seeds"], p["steps"], p["checkpoint_every"]
+            p["envs"],
+            p["qs"],
+            p["algos"],
+            p["seeds"],
+            p["steps"],
+            p["checkpoint_every"],
+            p["critic_target"],
         ),
     )
     options = driver.Options(

@@ -141,7 +141,8 @@ PRESETS: dict[str, Preset] = {
 
 @dataclass(frozen=True)
 class Narrowing:
-    """What ``--env/--q/--algo/--seed/--steps/--checkpoint-every`` keep or set (empty: all)."""
+    """What ``--env/--q/--algo/--seed/--steps/--checkpoint-every/--critic-target`` keep or set
+    (empty: all; None: the preset's)."""
 
     tasks: tuple[str, ...] = ()
     q: tuple[float, ...] = ()
@@ -149,6 +150,7 @@ class Narrowing:
     seeds: tuple[int, ...] = ()
     steps: int | None = None
     checkpoint_every: int | None = None
+    critic_target: str | None = None  # TAC entries only (the baselines have their own)
 
 
 def get_preset(name: str) -> Preset:
@@ -160,8 +162,9 @@ def get_preset(name: str) -> Preset:
 
 def narrow(preset: Preset, by: Narrowing) -> Preset:
     """``preset`` restricted to the tasks, q values, algorithms and seeds in ``by`` (each must
-    occur in the preset), with ``steps`` and ``checkpoint_every`` replacing the preset's.
-    A ``--q`` keeps TAC entries only: baselines have no q."""
+    occur in the preset), with ``steps`` and ``checkpoint_every`` replacing the preset's, and
+    ``critic_target`` set on TAC's entries. A ``--q`` keeps TAC entries only: baselines have
+    no q."""
     entries = preset.entries
     by = replace(by, tasks=tuple(task_of(name) for name in by.tasks))
     _check_subset("--env", by.tasks, {t for e in entries for t in e.tasks})
@@ -190,6 +193,8 @@ def narrow(preset: Preset, by: Narrowing) -> Preset:
             settings["total_steps"] = by.steps
         if by.checkpoint_every is not None:
             settings["checkpoint_every"] = by.checkpoint_every
+        if by.critic_target is not None and entry.algo == "tac":
+            settings["critic_target"] = by.critic_target
         kept.append(replace(entry, tasks=tasks, seeds=seeds, settings=_frozen(settings)))
     if not kept:
         raise TacbenchError(

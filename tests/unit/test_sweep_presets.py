@@ -74,6 +74,14 @@ def test_narrowing() -> None:
     assert {(r.config.total_steps, r.config.checkpoint_every) for r in short} == {(400, 100)}
 
 
+def test_critic_target_applies_to_tac_runs_only() -> None:
+    runs = _runs("paper-comparison", seeds=(0,), critic_target="twin-q")
+    tac = [r for r in runs if r.config.algo == "tac"]
+    assert tac and {r.config.critic_target for r in tac} == {"twin-q"}  # type: ignore[union-attr]
+    assert all(r.config.variant.endswith("-twinq") for r in tac)
+    assert len(runs) == len(_runs("paper-comparison", seeds=(0,)))  # the baselines unchanged
+
+
 @pytest.mark.parametrize(
     ("by", "message"),
     [
