@@ -216,15 +216,18 @@ def test_compile_falls_back_to_the_fused_update_where_it_fails(
 
 
 @pytest.mark.slow
-def test_compiled_update_equals_the_fused_one_across_q() -> None:
+@pytest.mark.parametrize("critic_target", ["v", "twin-q"])
+def test_compiled_update_equals_the_fused_one_across_q(critic_target: str) -> None:
     """torch.compile (tens of seconds of compilation): the same numbers, to the rounding of
     Inductor's reordered reductions, for a sequence of q values that crosses q = 1 and the cap
     at q = 2, as a linear q schedule does."""
-    compiled, plain = _agent("fused", compile=True), _agent("fused")
+    compiled = _agent("fused", compile=True, critic_target=critic_target)
+    plain = _agent("fused", critic_target=critic_target)
     batch, eps = _batch()
+    eps_next = None if critic_target == "v" else torch.randn(eps.shape)
     for q in (1.0, 1.0001, 1.5, 2.0, 2.1, 3.0, 5.0, 1.2):
-        metrics, grads = compiled.gradients(batch, eps, q)
-        reference, reference_grads = plain.gradients(batch, eps, q)
+        metrics, grads = compiled.gradients(batch, eps, q, eps_next)
+        reference, reference_grads = plain.gradients(batch, eps, q, eps_next)
         for i, name in enumerate(METRICS):
             _close(metrics[:, i], reference[:, i], 1e-5, f"{name} at q={q}")
         for name, grad in reference_grads.items():
