@@ -32,6 +32,7 @@ import torch
 from tacbench import envs, training
 from tacbench.config import RunConfig, make_run_configs
 from tacbench.errors import TacbenchError
+from tacbench.machine import cpu_class, cpu_name
 from tacbench.tac.speed import reuse_freed_memory
 
 Advance = Callable[[int], int]
@@ -205,20 +206,13 @@ def machine() -> dict[str, Any]:
     """Where and when the numbers were taken."""
     return {
         "date": datetime.date.today().isoformat(),
-        "cpu": _cpu_name(),
+        "cpu": cpu_name(),
+        "cpu_class": cpu_class(),
         "cores": os.cpu_count(),
         "load_average": [round(x, 2) for x in os.getloadavg()],
         "torch": torch.__version__,
         "python": platform.python_version(),
     }
-
-
-def _cpu_name() -> str:
-    with contextlib.suppress(OSError):
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    return platform.processor() or "unknown"
 
 
 def table(results: list[Result], options: BenchOptions) -> str:

@@ -2,9 +2,10 @@
 printed digit.
 
 A reference run is the output of one recorded ``tacbench run`` command: its ``eval.csv``,
-``train.csv`` and ``losses.csv`` without the ``wall_s`` column, and its final status. On the
-same library versions and platform, a fresh run of that command must write the same text; on
-others the runs are skipped with the reason (float rounding may legitimately differ there). The
+``train.csv`` and ``losses.csv`` without the ``wall_s`` column, and its final status. The runs
+are recorded per CPU class (``exact/<cpu class>/``, :func:`tacbench.machine.cpu_class`). On
+the same library versions and CPU class, a fresh run of that command must write the same text;
+elsewhere the runs are skipped with the reason (float rounding legitimately differs there). The
 theory CSVs depend on NumPy alone and are always compared.
 """
 
@@ -97,7 +98,8 @@ def _completed(name: str, result: mf.CommandResult) -> Path:
 def update_exact(
     reference: Path, work: Path, specs: Sequence[RunSpec] = EXACT_RUNS, log: Log = print
 ) -> Path:
-    """Run every spec and write ``<reference>/exact``: the CSVs and ``manifest.json``."""
+    """Run every spec and write ``<reference>/exact/<this CPU class>``: the CSVs and
+    ``manifest.json`` (other CPU classes' references are kept)."""
     start, staging = time.perf_counter(), mf.staging_directory(reference, "exact")
     entries = []
     for spec in specs:
@@ -133,19 +135,36 @@ def update_exact(
 def check_exact(
     reference: Path, work: Path, names: Sequence[str] = (), log: Log = print
 ) -> TierResult:
-    """Rerun the recorded commands (all, or those in ``names``) and compare their CSVs."""
-    start, manifest = time.perf_counter(), mf.read_manifest(reference, "exact")
+    """Rerun the recorded commands (all, or those in ``names``) and compare their CSVs, against
+    the references of this machine's CPU class (skipped where there are none)."""
+    start, references = time.perf_counter(), mf.tier_directory(reference, "exact")
+    recorded = mf.recorded_cpu_classes(reference)
+    if recorded and references.name not in recorded:
+        known = [run for cpu in recorded for run in _runs_recorded_for(reference, cpu)]
+        mf.select(known, names, reference)  # an unknown --only name is still an error
+        return TierResult(
+            "exact",
+            str(references),
+            skipped=(
+                f"no exact references for this machine's CPU class {references.name}; they are "
+                f"recorded for {', '.join(recorded)}. Float rounding differs between CPU "
+                "classes, so exact results only reproduce on the class that made them; check "
+                "with --tier stat, or record this class's on purpose with: "
+                f"{mf.regenerate_command('exact', reference)}"
+            ),
+        )
+    manifest = mf.read_manifest(reference, "exact")
     notes = [mf.provenance_note(manifest)]
     entries = mf.select(manifest["runs"], names, reference)
     differences = mf.environment_differences(manifest["environment"], mf.environment())
     if differences:
         return TierResult(
             "exact",
-            str(reference / "exact"),
+            str(references),
             notes=tuple(notes),
             skipped=(
                 f"made with {'; '.join(differences)}. Exact results need the same versions and "
-                f"platform; check with --tier stat, or regenerate on purpose with: "
+                f"CPU class; check with --tier stat, or regenerate on purpose with: "
                 f"{manifest['regenerate']}"
             ),
         )
@@ -159,10 +178,10 @@ def check_exact(
             detail = f"no run directory (exit status {result.exit_code}): {result.last_line}"
             rows.append(Row(name, "run", "missing", detail))
             continue
-        directory = result.directories[0]
+        directory = result.directories[0]  # the fresh run
         rows.append(_status_row(name, entry, runs.read_json(directory / "status.json")))
         for file in manifest["files"]:
-            expected = (reference / "exact" / name / file).read_text()
+            expected = (references / name / file).read_text()
             path = directory / file
             if not path.is_file():
                 rows.append(Row(name, file, "missing", "not written"))
@@ -175,11 +194,16 @@ def check_exact(
             notes.append(f"{name}: config differs from the reference's: {'; '.join(changed)}")
     return TierResult(
         "exact",
-        str(reference / "exact"),
+        str(references),
         tuple(rows),
         tuple(notes),
         seconds=time.perf_counter() - start,
     )
+
+
+def _runs_recorded_for(reference: Path, cpu: str) -> list[dict[str, Any]]:
+    manifest: dict[str, Any] = runs.read_json(reference / "exact" / cpu / mf.MANIFEST)
+    return list(manifest["runs"])
 
 
 def _status_row(name: str, entry: dict[str, Any], status: dict[str, Any]) -> Row:

@@ -2,7 +2,9 @@
 
 Each tier's reference directory holds a ``manifest.json``: the tier, the command that
 regenerates it, when and from which commit it was made, the library versions and platform, and
-what each reference run was (its exact command). :func:`run_command` runs one recorded
+what each reference run was (its exact command). The exact tier keeps one such directory per
+CPU class (``exact/<cpu class>/``, :func:`tacbench.machine.cpu_class`), because the last
+digits differ between CPUs; the other tiers have one. :func:`run_command` runs one recorded
 ``tacbench run`` command in this process, as a user would type it.
 """
 
@@ -21,6 +23,7 @@ from typing import Any
 
 from tacbench import runs
 from tacbench.errors import TacbenchError
+from tacbench.machine import cpu_class
 
 FORMAT = 1  # the manifest layout; a reader refuses another
 RECORDED_PACKAGES = ("torch", "numpy", "gymnasium", "mujoco", "stable_baselines3", "sb3_contrib")
@@ -30,8 +33,8 @@ WALL_CLOCK = "wall_s"
 
 def environment() -> dict[str, Any]:
     """What must be equal for a run to reproduce a reference to the last digit: the library
-    versions, the operating system, the CPU architecture and the CPU instruction set that
-    torch's kernels dispatch on (which changes float rounding)."""
+    versions, the operating system, the CPU architecture, the CPU instruction set that
+    torch's kernels dispatch on and the CPU class (both change float rounding)."""
     import torch
 
     versions: dict[str, str | None] = {"python": platform.python_version()}
@@ -45,6 +48,7 @@ def environment() -> dict[str, Any]:
         "system": platform.system(),
         "machine": platform.machine(),
         "cpu_capability": torch.backends.cpu.get_cpu_capability(),
+        "cpu": cpu_class(),
     }
 
 
@@ -87,9 +91,22 @@ def write_manifest(directory: Path, manifest: Mapping[str, Any]) -> None:
     runs.atomic_write_json(directory / MANIFEST, manifest)
 
 
+def tier_directory(reference: Path, tier: str) -> Path:
+    """Where ``tier``'s references for this machine live: ``<reference>/exact/<cpu class>`` for
+    the exact tier, ``<reference>/<tier>`` for the others."""
+    return reference / tier / cpu_class() if tier == "exact" else reference / tier
+
+
+def recorded_cpu_classes(reference: Path) -> list[str]:
+    """The CPU classes that have exact references under ``reference``."""
+    root = reference / "exact"
+    return sorted(p.parent.name for p in root.glob(f"*/{MANIFEST}")) if root.is_dir() else []
+
+
 def read_manifest(reference: Path, tier: str) -> dict[str, Any]:
-    """The manifest of ``tier`` under ``reference``; a TacbenchError says how to create it."""
-    path = reference / tier / MANIFEST
+    """The manifest of ``tier`` under ``reference`` (for this machine's CPU class, the exact
+    tier's); a TacbenchError says how to create it."""
+    path = tier_directory(reference, tier) / MANIFEST
     if not path.is_file():
         raise TacbenchError(
             f"no {tier} references at {path.parent}; create them with: "
@@ -125,8 +142,9 @@ def provenance_note(manifest: dict[str, Any]) -> str:
 
 
 def staging_directory(reference: Path, tier: str) -> Path:
-    """An empty ``<reference>/.<tier>.new`` to build the new references in."""
-    staging = reference / f".{tier}.new"
+    """An empty ``.<name>.new`` beside :func:`tier_directory` to build the new references in."""
+    target = tier_directory(reference, tier)
+    staging = target.parent / f".{target.name}.new"
     if staging.exists():
         shutil.rmtree(staging)
     staging.mkdir(parents=True)
@@ -135,10 +153,10 @@ def staging_directory(reference: Path, tier: str) -> Path:
 
 def publish(staging: Path, manifest: Mapping[str, Any], reference: Path, tier: str) -> Path:
     """Write ``manifest`` into ``staging`` (:func:`staging_directory`), then put ``staging``
-    where ``<reference>/<tier>`` was (same parent, so the rename is cheap); returns the new
-    manifest's path."""
+    where :func:`tier_directory` was (same parent, so the rename is cheap); returns the new
+    manifest's path. The exact tier's other CPU classes are left as they are."""
     write_manifest(staging, manifest)
-    target = reference / tier
+    target = tier_directory(reference, tier)
     if target.exists():
         shutil.rmtree(target)
     staging.rename(target)

@@ -1,8 +1,10 @@
 """The exact tier (``tox -e regression``, CI): the committed short runs and the theory CSVs are
 reproduced to the last digit, and changes planted in what tacbench computes are caught.
 
-On library versions or a platform other than the references' the runs are skipped with the
-reason (the theory CSVs are still compared).
+The committed runs are this machine's CPU class's; on library versions or a CPU class other
+than theirs they are skipped with the reason (the theory CSVs are still compared). The planted
+changes are checked against references of two runs recorded by the test itself, so they are
+caught on any machine.
 """
 
 from __future__ import annotations
@@ -18,13 +20,30 @@ from baselines import hyperparams
 from tacbench import envs, regress
 from tacbench.cli import cli
 from tacbench.regress import manifest as mf
+from tacbench.regress.exact import update_exact
 from tacbench.regress.outcome import TierResult, format_result
+from tacbench.regress.specs import EXACT_RUNS
 from tests.regression.conftest import REFERENCE
 
 pytestmark = pytest.mark.regression
 
-MANIFEST = mf.read_manifest(REFERENCE, "exact")
+# this machine's CPU class's reference runs; none (every run test skips) on another class
+RUN_NAMES = (
+    [run["name"] for run in mf.read_manifest(REFERENCE, "exact")["runs"]]
+    if mf.tier_directory(REFERENCE, "exact").is_dir()
+    else ["(no references for this CPU class)"]
+)
 TAC_RUN, BASELINE_RUN = "tac-Hopper-v4-q2", "ppo-Humanoid-v4"  # cheap ones to plant changes in
+
+
+@pytest.fixture(scope="module")
+def planting_reference(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Exact references of the two runs that changes are planted in, recorded here and now by
+    ``tacbench regress --update``'s code (so the planted-change tests run on any CPU class)."""
+    reference = tmp_path_factory.mktemp("planting") / "reference"
+    specs = [spec for spec in EXACT_RUNS if spec.name in (TAC_RUN, BASELINE_RUN)]
+    update_exact(reference, reference.parent / "work", specs, log=lambda _: None)
+    return reference
 
 
 @pytest.fixture(scope="module")
@@ -45,21 +64,25 @@ def test_theory_csvs_reproduce(exact_check: dict[str, TierResult]) -> None:
     assert all(row.status == "match" for row in result.rows), format_result(result)
 
 
-@pytest.mark.parametrize("name", [run["name"] for run in MANIFEST["runs"]])
+@pytest.mark.parametrize("name", RUN_NAMES)
 def test_reference_run_reproduces(exact_check: dict[str, TierResult], name: str) -> None:
     statuses = _statuses(exact_check["exact"], name)
-    assert list(statuses) == ["status", *MANIFEST["files"]]
+    assert list(statuses) == ["status", *mf.read_manifest(REFERENCE, "exact")["files"]]
     assert set(statuses.values()) == {"match"}, format_result(exact_check["exact"])
 
 
+def test_planting_reference_reproduces(planting_reference: Path) -> None:
+    (result,) = regress.check(planting_reference, "exact", names=[TAC_RUN, BASELINE_RUN])
+    assert result.verdict == "PASS", format_result(result)
+    assert {row.status for row in result.rows} == {"match"}
+
+
 def test_planted_polyak_rate_is_caught_with_exit_status_one(
-    plant_tac_setting: Callable[..., None], tmp_path: Path
+    plant_tac_setting: Callable[..., None], planting_reference: Path, tmp_path: Path
 ) -> None:
     plant_tac_setting(tau=0.01)
-    args = ["regress", "--only", TAC_RUN, "--against", str(REFERENCE), "--work", str(tmp_path)]
-    result = CliRunner().invoke(cli, args)
-    if "SKIPPED" in result.output:
-        pytest.skip(result.output)
+    args = ["regress", "--only", TAC_RUN, "--against", str(planting_reference)]
+    result = CliRunner().invoke(cli, [*args, "--work", str(tmp_path)])
     assert result.exit_code == 1, result.output
     assert f"{TAC_RUN}  losses.csv  DRIFT" in result.output
     assert f"{TAC_RUN}  eval.csv    DRIFT" in result.output
@@ -68,11 +91,11 @@ def test_planted_polyak_rate_is_caught_with_exit_status_one(
 
 
 def test_planted_evaluation_seed_changes_eval_csv_alone(
-    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+    monkeypatch: pytest.MonkeyPatch, planting_reference: Path, tmp_path: Path
 ) -> None:
     original = envs.eval_seeds
     monkeypatch.setattr(envs, "eval_seeds", lambda seed, step, n: original(seed + 1, step, n))
-    (result,) = regress.check(REFERENCE, "exact", tmp_path, [TAC_RUN, BASELINE_RUN])
+    (result,) = regress.check(planting_reference, "exact", tmp_path, [TAC_RUN, BASELINE_RUN])
     for name in (TAC_RUN, BASELINE_RUN):
         assert _statuses(result, name) == {
             "status": "match",
@@ -84,7 +107,7 @@ def test_planted_evaluation_seed_changes_eval_csv_alone(
 
 
 def test_planted_hyperparameter_table_change_is_caught(
-    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+    monkeypatch: pytest.MonkeyPatch, planting_reference: Path, tmp_path: Path
 ) -> None:
     original = hyperparams.resolve
 
@@ -93,7 +116,7 @@ def test_planted_hyperparameter_table_change_is_caught(
         return {**table, "gamma": 0.9}, sections
 
     monkeypatch.setattr(hyperparams, "resolve", planted)
-    (result,) = regress.check(REFERENCE, "exact", tmp_path, [BASELINE_RUN])
+    (result,) = regress.check(planting_reference, "exact", tmp_path, [BASELINE_RUN])
     statuses = _statuses(result, BASELINE_RUN)
     assert statuses["eval.csv"] == statuses["losses.csv"] == "drift", format_result(result)
     assert result.verdict == "REGRESSION"

@@ -6,18 +6,20 @@ from __future__ import annotations
 import json
 import shutil
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
+import torch
 from click.testing import CliRunner
 
-from tacbench import regress
+from tacbench import machine, regress
 from tacbench.cli import cli
 from tacbench.errors import TacbenchError
 from tacbench.regress import exact, stat
 from tacbench.regress import manifest as mf
 from tacbench.regress.outcome import Row, TierResult, format_result
-from tacbench.regress.specs import EXACT_RUNS, STAT_ALPHA, STAT_GROUPS
+from tacbench.regress.specs import EXACT_RUNS, STAT_ALPHA, STAT_GROUPS, RunSpec
 
 pytestmark = pytest.mark.unit
 
@@ -150,15 +152,47 @@ def test_specs_cover_every_task_q_and_baseline() -> None:
         assert not set(group.reference_seeds) & set(group.check_seeds)
 
 
+def _committed_manifests() -> list[tuple[str, dict[str, Any]]]:
+    """(tier, manifest) for the theory and stat tiers and every CPU class's exact tier."""
+    manifests = [(tier, mf.read_manifest(REFERENCE, tier)) for tier in ("theory", "stat")]
+    for cpu in mf.recorded_cpu_classes(REFERENCE):
+        manifests.append(
+            ("exact", json.loads((REFERENCE / "exact" / cpu / mf.MANIFEST).read_text()))
+        )
+    return manifests
+
+
 def test_committed_manifests_record_provenance() -> None:
-    for tier in ("exact", "theory", "stat"):
-        manifest = mf.read_manifest(REFERENCE, tier)
+    manifests = _committed_manifests()
+    assert [tier for tier, _ in manifests].count("exact") >= 1
+    for tier, manifest in manifests:
         assert manifest["regenerate"].startswith(f"tacbench regress --update --tier {tier}")
         assert set(manifest["environment"]["versions"]) == {"python", *mf.RECORDED_PACKAGES}
         assert {"created", "git_commit", "platform"} <= set(manifest)
-    runs = mf.read_manifest(REFERENCE, "exact")["runs"]
-    assert [r["name"] for r in runs] == [s.name for s in EXACT_RUNS]
-    assert all(r["command"].startswith("tacbench run ") for r in runs)
+    for cpu in mf.recorded_cpu_classes(REFERENCE):
+        manifest = json.loads((REFERENCE / "exact" / cpu / mf.MANIFEST).read_text())
+        assert manifest["environment"]["cpu"] == cpu
+        runs = manifest["runs"]
+        assert [r["name"] for r in runs] == [s.name for s in EXACT_RUNS]
+        assert all(r["command"].startswith("tacbench run ") for r in runs)
+        for run in runs:
+            assert {p.name for p in (REFERENCE / "exact" / cpu / run["name"]).iterdir()} == set(
+                manifest["files"]
+            )
+
+
+def test_cpu_class_names_vendor_family_model_and_instruction_set() -> None:
+    intel = "processor\t: 0\nvendor_id\t: GenuineIntel\ncpu family\t: 6\nmodel\t\t: 207\n"
+    intel += "model name\t: Intel(R) Xeon(R) Processor\n\nprocessor\t: 1\nvendor_id\t: Other\n"
+    assert machine.cpu_identity(intel) == ["GenuineIntel", "6", "207"]
+    assert machine.cpu_name(intel) == "Intel(R) Xeon(R) Processor"
+    arm = "processor\t: 0\nCPU implementer\t: 0x41\nCPU architecture: 8\nCPU part\t: 0xd0c\n"
+    assert machine.cpu_identity(arm) == ["0x41", "8", "0xd0c"]
+    here = machine.cpu_class()
+    assert here.endswith(torch.backends.cpu.get_cpu_capability())
+    assert mf.environment()["cpu"] == here
+    assert mf.tier_directory(REFERENCE, "exact") == REFERENCE / "exact" / here
+    assert mf.tier_directory(REFERENCE, "stat") == REFERENCE / "stat"
 
 
 def test_environment_differences_name_what_changed() -> None:
@@ -181,15 +215,21 @@ def test_missing_or_foreign_manifest_says_how_to_regenerate(tmp_path: Path) -> N
         mf.read_manifest(tmp_path, "stat")
 
 
-def _copy_reference(tmp_path: Path, tier: str) -> Path:
+def _copy_exact_reference(tmp_path: Path) -> tuple[Path, Path]:
+    """A committed exact set, copied as this machine's CPU class's set (its recorded
+    environment made this machine's), and its manifest's path."""
     copy = tmp_path / "reference"
-    shutil.copytree(REFERENCE / tier, copy / tier)
-    return copy
+    recorded = REFERENCE / "exact" / mf.recorded_cpu_classes(REFERENCE)[0]
+    shutil.copytree(recorded, mf.tier_directory(copy, "exact"))
+    path = mf.tier_directory(copy, "exact") / mf.MANIFEST
+    manifest = json.loads(path.read_text())
+    manifest["environment"] = mf.environment()
+    path.write_text(json.dumps(manifest))
+    return copy, path
 
 
 def test_exact_tier_is_skipped_with_the_reason_on_other_versions(tmp_path: Path) -> None:
-    reference = _copy_reference(tmp_path, "exact")
-    path = reference / "exact" / mf.MANIFEST
+    reference, path = _copy_exact_reference(tmp_path)
     manifest = json.loads(path.read_text())
     manifest["environment"]["versions"]["torch"] = "1.0.0"
     path.write_text(json.dumps(manifest))
@@ -199,16 +239,28 @@ def test_exact_tier_is_skipped_with_the_reason_on_other_versions(tmp_path: Path)
     assert "tacbench regress --update --tier exact" in result.skipped
 
 
+def test_exact_tier_is_skipped_on_a_cpu_class_without_references(tmp_path: Path) -> None:
+    reference = tmp_path / "reference"
+    other = reference / "exact" / "x86_64-SomeVendor-1-2-AVX2"
+    shutil.copytree(REFERENCE / "exact" / mf.recorded_cpu_classes(REFERENCE)[0], other)
+    (result,) = regress.check(reference, "exact", names=["tac-Hopper-v4-q2"])
+    assert result.verdict == "SKIPPED" and not result.rows
+    assert f"no exact references for this machine's CPU class {machine.cpu_class()}" in (
+        result.skipped
+    )
+    assert "recorded for x86_64-SomeVendor-1-2-AVX2" in result.skipped
+    assert "tacbench regress --update --tier exact" in result.skipped
+    with pytest.raises(TacbenchError, match="no reference named nope"):
+        regress.check(reference, "exact", names=["nope"])
+
+
 def test_a_recorded_command_that_is_refused_is_a_regression(tmp_path: Path) -> None:
-    reference = _copy_reference(tmp_path, "exact")
-    path = reference / "exact" / mf.MANIFEST
+    reference, path = _copy_exact_reference(tmp_path)
     manifest = json.loads(path.read_text())
     manifest["runs"][0]["args"].append("--no-such-flag")
     path.write_text(json.dumps(manifest))
     name = manifest["runs"][0]["name"]
     (result,) = regress.check(reference, "exact", names=[name])
-    if result.skipped:
-        pytest.skip(result.skipped)
     (row,) = result.rows
     assert (row.item, row.part, row.status) == (name, "run", "missing")
     assert "(exit status 2): Error: No such option '--no-such-flag'" in row.detail
@@ -271,3 +323,23 @@ def test_format_result_lists_rows_notes_and_verdict() -> None:
     assert text.splitlines()[0] == "== exact tier against ref/exact"
     assert "run-b  losses.csv  DRIFT   x" in text
     assert text.splitlines()[-1] == "REGRESSION (1 match, 1 drift; 3 s)"
+
+
+@pytest.mark.smoke
+def test_update_records_this_cpu_class_and_keeps_the_others(tmp_path: Path) -> None:
+    reference = tmp_path / "reference"
+    other = reference / "exact" / "x86_64-SomeVendor-1-2-AVX2"
+    shutil.copytree(REFERENCE / "exact" / mf.recorded_cpu_classes(REFERENCE)[0], other)
+    args = ("--env", "Hopper-v4", "--q", "1.5", "--learning-starts", "100", "--steps", "300")
+    args += ("--eval-every", "150", "--eval-episodes", "1", "--checkpoint-every", "0", "--quiet")
+    tiny = RunSpec("tac-tiny", args)
+    path = exact.update_exact(reference, tmp_path / "work", [tiny], log=lambda _: None)
+    assert path == mf.tier_directory(reference, "exact") / mf.MANIFEST
+    manifest = json.loads(path.read_text())
+    assert manifest["environment"]["cpu"] == machine.cpu_class()
+    assert [run["name"] for run in manifest["runs"]] == ["tac-tiny"]
+    assert (other / mf.MANIFEST).is_file()  # another CPU class's references are untouched
+    assert mf.recorded_cpu_classes(reference) == sorted([other.name, machine.cpu_class()])
+    result = exact.check_exact(reference, tmp_path / "check", log=lambda _: None)
+    assert result.verdict == "PASS", format_result(result)
+    assert [row.status for row in result.rows] == ["match"] * 4

@@ -1,0 +1,68 @@
+"""Which CPU this is, as far as float rounding is concerned.
+
+The same library versions give different last digits on different CPUs: MKL and PyTorch pick
+their kernels by vendor, model and instruction set (measured here: TAC's and PPO's CSVs from an
+AMD EPYC and an Intel Xeon, both AVX-512, the same wheels, differ from the first update on).
+:func:`cpu_class` names the class of CPUs that can be expected to agree to the last digit, for
+the exact regression references (``tacbench.regress``) and the saved benchmark baselines
+(``tests/bench``), which both belong to one class.
+"""
+
+from __future__ import annotations
+
+import platform
+import re
+from functools import cache
+from pathlib import Path
+
+# /proc/cpuinfo fields that identify a CPU model: x86 (vendor, family, model), then Arm
+# (implementer, part)
+_IDENTITY_FIELDS = (
+    ("vendor_id", "cpu family", "model"),
+    ("CPU implementer", "CPU architecture", "CPU part"),
+)
+
+
+def _cpuinfo(text: str) -> dict[str, str]:
+    """The first processor's fields of a ``/proc/cpuinfo`` text."""
+    fields: dict[str, str] = {}
+    for line in text.splitlines():
+        if not line.strip():
+            if fields:
+                break
+            continue
+        key, _, value = line.partition(":")
+        fields.setdefault(key.strip(), value.strip())
+    return fields
+
+
+def cpu_identity(cpuinfo: str | None = None) -> list[str]:
+    """Vendor, family and model (x86) or implementer, architecture and part (Arm), from
+    ``/proc/cpuinfo`` (or the text given); ``platform.processor()`` where there is none."""
+    if cpuinfo is None:
+        path = Path("/proc/cpuinfo")
+        cpuinfo = path.read_text() if path.is_file() else ""
+    fields = _cpuinfo(cpuinfo)
+    for names in _IDENTITY_FIELDS:
+        if all(name in fields for name in names):
+            return [fields[name] for name in names]
+    return [platform.processor() or "unknown"]
+
+
+def cpu_name(cpuinfo: str | None = None) -> str:
+    """The CPU's marketing name (``model name``), for people; not part of :func:`cpu_class`."""
+    if cpuinfo is None:
+        path = Path("/proc/cpuinfo")
+        cpuinfo = path.read_text() if path.is_file() else ""
+    return _cpuinfo(cpuinfo).get("model name") or platform.processor() or "unknown"
+
+
+@cache
+def cpu_class() -> str:
+    """``<arch>-<vendor>-<family>-<model>-<torch CPU capability>``, e.g.
+    ``x86_64-GenuineIntel-6-207-AVX512``: a file-name-safe key for results that only this class
+    of CPU reproduces bit for bit."""
+    import torch
+
+    parts = [platform.machine(), *cpu_identity(), torch.backends.cpu.get_cpu_capability()]
+    return "-".join(re.sub(r"[^A-Za-z0-9_.]+", "_", part) for part in parts)
