@@ -102,9 +102,13 @@ def tac_scalars(
 
 
 def _linear(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
-    """``x @ weight + bias`` for stacked MLPs; a width-1 layer as multiply-and-sum."""
+    """``x @ weight + bias`` for stacked MLPs; a width-1 layer as multiply-and-sum. Under
+    ``torch.compile`` the bias is added after the product, where Inductor fuses it into the next
+    elementwise kernel (``baddbmm`` first copies the broadcast bias into the output)."""
     if weight.shape[-1] == 1:
         return torch.linalg.vecdot(x, weight.transpose(1, 2)).unsqueeze(-1).add_(bias)
+    if torch.compiler.is_compiling():
+        return torch.bmm(x, weight) + bias
     return torch.baddbmm(bias, x, weight)
 
 
