@@ -23,8 +23,11 @@ _IDENTITY_FIELDS = (
 )
 
 
-def _cpuinfo(text: str) -> dict[str, str]:
-    """The first processor's fields of a ``/proc/cpuinfo`` text."""
+def _cpuinfo(text: str | None) -> dict[str, str]:
+    """The first processor's fields of a ``/proc/cpuinfo`` text (this machine's when None)."""
+    if text is None:
+        path = Path("/proc/cpuinfo")
+        text = path.read_text() if path.is_file() else ""
     fields: dict[str, str] = {}
     for line in text.splitlines():
         if not line.strip():
@@ -39,9 +42,6 @@ def _cpuinfo(text: str) -> dict[str, str]:
 def cpu_identity(cpuinfo: str | None = None) -> list[str]:
     """Vendor, family and model (x86) or implementer, architecture and part (Arm), from
     ``/proc/cpuinfo`` (or the text given); ``platform.processor()`` where there is none."""
-    if cpuinfo is None:
-        path = Path("/proc/cpuinfo")
-        cpuinfo = path.read_text() if path.is_file() else ""
     fields = _cpuinfo(cpuinfo)
     for names in _IDENTITY_FIELDS:
         if all(name in fields for name in names):
@@ -51,9 +51,6 @@ def cpu_identity(cpuinfo: str | None = None) -> list[str]:
 
 def cpu_name(cpuinfo: str | None = None) -> str:
     """The CPU's marketing name (``model name``), for people; not part of :func:`cpu_class`."""
-    if cpuinfo is None:
-        path = Path("/proc/cpuinfo")
-        cpuinfo = path.read_text() if path.is_file() else ""
     return _cpuinfo(cpuinfo).get("model name") or platform.processor() or "unknown"
 
 

@@ -140,7 +140,9 @@ def check_exact(
     start, references = time.perf_counter(), mf.tier_directory(reference, "exact")
     recorded = mf.recorded_cpu_classes(reference)
     if recorded and references.name not in recorded:
-        known = [run for cpu in recorded for run in _runs_recorded_for(reference, cpu)]
+        known = [
+            run for cpu in recorded for run in mf.read_manifest(reference, "exact", cpu)["runs"]
+        ]
         mf.select(known, names, reference)  # an unknown --only name is still an error
         return TierResult(
             "exact",
@@ -199,11 +201,6 @@ def check_exact(
         tuple(notes),
         seconds=time.perf_counter() - start,
     )
-
-
-def _runs_recorded_for(reference: Path, cpu: str) -> list[dict[str, Any]]:
-    manifest: dict[str, Any] = runs.read_json(reference / "exact" / cpu / mf.MANIFEST)
-    return list(manifest["runs"])
 
 
 def _status_row(name: str, entry: dict[str, Any], status: dict[str, Any]) -> Row:

@@ -91,10 +91,10 @@ def write_manifest(directory: Path, manifest: Mapping[str, Any]) -> None:
     runs.atomic_write_json(directory / MANIFEST, manifest)
 
 
-def tier_directory(reference: Path, tier: str) -> Path:
-    """Where ``tier``'s references for this machine live: ``<reference>/exact/<cpu class>`` for
-    the exact tier, ``<reference>/<tier>`` for the others."""
-    return reference / tier / cpu_class() if tier == "exact" else reference / tier
+def tier_directory(reference: Path, tier: str, cpu: str | None = None) -> Path:
+    """Where ``tier``'s references live: ``<reference>/exact/<cpu class>`` for the exact tier
+    (``cpu``, this machine's class by default), ``<reference>/<tier>`` for the others."""
+    return reference / tier / (cpu or cpu_class()) if tier == "exact" else reference / tier
 
 
 def recorded_cpu_classes(reference: Path) -> list[str]:
@@ -103,10 +103,10 @@ def recorded_cpu_classes(reference: Path) -> list[str]:
     return sorted(p.parent.name for p in root.glob(f"*/{MANIFEST}")) if root.is_dir() else []
 
 
-def read_manifest(reference: Path, tier: str) -> dict[str, Any]:
-    """The manifest of ``tier`` under ``reference`` (for this machine's CPU class, the exact
-    tier's); a TacbenchError says how to create it."""
-    path = tier_directory(reference, tier) / MANIFEST
+def read_manifest(reference: Path, tier: str, cpu: str | None = None) -> dict[str, Any]:
+    """The manifest of ``tier`` under ``reference`` (the exact tier's for CPU class ``cpu``,
+    this machine's by default); a TacbenchError says how to create it."""
+    path = tier_directory(reference, tier, cpu) / MANIFEST
     if not path.is_file():
         raise TacbenchError(
             f"no {tier} references at {path.parent}; create them with: "

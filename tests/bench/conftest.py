@@ -33,7 +33,7 @@ def pytest_configure(config: pytest.Config) -> None:
         config.option.benchmark_compare_fail = None
         config.issue_config_time_warning(
             pytest.PytestConfigWarning(
-                f"no saved benchmark baseline for this CPU class ({cpu_class()}) in "
+                f"no saved benchmark baseline for this CPU class ({here.name}) in "
                 f"{BASELINE}; nothing is compared. Save one with: tox -e bench -- "
                 "--benchmark-save=NAME"
             ),

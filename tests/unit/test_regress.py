@@ -6,7 +6,6 @@ from __future__ import annotations
 import json
 import shutil
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pytest
@@ -152,25 +151,16 @@ def test_specs_cover_every_task_q_and_baseline() -> None:
         assert not set(group.reference_seeds) & set(group.check_seeds)
 
 
-def _committed_manifests() -> list[tuple[str, dict[str, Any]]]:
-    """(tier, manifest) for the theory and stat tiers and every CPU class's exact tier."""
-    manifests = [(tier, mf.read_manifest(REFERENCE, tier)) for tier in ("theory", "stat")]
-    for cpu in mf.recorded_cpu_classes(REFERENCE):
-        manifests.append(
-            ("exact", json.loads((REFERENCE / "exact" / cpu / mf.MANIFEST).read_text()))
-        )
-    return manifests
-
-
 def test_committed_manifests_record_provenance() -> None:
-    manifests = _committed_manifests()
-    assert [tier for tier, _ in manifests].count("exact") >= 1
-    for tier, manifest in manifests:
+    classes = mf.recorded_cpu_classes(REFERENCE)
+    assert classes
+    exact = {cpu: mf.read_manifest(REFERENCE, "exact", cpu) for cpu in classes}
+    manifests = [(tier, mf.read_manifest(REFERENCE, tier)) for tier in ("theory", "stat")]
+    for tier, manifest in [*manifests, *(("exact", m) for m in exact.values())]:
         assert manifest["regenerate"].startswith(f"tacbench regress --update --tier {tier}")
         assert set(manifest["environment"]["versions"]) == {"python", *mf.RECORDED_PACKAGES}
         assert {"created", "git_commit", "platform"} <= set(manifest)
-    for cpu in mf.recorded_cpu_classes(REFERENCE):
-        manifest = json.loads((REFERENCE / "exact" / cpu / mf.MANIFEST).read_text())
+    for cpu, manifest in exact.items():
         assert manifest["environment"]["cpu"] == cpu
         runs = manifest["runs"]
         assert [r["name"] for r in runs] == [s.name for s in EXACT_RUNS]
