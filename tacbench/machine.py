@@ -63,3 +63,26 @@ def cpu_class() -> str:
 
     parts = [platform.machine(), *cpu_identity(), torch.backends.cpu.get_cpu_capability()]
     return "-".join(re.sub(r"[^A-Za-z0-9_.]+", "_", part) for part in parts)
+
+
+@cache
+def l2_cache_bytes(default: int = 1 << 20) -> int:
+    """The size of one core's level-2 cache (Linux sysfs; ``default``, 1 MiB, where unknown)."""
+    for index in sorted(Path("/sys/devices/system/cpu/cpu0/cache").glob("index*")):
+        try:
+            level = (index / "level").read_text().strip()
+            kind = (index / "type").read_text().strip()
+            size = (index / "size").read_text().strip()
+        except OSError:
+            continue
+        if level == "2" and kind in ("Unified", "Data"):
+            return _parse_cache_size(size) or default
+    return default
+
+
+def _parse_cache_size(text: str) -> int:
+    """sysfs cache sizes: ``2048K``, ``1M``, ``512``; 0 if unreadable."""
+    match = re.fullmatch(r"(\d+)\s*([KMG]?)", text.strip().upper())
+    if not match:
+        return 0
+    return int(match[1]) << {"": 0, "K": 10, "M": 20, "G": 30}[match[2]]

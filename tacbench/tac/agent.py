@@ -24,11 +24,12 @@ import torch
 from torch import nn
 
 from tacbench.config import RunConfig
+from tacbench.machine import l2_cache_bytes
 from tacbench.tac.flat import FlatParameters
 from tacbench.tac.fused import FusedNets, Layers, TacScalars, forward, fused_gradients, tac_scalars
 from tacbench.tac.losses import DIAGNOSTICS, Batch, tac_losses
 from tacbench.tac.networks import BatchedMLP, Critic, TanhGaussianPolicy
-from tacbench.tac.speed import compile_gradients
+from tacbench.tac.speed import compile_gradients, members_fitting_l2
 
 LOSSES = ("loss_q1", "loss_q2", "loss_v", "loss_pi")
 METRICS = LOSSES + DIAGNOSTICS  # the columns of TacAgent.update's result
@@ -80,7 +81,8 @@ class TacAgent:
             persistent += _tensors(self._target_layers)
             if self._critic_target_layers is not None:
                 persistent += _tensors(self._critic_target_layers)
-            self._gradients = compile_gradients(device, persistent)
+            chunk = members_fitting_l2(config.batch_size, config.hidden_sizes, l2_cache_bytes())
+            self._gradients = compile_gradients(device, persistent, chunk)
 
     def _flatten(self, device: torch.device) -> None:
         """Move every parameter into flat buffers and rebind the networks to views of them.

@@ -13,7 +13,9 @@ import pytest
 import torch
 from torch.optim.adam import adam
 
+from tacbench import machine
 from tacbench.config import RunConfig
+from tacbench.tac import agent as agent_module
 from tacbench.tac import speed
 from tacbench.tac.agent import METRICS, TacAgent
 from tacbench.tac.flat import FlatParameters
@@ -231,10 +233,60 @@ def test_compile_falls_back_to_the_fused_update_where_it_fails(
         compiled.gradients(batch, eps, 1.5)
 
 
-def test_compiled_update_equals_the_fused_one() -> None:
+def _chunks_of(monkeypatch: pytest.MonkeyPatch, members: int) -> None:
+    """Make the compiled update take ``members`` members at a time."""
+    monkeypatch.setattr(agent_module, "members_fitting_l2", lambda *_: members)
+
+
+def test_members_fitting_l2_counts_the_critics_hidden_layers() -> None:
+    # HalfCheetah, the paper's 1x300 and batch 100: 480 KB of critic activations per member
+    assert speed.members_fitting_l2(100, (300,), 2 << 20) == 4  # an Intel Xeon's 2 MiB
+    assert speed.members_fitting_l2(100, (300,), 1 << 20) == 2  # an AMD Zen 5's 1 MiB
+    assert speed.members_fitting_l2(100, (256, 300), 1 << 18) == 1  # never fewer than one
+    assert machine.l2_cache_bytes() >= 1 << 16
+
+
+@pytest.mark.parametrize("sysfs, size", [("2048K", 2 << 20), ("1M", 1 << 20), ("x", 0)])
+def test_cache_sizes_are_read_as_sysfs_writes_them(sysfs: str, size: int) -> None:
+    assert machine._parse_cache_size(sysfs) == size
+
+
+@pytest.mark.parametrize("critic_target", ["v", "twin-q"])
+@pytest.mark.parametrize("members", [1, 2, 3])
+def test_the_update_in_member_chunks_equals_the_whole_stack(
+    monkeypatch: pytest.MonkeyPatch, critic_target: str, members: int
+) -> None:
+    """The compiled update's member chunks (here uncompiled: torch.compile is the identity),
+    a ragged last chunk and a retired member included: the same losses and gradients."""
+    monkeypatch.setattr(speed.torch, "compile", lambda fn, **_: fn)
+    _chunks_of(monkeypatch, members)
+    calls = []
+    whole_stack = speed.fused_gradients
+
+    def counted(*args: Any) -> torch.Tensor:
+        calls.append(args[4].shape[0])  # eps: (members, B, A)
+        return whole_stack(*args)
+
+    monkeypatch.setattr(speed, "fused_gradients", counted)
+    chunked = _agent("fused", compile=True, critic_target=critic_target)
+    plain = _agent("fused", critic_target=critic_target)
+    for agent in (chunked, plain):
+        agent.alive[1] = False
+    batch, eps = _batch()
+    eps_next = None if critic_target == "v" else eps.flip(1)
+    metrics, grads = chunked.gradients(batch, eps, 1.5, eps_next)
+    assert calls == {1: [1, 1, 1], 2: [2, 1], 3: [3]}[members]  # chunk sizes of three members
+    reference, reference_grads = plain.gradients(batch, eps, 1.5, eps_next)
+    _close(metrics, reference, 1e-6, "metrics")
+    for name, grad in reference_grads.items():
+        _close(grads[name], grad, 1e-6, name)
+
+
+def test_compiled_update_equals_the_fused_one(monkeypatch: pytest.MonkeyPatch) -> None:
     """torch.compile of the fused update (about half a minute of compilation, cached on disk
-    afterwards): one update's losses and gradients within float32 rounding of the uncompiled
-    one, and no fallback."""
+    afterwards), in chunks of two of the three members: one update's losses and gradients
+    within float32 rounding of the uncompiled one, and no fallback."""
+    _chunks_of(monkeypatch, 2)
     compiled, plain = _agent("fused", compile=True), _agent("fused")
     batch, eps = _batch()
     with warnings.catch_warnings(record=True) as caught:
