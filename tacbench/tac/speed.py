@@ -82,19 +82,11 @@ def fused_gradients_in_chunks(
     for first in range(0, n_members, members_per_chunk):
         members = slice(first, min(first + members_per_chunk, n_members))
         pair = slice(n_members + members.start, n_members + members.stop)  # their Q2s
-        critic_grads = Layers(
-            *(
-                [torch.empty_like(t) for t in ts]
-                for ts in _critic_pairs(grads.critics, members, pair)
-            )
-        )
+        critics = _critic_pairs(nets.critics, members, pair)
+        critic_grads = Layers(*([torch.empty_like(t) for t in ts] for ts in critics))
         chunk_metrics.append(
             fused_gradients(
-                FusedNets(
-                    _members(nets.policy, members),
-                    _critic_pairs(nets.critics, members, pair),
-                    _members(nets.v, members),
-                ),
+                FusedNets(_members(nets.policy, members), critics, _members(nets.v, members)),
                 FusedNets(
                     _members(grads.policy, members), critic_grads, _members(grads.v, members)
                 ),
