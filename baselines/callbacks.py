@@ -180,6 +180,6 @@ class RunCallback(BaseCallback):
         if due:
             self._checkpoint(step)
         if not last and self._stop(step):
-            if not due:
+            if not due and step:  # at step 0 there is nothing to keep: resume starts afresh
                 self._checkpoint(step)
             raise Interrupted(step)
