@@ -1,7 +1,7 @@
 """One frozen, JSON-serialisable :class:`BaselineConfig` per baseline run, and how to build them.
 
-The run settings (steps, evaluation, checkpoints, logging, hardware) have the same names,
-defaults and checks as TAC's :class:`tacbench.config.RunConfig`; the algorithm's settings are
+The run settings (steps, evaluation, checkpoints, logging, hardware) are TAC's own
+(:class:`tacbench.config.RunSettings`, declared once); the algorithm's settings are
 the resolved hyperparameter table (``baselines/hyperparams/<algo>.yaml``) with the ``--hp``
 overrides applied.
 """
@@ -14,41 +14,23 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from baselines import hyperparams
-from tacbench import config as tac_config
+from tacbench.config import RunSettings
 from tacbench.errors import TacbenchError
 
 
-@dataclass(frozen=True)
-class BaselineConfig:
-    """Everything that determines one baseline run; built once, then read-only."""
+@dataclass(frozen=True, kw_only=True)
+class BaselineConfig(RunSettings):
+    """Everything that determines one baseline run; built once, then read-only. The run
+    settings are TAC's (:class:`tacbench.config.RunSettings`)."""
 
     algo: str
     env: str
-    seed: int = 0
-    total_steps: int = tac_config.TOTAL_STEPS
-    eval_every: int = tac_config.EVAL_EVERY
-    eval_episodes: int = tac_config.EVAL_EPISODES
-    checkpoint_every: int = tac_config.CHECKPOINT_EVERY
-    log_every: int = tac_config.LOG_EVERY
-    device: str = "cpu"
-    threads: int = 1
     hyperparams: Mapping[str, Any] = field(default_factory=dict)
     variant: str = "default"
 
     def __post_init__(self) -> None:
         hyperparams.check_algo(self.algo)
-        tac_config.check_integers(
-            self,
-            total_steps=1,
-            eval_every=0,
-            eval_episodes=1,
-            checkpoint_every=0,
-            log_every=1,
-            threads=1,
-            seed=0,
-        )
-        if self.device not in ("cpu", "cuda"):
-            raise TacbenchError(f"--device must be cpu or cuda (got {self.device!r}).")
+        super().__post_init__()
         missing = sorted(set(hyperparams.ALGO_KEYS[self.algo]) - set(self.hyperparams))
         if missing:
             raise TacbenchError(f"{self.algo} config lacks hyperparameters {missing}.")

@@ -15,7 +15,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import torch
 from stable_baselines3.common.vec_env import VecNormalize
 
 from baselines import algos, checkpoint, hyperparams
@@ -23,8 +22,10 @@ from baselines.callbacks import Diverged, Interrupted, LossLogger, RunCallback
 from baselines.config import BaselineConfig
 from tacbench import envs, runs
 from tacbench.errors import TacbenchError
-from tacbench.launch import Outcome, StopCheck, plan_runs, stop_signals
+from tacbench.hardware import configure_process
+from tacbench.interrupts import StopCheck, stop_signals
 from tacbench.progress import Progress
+from tacbench.runs import Outcome, plan_runs
 
 
 def metadata(config: BaselineConfig, command: str) -> dict[str, Any]:
@@ -70,7 +71,7 @@ def train(
     outcomes, active = plan_runs(configs, out, resume=resume, force=force)
     with stop_signals() as received:
         for config, directory in active:
-            torch.set_num_threads(config.threads)
+            configure_process(config.threads)
             run = _Run(config, directory, command, quiet)
             outcome = run.learn(lambda step: bool(received) or (stop is not None and stop(step)))
             outcomes.append(outcome)

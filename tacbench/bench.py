@@ -3,7 +3,7 @@
 Every contestant trains on the same task with the paper's networks and update rate (one hidden
 layer of 300 ReLU units, batch 100, Adam lr 1e-3, one update per environment step, a 1M
 replay buffer) in this one process, under the same thread count and heap setting
-(:func:`tacbench.tac.speed.reuse_freed_memory`). After ``learning_starts`` steps of random
+(:func:`tacbench.hardware.configure_process`). After ``learning_starts`` steps of random
 actions (not timed) and a few updates of warm-up (where ``torch.compile`` compiles), the
 contestants take turns: each round, each one trains ``steps / rounds`` more steps while its
 time is measured. Taking turns spreads a shared machine's load over all of them, so the
@@ -32,8 +32,7 @@ import torch
 from tacbench import envs, training
 from tacbench.config import RunConfig, make_run_configs
 from tacbench.errors import TacbenchError
-from tacbench.machine import cpu_class, cpu_name
-from tacbench.tac.speed import reuse_freed_memory
+from tacbench.hardware import configure_process, cpu_class, cpu_name
 
 Advance = Callable[[int], int]
 WARMUP_UPDATES = 50  # untimed updates after learning starts (compilation happens here)
@@ -50,7 +49,7 @@ class Contestant:
 
 
 @dataclass
-class Result:
+class BenchResult:
     """A contestant's measured rounds: steps and seconds, one pair per round."""
 
     contestant: Contestant
@@ -100,14 +99,15 @@ class BenchOptions:
 
 
 def contestants(options: BenchOptions) -> list[Contestant]:
-    """SB3's SAC, then TAC eager and fused (and compiled) at K = 1 and K = ``members``."""
+    """SB3's SAC, then TAC eager and fused at K = 1 and K = ``members``, each also compiled
+    with ``compile``."""
     rows = [Contestant("SB3 SAC", 1)] if options.sb3 else []
+    impls = ("eager", "fused") if options.eager else ("fused",)
     for k in dict.fromkeys((1, options.members)):
-        if options.eager:
-            rows.append(Contestant("TAC eager", k, "eager"))
-        rows.append(Contestant("TAC fused", k, "fused"))
-        if options.compile:
-            rows.append(Contestant("TAC fused+compile", k, "fused", compile=True))
+        for impl in impls:
+            rows.append(Contestant(f"TAC {impl}", k, impl))
+            if options.compile:
+                rows.append(Contestant(f"TAC {impl}+compile", k, impl, compile=True))
     return rows
 
 
@@ -177,12 +177,11 @@ def _learner(options: BenchOptions, contestant: Contestant, out: Path) -> Iterat
         yield advance
 
 
-def run_bench(options: BenchOptions, report: Callable[[str], None] = print) -> list[Result]:
+def run_bench(options: BenchOptions, report: Callable[[str], None] = print) -> list[BenchResult]:
     """Measure every contestant in turns (see the module docstring); ``report`` gets progress
-    lines. Returns one :class:`Result` per contestant, in :func:`contestants` order."""
-    torch.set_num_threads(options.threads)
-    reuse_freed_memory()
-    results = [Result(c) for c in contestants(options)]
+    lines. Returns one :class:`BenchResult` per contestant, in :func:`contestants` order."""
+    configure_process(options.threads)
+    results = [BenchResult(c) for c in contestants(options)]
     chunk = max(1, options.steps // options.rounds)
     with tempfile.TemporaryDirectory() as tmp, contextlib.ExitStack() as stack:
         learners = []
@@ -215,7 +214,7 @@ def machine() -> dict[str, Any]:
     }
 
 
-def table(results: list[Result], options: BenchOptions) -> str:
+def table(results: list[BenchResult]) -> str:
     """The side-by-side table: steps/s, member-steps/s and the ratio to SB3's SAC."""
     sb3 = next((r for r in results if not r.contestant.impl), None)
     lines = [
@@ -232,7 +231,7 @@ def table(results: list[Result], options: BenchOptions) -> str:
     return "\n".join(lines)
 
 
-def summary(results: list[Result], options: BenchOptions, before: dict[str, Any]) -> str:
+def summary(results: list[BenchResult], options: BenchOptions, before: dict[str, Any]) -> str:
     """The table with a header that says what was measured, where and under what load."""
     after = machine()
     head = (
@@ -244,10 +243,10 @@ def summary(results: list[Result], options: BenchOptions, before: dict[str, Any]
         f"{before['load_average']} at start, {after['load_average']} at end "
         "(a load above the thread count means other work shared the cores)."
     )
-    return f"{head}\n\n{table(results, options)}"
+    return f"{head}\n\n{table(results)}"
 
 
-def results_json(results: list[Result], options: BenchOptions) -> dict[str, Any]:
+def results_json(results: list[BenchResult], options: BenchOptions) -> dict[str, Any]:
     """Everything measured, for the record."""
     return {
         "options": asdict(options),

@@ -1,5 +1,8 @@
-"""Run configuration: one frozen, JSON-serialisable :class:`RunConfig` and the paper's presets.
+"""Run configuration: frozen, JSON-serialisable configs whose fields are the settings, declared
+once (:func:`tacbench.settings.setting`), and the paper's presets.
 
+:class:`RunSettings` holds what every trainer's run has (steps, evaluation, checkpoints,
+logging, hardware); :class:`RunConfig` (TAC) and ``baselines.config.BaselineConfig`` extend it.
 Every default names its source next to the value:
 
 - "paper, Hyperparameter Settings table": the first table of the appendix "Implementation Detail"
@@ -8,36 +11,23 @@ Every default names its source next to the value:
   entropy coefficient alpha and the best entropic index q for each task;
 - "reference code": the authors' TensorFlow implementation, as summarised in
   ``shared/REFERENCE.md``;
-- "issue 3": the issue that specified ``tacbench run``.
+- "issue N": the issue that specified it; "ours": a choice of this project, with its reason.
 
-A config is validated once, when it is built (``__post_init__``); everything downstream trusts it.
+A config is validated once, when it is built (``__post_init__``); everything downstream trusts
+it. Error messages name the command-line flag of the offending setting.
 """
 
 from __future__ import annotations
 
 import dataclasses
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
-from typing import Any
+from dataclasses import dataclass
+from typing import Any, ClassVar
 
 from tacbench.errors import TacbenchError
-
-# --- paper and reference-code defaults ------------------------------------------------------
+from tacbench.settings import flag_of, neutral_fields, setting, settings_of
 
 TOTAL_STEPS = 1_000_000  # reference code: 200 epochs x 5,000 steps; paper figures span 1M steps
-LEARNING_STARTS = 10_000  # reference code (uniform random actions); the paper table says 1e5
-HIDDEN_SIZES = (300,)  # paper, Hyperparameter Settings table: 1 hidden layer of 300 ReLU units
-LEARNING_RATE = 1e-3  # paper, Hyperparameter Settings table (Adam)
-BATCH_SIZE = 100  # paper, Hyperparameter Settings table
-BUFFER_SIZE = 1_000_000  # paper, Hyperparameter Settings table
-GAMMA = 0.99  # paper, Hyperparameter Settings table
-TAU = 0.005  # paper, Hyperparameter Settings table ("moving average ratio")
-LOG_STD_MIN, LOG_STD_MAX = -20.0, 2.0  # reference code: tanh head rescaled to [-20, 2]
-EVAL_EVERY = 5_000  # reference code: one evaluation per 5,000-step epoch
-EVAL_EPISODES = 10  # reference code: 10 deterministic test episodes
-Q_SCHEDULE_START, Q_SCHEDULE_END = 0.1, 0.9  # reference code ("TAC with curricula"): 10%..90%
-CHECKPOINT_EVERY = 50_000  # issue 3
-LOG_EVERY = 1_000  # ours: one losses.csv row (mean over the updates since the last) per 1,000 steps
 PAPER_SEEDS = (0, 10, 20, 30, 40, 50, 60, 70, 80, 90)  # paper, Hyperparameter Settings table
 
 # paper, per-task table (lines 2059-2067): alpha 0.05 for Humanoid, 0.2 for every other task.
@@ -65,90 +55,200 @@ PAPER_BEST_Q: dict[str, float] = {
 DEFAULT_Q = 1.0  # tasks the paper did not run have no best q: q = 1 (Shannon entropy, i.e. SAC)
 
 UPDATE_SCHEDULES = ("step", "episode")
-IMPLS = ("fused", "eager")  # issue 7: fused (fast, default) or eager (autograd: the reference)
+IMPLS = ("fused", "eager")
 LNQ_MODES = ("joint", "per-dim")
 CRITIC_TARGETS = ("v", "twin-q")
 Q_SCHEDULES = ("constant", "linear")
-
-# Fields that cannot change any number a run writes; a resumed run may differ in these.
-RESULT_NEUTRAL_FIELDS = ("device", "threads", "checkpoint_every")
+DEVICES = ("cpu", "cuda")
 
 
-@dataclass(frozen=True)
-class RunConfig:
+@dataclass(frozen=True, kw_only=True)
+class RunSettings:
+    """What every trainer's run has: its seed, length, evaluation, checkpoints, logging and
+    hardware. The seed is repeatable on the command line (``--seed``), so it has no generated
+    option."""
+
+    seed: int = setting(0, "Random seed.", source="ours", cli=False)
+    total_steps: int = setting(
+        TOTAL_STEPS,
+        "Environment steps per run.",
+        source="reference code: 200 epochs x 5,000 steps",
+        flag="--steps",
+    )
+    eval_every: int = setting(
+        5_000,
+        "Steps between evaluations; 0 disables evaluation.",
+        source="reference code: one evaluation per 5,000-step epoch",
+    )
+    eval_episodes: int = setting(
+        10, "Deterministic episodes per evaluation.", source="reference code"
+    )
+    checkpoint_every: int = setting(
+        50_000,
+        "Steps between checkpoints (also at the end and on Ctrl-C); 0: only then.",
+        source="issue 3",
+        neutral=True,
+    )
+    log_every: int = setting(
+        1_000,
+        "Steps between losses.csv rows, each the mean over the updates since the last.",
+        source="ours",
+    )
+    device: str = setting(
+        "cpu",
+        "Where the networks run (auto: cuda when available).",
+        source="ours",
+        choices=(*DEVICES, "auto"),
+        neutral=True,
+        sweep=False,
+    )
+    threads: int = setting(1, "torch CPU threads.", source="ours", neutral=True, sweep=False)
+
+    _MINIMUMS: ClassVar[dict[str, int]] = {
+        "seed": 0,
+        "total_steps": 1,
+        "eval_every": 0,
+        "eval_episodes": 1,
+        "checkpoint_every": 0,
+        "log_every": 1,
+        "threads": 1,
+    }
+
+    def __post_init__(self) -> None:
+        check_integers(self, **self._MINIMUMS)
+        _check_choice(self, "device", self.device, DEVICES)
+
+
+@dataclass(frozen=True, kw_only=True)
+class RunConfig(RunSettings):
     """Everything that determines one TAC run; built once (CLI or sweep), then read-only."""
 
     env: str
     q: float
     alpha: float
-    seed: int = 0
     algo: str = "tac"
-    total_steps: int = TOTAL_STEPS
-    learning_starts: int = LEARNING_STARTS
-    update_schedule: str = "step"  # issue 3: one update per step; "episode" is paper Algorithm 1
-    # reference code: sum of per-dimension ln_q, what produced the paper's curves; "joint" (the
-    # appendix's formula) overflows on Ant, Humanoid, Pusher at their paper q (docs/tac.md)
-    lnq: str = "per-dim"
-    # paper eqn:q_obj and reference code (SAC v1): the Q target bootstraps from a target V;
-    # "twin-q" (SAC v2, as stable-baselines3): from target Q1, Q2 at a' ~ pi(.|s'), no V
-    # (docs/parity.md says why it is offered)
-    critic_target: str = "v"
-    q_schedule: str = "constant"  # paper; "linear": 1 -> q between the two fractions below
-    q_schedule_start: float = Q_SCHEDULE_START
-    q_schedule_end: float = Q_SCHEDULE_END
-    hidden_sizes: tuple[int, ...] = field(default=HIDDEN_SIZES)
-    learning_rate: float = LEARNING_RATE
-    batch_size: int = BATCH_SIZE
-    buffer_size: int = BUFFER_SIZE
-    gamma: float = GAMMA
-    tau: float = TAU
-    log_std_min: float = LOG_STD_MIN
-    log_std_max: float = LOG_STD_MAX
-    eval_every: int = EVAL_EVERY
-    eval_episodes: int = EVAL_EPISODES
-    checkpoint_every: int = CHECKPOINT_EVERY
-    log_every: int = LOG_EVERY
-    device: str = "cpu"
-    threads: int = 1
-    # issue 7: how the update is computed; the same maths either way (docs/performance.md), but
-    # not the same rounding, so a run keeps its choice (resume refuses another)
-    impl: str = "fused"
-    compile: bool = False  # torch.compile the fused update (docs/performance.md)
+    lnq: str = setting(
+        "per-dim",
+        "per-dim: sum of per-dimension ln_q (what produced the paper's curves); joint: ln_q of "
+        "the joint density (paper appendix; overflows in high action dimensions, docs/tac.md).",
+        source="reference code",
+        choices=LNQ_MODES,
+        variant={"joint": "joint"},
+    )
+    critic_target: str = setting(
+        "v",
+        "v: the Q target bootstraps from a target V (SAC v1); twin-q: from target Q1, Q2 at "
+        "a' ~ pi(s') without V (SAC v2, as stable-baselines3; docs/parity.md).",
+        source="paper eqn:q_obj and reference code",
+        choices=CRITIC_TARGETS,
+        variant={"twin-q": "twinq"},
+    )
+    update_schedule: str = setting(
+        "step",
+        "step: one update per env step; episode: paper Algorithm 1 (one --seed only).",
+        source="issue 3",
+        choices=UPDATE_SCHEDULES,
+        variant={"episode": "episode"},
+    )
+    q_schedule: str = setting(
+        "constant",
+        "linear: q goes from 1 to --q between --q-schedule-start and --q-schedule-end.",
+        source="paper; linear: the authors' later curricula code",
+        choices=Q_SCHEDULES,
+        variant={"linear": "qlinear"},
+    )
+    q_schedule_start: float = setting(
+        0.1,
+        "Fraction of --steps where the linear q schedule starts.",
+        source="reference code (TAC with curricula)",
+        variant="qstart",
+    )
+    q_schedule_end: float = setting(
+        0.9,
+        "Fraction of --steps where the linear q schedule reaches --q.",
+        source="reference code (TAC with curricula)",
+        variant="qend",
+    )
+    learning_starts: int = setting(
+        10_000,
+        "Steps of uniform random actions before learning (the paper's table says 100000).",
+        source="reference code",
+        variant="ls",
+    )
+    hidden_sizes: tuple[int, ...] = setting(
+        (300,),
+        "Hidden layer widths of every network, comma-separated (400,300).",
+        source="paper, Hyperparameter Settings table: 1 hidden layer of 300 ReLU units",
+        variant="h",
+        metavar="W1,W2,...",
+    )
+    learning_rate: float = setting(
+        1e-3, "Adam's learning rate.", source="paper, Hyperparameter Settings table", variant="lr"
+    )
+    batch_size: int = setting(
+        100, "Minibatch size.", source="paper, Hyperparameter Settings table", variant="bs"
+    )
+    buffer_size: int = setting(
+        1_000_000,
+        "Replay buffer capacity (transitions).",
+        source="paper, Hyperparameter Settings table",
+        variant="buf",
+    )
+    gamma: float = setting(
+        0.99, "Discount factor.", source="paper, Hyperparameter Settings table", variant="gamma"
+    )
+    tau: float = setting(
+        0.005,
+        "Polyak rate of the target networks.",
+        source="paper, Hyperparameter Settings table (moving average ratio)",
+        variant="tau",
+    )
+    log_std_min: float = setting(
+        -20.0,
+        "Lower bound of the policy's log std.",
+        source="reference code",
+        variant="log_std_min",
+    )
+    log_std_max: float = setting(
+        2.0, "Upper bound of the policy's log std.", source="reference code", variant="log_std_max"
+    )
+    impl: str = setting(
+        "fused",
+        "TAC's update: fused (hand-written gradients, fast) or eager (autograd, the reference); "
+        "the same maths (docs/performance.md).",
+        source="issue 7",
+        choices=IMPLS,
+    )
+    compile: bool = setting(
+        False,
+        "torch.compile TAC's update (a CPU needs a C++ compiler; falls back without).",
+        source="issue 7 (docs/performance.md)",
+    )
 
     def __post_init__(self) -> None:
         from tacbench.tsallis import check_alpha, check_q  # imports torch: not at CLI start-up
 
+        super().__post_init__()
         object.__setattr__(self, "q", check_q(self.q))
         object.__setattr__(self, "alpha", check_alpha(self.alpha))
         object.__setattr__(self, "hidden_sizes", tuple(int(h) for h in self.hidden_sizes))
-        _check_choice("--update-schedule", self.update_schedule, UPDATE_SCHEDULES)
-        _check_choice("--lnq", self.lnq, LNQ_MODES)
-        _check_choice("--critic-target", self.critic_target, CRITIC_TARGETS)
-        _check_choice("--q-schedule", self.q_schedule, Q_SCHEDULES)
-        _check_choice("--device", self.device, ("cpu", "cuda"))
-        _check_choice("--impl", self.impl, IMPLS)
+        for name, choices in (
+            ("update_schedule", UPDATE_SCHEDULES),
+            ("lnq", LNQ_MODES),
+            ("critic_target", CRITIC_TARGETS),
+            ("q_schedule", Q_SCHEDULES),
+            ("impl", IMPLS),
+        ):
+            _check_choice(self, name, getattr(self, name), choices)
         if not isinstance(self.compile, bool):
             raise TacbenchError(f"compile must be true or false (got {self.compile!r}).")
-        if self.compile and self.impl != "fused":
-            raise TacbenchError("--compile compiles the fused update: use it with --impl fused.")
         if self.algo != "tac":
             raise TacbenchError(f"RunConfig is TAC's config; got algo={self.algo!r}.")
-        check_integers(
-            self,
-            total_steps=1,
-            learning_starts=0,
-            batch_size=1,
-            buffer_size=1,
-            eval_every=0,
-            eval_episodes=1,
-            checkpoint_every=0,
-            log_every=1,
-            threads=1,
-            seed=0,
-        )
+        check_integers(self, learning_starts=0, batch_size=1, buffer_size=1)
         if not self.hidden_sizes or min(self.hidden_sizes) < 1:
             raise TacbenchError(
-                f"hidden_sizes must be positive layer widths (got {self.hidden_sizes})."
+                f"hidden_sizes must be positive layer widths (got {self.hidden_sizes}); "
+                "--hidden-sizes 400,300 for example."
             )
         if not 0.0 < self.gamma <= 1.0 or not 0.0 < self.tau <= 1.0 or self.learning_rate <= 0:
             raise TacbenchError("need 0 < gamma <= 1, 0 < tau <= 1 and learning_rate > 0.")
@@ -164,24 +264,16 @@ class RunConfig:
         """The run directory's variant: ``q1.5-a0.2`` plus a suffix for each non-default choice
         that changes training (``-joint``, ``-episode``, ``-qlinear``, ``-ls100000``, ...)."""
         name = f"q{self.q:g}-a{self.alpha:g}"
-        defaults = RunConfig(env=self.env, q=self.q, alpha=self.alpha)
-        short = {
-            "lnq": "joint",
-            "critic_target": "twinq",
-            "update_schedule": "episode",
-            "q_schedule": "qlinear",
-        }
-        for key in _TRAINING_FIELDS:
-            value = getattr(self, key)
-            if value == getattr(defaults, key):
+        for key, declared in settings_of(RunConfig).items():
+            part, value = declared.info.variant, getattr(self, key)
+            if part is None or value == declared.default:
                 continue
-            if key in short:
-                name += f"-{short[key]}"
-            elif key == "hidden_sizes":
-                name += "-h" + "x".join(str(h) for h in value)
+            if isinstance(part, Mapping):
+                name += f"-{part[value]}"
+            elif isinstance(value, tuple):
+                name += f"-{part}" + "x".join(str(v) for v in value)
             else:
-                text = f"{value:g}" if isinstance(value, float) else str(value)
-                name += f"-{_ABBREVIATIONS.get(key, key)}{text}"
+                name += f"-{part}" + (f"{value:g}" if isinstance(value, float) else str(value))
         return name
 
     def q_at(self, step: int) -> float:
@@ -214,33 +306,13 @@ class RunConfig:
         return cls(**kwargs)
 
 
-# Fields that change what is learned (the variant names their non-default values). Not here:
-# env and seed (their own path components), total_steps, evaluation, logging and hardware.
-_TRAINING_FIELDS = (
-    "lnq",
-    "critic_target",
-    "update_schedule",
-    "q_schedule",
-    "q_schedule_start",
-    "q_schedule_end",
-    "learning_starts",
-    "hidden_sizes",
-    "learning_rate",
-    "batch_size",
-    "buffer_size",
-    "gamma",
-    "tau",
-    "log_std_min",
-    "log_std_max",
-)
-_ABBREVIATIONS = {
-    "learning_starts": "ls",
-    "learning_rate": "lr",
-    "batch_size": "bs",
-    "buffer_size": "buf",
-    "q_schedule_start": "qstart",
-    "q_schedule_end": "qend",
-}
+def result_neutral_fields() -> tuple[str, ...]:
+    """The config fields that cannot change any number a run writes: a resumed run may differ
+    in these (the other fields must be equal)."""
+    return neutral_fields(RunConfig, RunSettings)
+
+
+RESULT_NEUTRAL_FIELDS = result_neutral_fields()
 
 
 def check_integers(config: object, **minimums: int) -> None:
@@ -249,12 +321,13 @@ def check_integers(config: object, **minimums: int) -> None:
     for name, minimum in minimums.items():
         value = getattr(config, name)
         if not isinstance(value, int) or isinstance(value, bool) or value < minimum:
-            flag = "--" + name.replace("_", "-")
+            flag = flag_of(type(config), name)
             raise TacbenchError(f"{name} must be an integer >= {minimum} (got {value!r}); {flag}.")
 
 
-def _check_choice(flag: str, value: str, choices: Sequence[str]) -> None:
+def _check_choice(config: object, name: str, value: str, choices: Sequence[str]) -> None:
     if value not in choices:
+        flag = flag_of(type(config), name)
         raise TacbenchError(f"{flag} must be one of {', '.join(choices)} (got {value!r}).")
 
 

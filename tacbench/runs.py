@@ -18,14 +18,16 @@ import importlib.metadata
 import json
 import math
 import platform
+import shutil
 import socket
 import subprocess
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import IO, Any, Literal
+from typing import IO, Any, Literal, Protocol, TypeVar
 
+from tacbench.config import RESULT_NEUTRAL_FIELDS
 from tacbench.errors import TacbenchError
 
 EVAL_COLUMNS = ("step", "wall_s", "return_mean", "return_std", "length_mean")
@@ -116,7 +118,7 @@ def differing_fields(
 
 
 @dataclass(frozen=True)
-class Plan:
+class DirectoryPlan:
     """What to do with one run directory: start it, resume it, or skip it (with why)."""
 
     action: Literal["start", "resume", "skip"]
@@ -130,12 +132,14 @@ def plan_run(
     resume: bool,
     force: bool,
     neutral: Sequence[str] = (),
-) -> Plan:
+) -> DirectoryPlan:
     """Decide how a new command treats ``directory``; refuse (TacbenchError) when it must not
     touch it. Fields in ``neutral`` may differ between the stored config and the new one."""
     config_path = directory / "config.json"
     if force or not config_path.exists():
-        return Plan("start", "--force: starting over" if force and directory.exists() else "")
+        return DirectoryPlan(
+            "start", "--force: starting over" if force and directory.exists() else ""
+        )
     differences = differing_fields(read_json(config_path).get("config", {}), config, neutral)
     if differences:
         raise TacbenchError(
@@ -146,9 +150,9 @@ def plan_run(
     status = read_json(status_path) if status_path.exists() else {"state": "running", "step": 0}
     step = status.get("step", 0)
     if status.get("state") == "complete":
-        return Plan("skip", f"already complete ({step} steps); --force retrains it")
+        return DirectoryPlan("skip", f"already complete ({step} steps); --force retrains it")
     if status.get("state") == "failed":
-        return Plan(
+        return DirectoryPlan(
             "skip",
             f"failed at step {step}: {status.get('reason', '')}; --force retrains it",
         )
@@ -157,7 +161,7 @@ def plan_run(
             f"{directory} holds an unfinished run (step {step}). Add --resume to continue it, "
             "or --force to start over."
         )
-    return Plan("resume", "resuming from its last checkpoint")
+    return DirectoryPlan("resume", "resuming from its last checkpoint")
 
 
 class CsvLog:
@@ -265,3 +269,56 @@ class RunWriter:
         for log in self._logs.values():
             log.close()
         self._logs.clear()
+
+
+# --- planning the run directories of one trainer call ----------------------------------
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """How one run ended in this call."""
+
+    seed: int
+    directory: Path
+    state: str  # "complete", "failed", "interrupted" or "skipped"
+    step: int
+    message: str = ""
+
+
+class PlannableConfig(Protocol):
+    """What planning needs of a run's config (``RunConfig``, ``BaselineConfig``)."""
+
+    @property
+    def algo(self) -> str: ...
+    @property
+    def env(self) -> str: ...
+    @property
+    def variant(self) -> str: ...
+    @property
+    def seed(self) -> int: ...
+    def to_dict(self) -> Mapping[str, Any]: ...
+
+
+Config = TypeVar("Config", bound=PlannableConfig)
+
+
+def plan_runs(
+    configs: Sequence[Config], out: Path, *, resume: bool, force: bool
+) -> tuple[list[Outcome], list[tuple[Config, Path]]]:
+    """Plan each config's run directory under ``out`` (:func:`plan_run`: start,
+    resume, skip or refuse with a clear error) before anything is trained. Returns the skipped
+    runs' outcomes and the runs to train with their directories; a directory that starts afresh
+    (``force``, or nothing worth resuming in it) is emptied here."""
+    skipped, active = [], []
+    for config in configs:
+        directory = run_directory(out, config.algo, config.env, config.variant, config.seed)
+        plan = plan_run(
+            directory, config.to_dict(), resume=resume, force=force, neutral=RESULT_NEUTRAL_FIELDS
+        )
+        if plan.action == "skip":
+            skipped.append(Outcome(config.seed, directory, "skipped", -1, plan.message))
+            continue
+        if plan.action == "start" and directory.exists():
+            shutil.rmtree(directory)
+        active.append((config, directory))
+    return skipped, active

@@ -1,7 +1,8 @@
 """The ``tacbench`` command line: parse flags, build a config, call the library. No logic here.
 
-One module per family of commands: ``run`` (train one run), ``sweep`` (grids), ``results``
-(report, figures, envs), ``tools`` (bench, regress); ``common`` holds what they share.
+One module per command (``run``, ``sweep``, ``report``, ``figures``, ``envs``, ``bench``,
+``regress``); ``common`` holds what they share and ``options`` generates the options of the
+declared settings.
 """
 
 from __future__ import annotations
@@ -9,11 +10,14 @@ from __future__ import annotations
 import click
 
 from tacbench import __version__
+from tacbench.cli.bench import bench
 from tacbench.cli.common import Group
-from tacbench.cli.results import envs_command, figures, report
+from tacbench.cli.envs import envs_command
+from tacbench.cli.figures import figures
+from tacbench.cli.regress import regress
+from tacbench.cli.report import report
 from tacbench.cli.run import run
 from tacbench.cli.sweep import sweep
-from tacbench.cli.tools import bench, regress
 
 __all__ = ["cli", "main"]
 

@@ -11,7 +11,7 @@ import click
 from tacbench.errors import TacbenchError
 
 if TYPE_CHECKING:
-    from tacbench.launch import Outcome
+    from tacbench.runs import Outcome
 
 
 class UserError(click.ClickException):
@@ -39,10 +39,12 @@ def command_line(ctx: click.Context) -> str:
             continue
         flag, value = param.opts[0], ctx.params[name]
         if isinstance(param, click.Option) and param.is_flag:
-            parts.append(flag)
-        else:
-            for item in value if isinstance(value, tuple) else (value,):
+            parts.append(flag if value else (param.secondary_opts or [flag])[0])
+        elif param.multiple:
+            for item in value:
                 parts += [flag, str(item)]
+        else:
+            parts += [flag, ",".join(map(str, value)) if isinstance(value, tuple) else str(value)]
     return shlex.join(parts)
 
 

@@ -1,22 +1,33 @@
-"""``tacbench run``: train TAC or a baseline into run directories."""
+"""``tacbench run``: train TAC or a baseline into run directories.
+
+Every setting's option is generated from its declaration in :mod:`tacbench.config`; the
+options written here are those with no single config field behind them (the task, the
+algorithm, the repeatable seeds, q and alpha with their per-task defaults, where to write).
+"""
 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import click
 
-from baselines import ALGOS as BASELINES
-from tacbench import config
+from tacbench import trainers
 from tacbench.cli.common import command_line, report_outcomes
+from tacbench.cli.options import cli_settings, setting_options
+from tacbench.config import RunConfig, RunSettings
 from tacbench.errors import TacbenchError
+from tacbench.settings import settings_of
+
+_SETTINGS = cli_settings(RunConfig)
+_RUN_SETTINGS = set(settings_of(RunSettings))
 
 
 @click.command()
 @click.option("--env", required=True, help="Gymnasium id (Ant-v4) or paper task name (Ant).")
 @click.option(
     "--algo",
-    type=click.Choice(["tac", *BASELINES]),
+    type=click.Choice(trainers.ALGOS),
     default="tac",
     show_default=True,
     help="TAC, or a baseline from stable-baselines3 / sb3-contrib (docs/baselines.md).",
@@ -48,72 +59,7 @@ from tacbench.errors import TacbenchError
     show_default=True,
     help="Repeatable (--seed 0 --seed 10): the seeds train as members of one process.",
 )
-@click.option("--steps", type=int, default=config.TOTAL_STEPS, show_default=True)
-@click.option(
-    "--learning-starts",
-    type=int,
-    default=config.LEARNING_STARTS,
-    show_default=True,
-    help="Steps of uniform random actions before learning (the paper's table says 100000).",
-)
-@click.option(
-    "--eval-every",
-    type=int,
-    default=config.EVAL_EVERY,
-    show_default=True,
-    help="Steps between evaluations; 0 disables evaluation.",
-)
-@click.option("--eval-episodes", type=int, default=config.EVAL_EPISODES, show_default=True)
-@click.option(
-    "--update-schedule",
-    type=click.Choice(config.UPDATE_SCHEDULES),
-    default="step",
-    show_default=True,
-    help="step: one update per env step; episode: paper Algorithm 1 (one --seed only).",
-)
-@click.option(
-    "--lnq",
-    type=click.Choice(config.LNQ_MODES),
-    default="per-dim",
-    show_default=True,
-    help="per-dim: sum of per-dimension ln_q (reference code, which produced the paper's "
-    "curves); joint: ln_q of the joint density (paper appendix; overflows in high action "
-    "dimensions, see docs/tac.md).",
-)
-@click.option(
-    "--critic-target",
-    type=click.Choice(config.CRITIC_TARGETS),
-    default="v",
-    show_default=True,
-    help="v: the Q target bootstraps from a target V (paper, reference code: SAC v1); twin-q: "
-    "from target Q1, Q2 at a' ~ pi(s') without V (SAC v2, as stable-baselines3; docs/parity.md).",
-)
-@click.option(
-    "--q-schedule",
-    type=click.Choice(config.Q_SCHEDULES),
-    default="constant",
-    show_default=True,
-    help="linear: q goes from 1 to --q between 10% and 90% of --steps.",
-)
-@click.option("--checkpoint-every", type=int, default=config.CHECKPOINT_EVERY, show_default=True)
-@click.option(
-    "--device", type=click.Choice(["cpu", "cuda", "auto"]), default="cpu", show_default=True
-)
-@click.option("--threads", type=int, default=1, show_default=True, help="torch CPU threads.")
-@click.option(
-    "--impl",
-    type=click.Choice(config.IMPLS),
-    default="fused",
-    show_default=True,
-    help="TAC's update: fused (hand-written gradients, fast) or eager (autograd, the reference); "
-    "the same maths (docs/performance.md).",
-)
-@click.option(
-    "--compile",
-    "compile_",
-    is_flag=True,
-    help="torch.compile TAC's fused update (a CPU needs a C++ compiler; falls back without).",
-)
+@setting_options(RunConfig, _SETTINGS)
 @click.option(
     "--out",
     type=click.Path(file_okay=False, path_type=Path),
@@ -133,23 +79,11 @@ def run(
     q: float | None,
     alpha: float | None,
     seeds: tuple[int, ...],
-    steps: int,
-    learning_starts: int,
-    eval_every: int,
-    eval_episodes: int,
-    update_schedule: str,
-    lnq: str,
-    critic_target: str,
-    q_schedule: str,
-    checkpoint_every: int,
-    device: str,
-    threads: int,
-    impl: str,
-    compile_: bool,
     out: Path,
     resume: bool,
     force: bool,
     quiet: bool,
+    **settings: Any,
 ) -> None:
     """Train Tsallis Actor-Critic (or a baseline: --algo) on one task into a resumable run
     directory.
@@ -161,83 +95,35 @@ def run(
 
     env_id = envs.resolve_env_id(env)
     envs.env_info(env_id)  # refuse unusable tasks before printing anything
-    if algo != "tac":
-        _run_baseline(ctx, algo, env_id, hp)
-        return
-    if hp:
-        raise TacbenchError("--hp sets a baseline's hyperparameters; TAC's have their own flags.")
-    configs, notes = config.make_run_configs(
-        env_id,
-        envs.paper_task(env_id),
-        seeds,
-        q=q,
-        alpha=alpha,
-        total_steps=steps,
-        learning_starts=learning_starts,
-        eval_every=eval_every,
-        eval_episodes=eval_episodes,
-        update_schedule=update_schedule,
-        lnq=lnq,
-        critic_target=critic_target,
-        q_schedule=q_schedule,
-        checkpoint_every=checkpoint_every,
-        device=training.resolve_device(device),
-        threads=threads,
-        impl=impl,
-        compile=compile_,
-    )
+    settings["device"] = training.resolve_device(settings["device"])
+    if algo == "tac":
+        if hp:
+            raise TacbenchError(
+                "--hp sets a baseline's hyperparameters; TAC's have their own flags."
+            )
+        configs, notes = trainers.make_configs(
+            algo, env_id, envs.paper_task(env_id), seeds, settings, q=q, alpha=alpha
+        )
+    else:
+        given = {
+            name: value
+            for name, value in {"q": q, "alpha": alpha, **settings}.items()
+            if name not in _RUN_SETTINGS
+            and ctx.get_parameter_source(name) == click.core.ParameterSource.COMMANDLINE
+        }
+        run_settings = {k: v for k, v in settings.items() if k in _RUN_SETTINGS}
+        configs, notes = trainers.make_configs(
+            algo,
+            env_id,
+            envs.paper_task(env_id),
+            seeds,
+            run_settings,
+            tac_settings_given=given,
+            hp=hp,
+        )
     for note in notes:
         click.echo(note)
-    outcomes = training.train(
+    outcomes = trainers.train(
         configs, out, resume=resume, force=force, quiet=quiet, command=command_line(ctx)
-    )
-    report_outcomes(ctx, outcomes)
-
-
-_TAC_ONLY = (
-    "q",
-    "alpha",
-    "learning_starts",
-    "update_schedule",
-    "lnq",
-    "critic_target",
-    "q_schedule",
-)
-
-
-def _run_baseline(ctx: click.Context, algo: str, env_id: str, hp: tuple[str, ...]) -> None:
-    """`tacbench run --algo <baseline>`: the same run settings, the baseline's trainer."""
-    from baselines import config as baseline_config  # torch and SB3 only when this runs
-    from baselines import trainer
-    from tacbench import envs, training
-
-    p = ctx.params
-    given = {
-        name: p[name]
-        for name in _TAC_ONLY
-        if ctx.get_parameter_source(name) != click.core.ParameterSource.DEFAULT
-    }
-    configs, _, notes = baseline_config.make_configs(
-        algo,
-        env_id,
-        envs.paper_task(env_id),
-        p["seeds"],
-        [*baseline_config.flags_as_overrides(algo, given), *hp],
-        total_steps=p["steps"],
-        eval_every=p["eval_every"],
-        eval_episodes=p["eval_episodes"],
-        checkpoint_every=p["checkpoint_every"],
-        device=training.resolve_device(p["device"]),
-        threads=p["threads"],
-    )
-    for note in notes:
-        click.echo(note)
-    outcomes = trainer.train(
-        configs,
-        p["out"],
-        resume=p["resume"],
-        force=p["force"],
-        quiet=p["quiet"],
-        command=command_line(ctx),
     )
     report_outcomes(ctx, outcomes)

@@ -1,4 +1,9 @@
-"""``tacbench sweep``: the paper's grids, locally or on Ray."""
+"""``tacbench sweep``: the paper's grids, locally or on Ray.
+
+The options that replace a preset's settings (``--steps``, ``--critic-target``, ...) are
+generated from the settings' declarations, like ``tacbench run``'s: a TAC setting applies to the
+preset's TAC runs, a run setting to every run.
+"""
 
 from __future__ import annotations
 
@@ -7,10 +12,13 @@ from typing import Any
 
 import click
 
-from baselines import ALGOS as BASELINES
-from tacbench import config
+from tacbench import trainers
 from tacbench.cli.common import command_line
+from tacbench.cli.options import cli_settings, setting_options
+from tacbench.config import RunConfig
 from tacbench.sweep.presets import PRESETS as SWEEP_PRESETS
+
+_OVERRIDES = cli_settings(RunConfig, sweep=True)
 
 
 @click.command()
@@ -26,19 +34,12 @@ from tacbench.sweep.presets import PRESETS as SWEEP_PRESETS
 @click.option(
     "--algo",
     "algos",
-    type=click.Choice(["tac", *BASELINES]),
+    type=click.Choice(trainers.ALGOS),
     multiple=True,
     help="Repeatable: keep only these algorithms.",
 )
 @click.option("--seed", "seeds", type=int, multiple=True, help="Repeatable: keep only these seeds.")
-@click.option("--steps", type=int, default=None, help="Environment steps per run (budget).")
-@click.option("--checkpoint-every", type=int, default=None, help="Steps between checkpoints.")
-@click.option(
-    "--critic-target",
-    type=click.Choice(config.CRITIC_TARGETS),
-    default=None,
-    help="TAC runs' Q target: v (the paper's, default) or twin-q (SAC v2; docs/parity.md).",
-)
+@setting_options(RunConfig, _OVERRIDES, sweep=True)
 @click.option("--executor", type=click.Choice(["local", "ray"]), default="local", show_default=True)
 @click.option(
     "--workers",
@@ -76,6 +77,7 @@ def sweep(ctx: click.Context, preset: str, **p: Any) -> None:
     """
     from tacbench.sweep import driver, presets, summary  # torch only when this command runs
 
+    overrides = {name: p.pop(name) for name in _OVERRIDES}
     grid = presets.narrow(
         presets.get_preset(preset),
         presets.Narrowing(
@@ -83,9 +85,7 @@ def sweep(ctx: click.Context, preset: str, **p: Any) -> None:
             p["qs"],
             p["algos"],
             p["seeds"],
-            p["steps"],
-            p["checkpoint_every"],
-            p["critic_target"],
+            {name: value for name, value in overrides.items() if value is not None},
         ),
     )
     options = driver.Options(

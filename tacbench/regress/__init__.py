@@ -21,6 +21,7 @@ from pathlib import Path
 
 from tacbench.errors import TacbenchError
 from tacbench.regress.exact import check_exact, check_theory, update_exact, update_theory
+from tacbench.regress.manifest import Runner, subprocess_runner
 from tacbench.regress.outcome import Row, TierResult, format_result
 from tacbench.regress.stat import check_stat, update_stat
 
@@ -61,9 +62,11 @@ def check(
     work: Path | None = None,
     names: Sequence[str] = (),
     log: Log = _quiet,
+    runner: Runner = subprocess_runner,
 ) -> list[TierResult]:
     """Compare fresh results with the references of ``tier`` under ``reference``; ``names``
-    limits the exact or statistical tier to those runs or groups."""
+    limits the exact or statistical tier to those runs or groups. ``runner`` runs each
+    recorded ``tacbench run`` command (a new process by default)."""
     _check_tier(tier)
     reference = Path(reference)
     if not reference.is_dir():
@@ -73,15 +76,19 @@ def check(
         )
     with _scratch(work) as scratch:
         if tier == "stat":
-            return [check_stat(reference, scratch / "stat", names, log)]
+            return [check_stat(reference, scratch / "stat", names, log, runner)]
         results = [] if names else [check_theory(reference, scratch / "theory")]
         if tier == "exact":
-            results.append(check_exact(reference, scratch / "exact", names, log))
+            results.append(check_exact(reference, scratch / "exact", names, log, runner))
         return results
 
 
 def update(
-    reference: Path, tier: str = "exact", work: Path | None = None, log: Log = _quiet
+    reference: Path,
+    tier: str = "exact",
+    work: Path | None = None,
+    log: Log = _quiet,
+    runner: Runner = subprocess_runner,
 ) -> list[Path]:
     """Regenerate ``tier``'s references under ``reference`` (``exact`` also rewrites the theory
     CSVs); returns the manifests written."""
@@ -89,8 +96,8 @@ def update(
     reference = Path(reference)
     with _scratch(work) as scratch:
         if tier == "stat":
-            return [update_stat(reference, scratch / "stat", log=log)]
+            return [update_stat(reference, scratch / "stat", log=log, runner=runner)]
         written = [update_theory(reference, scratch / "theory")]
         if tier == "exact":
-            written.append(update_exact(reference, scratch / "exact", log=log))
+            written.append(update_exact(reference, scratch / "exact", log=log, runner=runner))
         return written

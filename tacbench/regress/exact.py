@@ -3,7 +3,7 @@ printed digit.
 
 A reference run is the output of one recorded ``tacbench run`` command: its ``eval.csv``,
 ``train.csv`` and ``losses.csv`` without the ``wall_s`` column, and its final status. The runs
-are recorded per CPU class (``exact/<cpu class>/``, :func:`tacbench.machine.cpu_class`). On
+are recorded per CPU class (``exact/<cpu class>/``, :func:`tacbench.hardware.cpu_class`). On
 the same library versions and CPU class, a fresh run of that command must write the same text;
 elsewhere the runs are skipped with the reason (float rounding legitimately differs there). The
 theory CSVs depend on NumPy alone and are always compared.
@@ -23,7 +23,7 @@ from tacbench import runs
 from tacbench.errors import TacbenchError
 from tacbench.regress import manifest as mf
 from tacbench.regress.outcome import Row, Status, TierResult
-from tacbench.regress.specs import EXACT_RUNS, RunSpec
+from tacbench.regress.specs import EXACT_RUNS, ReferenceRun
 
 EXACT_FILES = ("eval.csv", "train.csv", "losses.csv")
 THEORY_COMMAND = "tacbench figures --out DIR"
@@ -96,7 +96,11 @@ def _completed(name: str, result: mf.CommandResult) -> Path:
 
 
 def update_exact(
-    reference: Path, work: Path, specs: Sequence[RunSpec] = EXACT_RUNS, log: Log = print
+    reference: Path,
+    work: Path,
+    specs: Sequence[ReferenceRun] = EXACT_RUNS,
+    log: Log = print,
+    runner: mf.Runner = mf.subprocess_runner,
 ) -> Path:
     """Run every spec and write ``<reference>/exact/<this CPU class>``: the CSVs and
     ``manifest.json`` (other CPU classes' references are kept)."""
@@ -104,7 +108,7 @@ def update_exact(
     entries = []
     for spec in specs:
         t0 = time.perf_counter()
-        directory = _completed(spec.name, mf.run_command(spec.args, work / spec.name))
+        directory = _completed(spec.name, runner(spec.args, work / spec.name))
         (staging / spec.name).mkdir()
         for name in EXACT_FILES:
             text = mf.without_wall_clock((directory / name).read_text())
@@ -133,7 +137,11 @@ def update_exact(
 
 
 def check_exact(
-    reference: Path, work: Path, names: Sequence[str] = (), log: Log = print
+    reference: Path,
+    work: Path,
+    names: Sequence[str] = (),
+    log: Log = print,
+    runner: mf.Runner = mf.subprocess_runner,
 ) -> TierResult:
     """Rerun the recorded commands (all, or those in ``names``) and compare their CSVs, against
     the references of this machine's CPU class (skipped where there are none)."""
@@ -174,7 +182,7 @@ def check_exact(
     for entry in entries:
         name = entry["name"]
         t0 = time.perf_counter()
-        result = mf.run_command(entry["args"], work / name)
+        result = runner(entry["args"], work / name)
         log(f"{name}: exit status {result.exit_code} ({time.perf_counter() - t0:.1f} s)")
         if len(result.directories) != 1:
             detail = f"no run directory (exit status {result.exit_code}): {result.last_line}"

@@ -3,27 +3,27 @@
 Each tier's reference directory holds a ``manifest.json``: the tier, the command that
 regenerates it, when and from which commit it was made, the library versions and platform, and
 what each reference run was (its exact command). The exact tier keeps one such directory per
-CPU class (``exact/<cpu class>/``, :func:`tacbench.machine.cpu_class`), because the last
-digits differ between CPUs; the other tiers have one. :func:`run_command` runs one recorded
-``tacbench run`` command in this process, as a user would type it.
+CPU class (``exact/<cpu class>/``, :func:`tacbench.hardware.cpu_class`), because the last
+digits differ between CPUs; the other tiers have one. :class:`Runner` runs one recorded
+``tacbench run`` command as a user would type it.
 """
 
 from __future__ import annotations
 
-import contextlib
 import importlib.metadata
-import io
 import platform
 import shlex
 import shutil
-from collections.abc import Mapping, Sequence
+import subprocess
+import sys
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from tacbench import runs
 from tacbench.errors import TacbenchError
-from tacbench.machine import cpu_class
+from tacbench.hardware import cpu_class
 
 FORMAT = 1  # the manifest layout; a reader refuses another
 RECORDED_PACKAGES = ("torch", "numpy", "gymnasium", "mujoco", "stable_baselines3", "sb3_contrib")
@@ -195,22 +195,21 @@ def command_line(args: Sequence[str]) -> str:
     return shlex.join(["tacbench", "run", *args]) + " --out DIR"
 
 
-def run_command(args: Sequence[str], out: Path) -> CommandResult:
-    """Run ``tacbench run ARGS --out OUT`` in this process, its output captured. A command this
-    tacbench refuses (a flag renamed since it was recorded) ends with exit status 2 and the
-    error as the last line of its output, as on the command line."""
-    import click
+Runner = Callable[[Sequence[str], Path], CommandResult]
+"""Runs ``tacbench run ARGS --out OUT`` and says how it ended (:func:`subprocess_runner`; the
+CLI passes one that runs the command in its own process)."""
 
-    from tacbench.cli import cli
 
-    buffer = io.StringIO()
-    with contextlib.redirect_stdout(buffer), contextlib.redirect_stderr(buffer):
-        try:
-            code = cli.main(
-                ["run", *args, "--out", str(out)], prog_name="tacbench", standalone_mode=False
-            )
-        except click.ClickException as err:
-            print(f"Error: {err.format_message()}")
-            code = err.exit_code
+def subprocess_runner(args: Sequence[str], out: Path) -> CommandResult:
+    """Run ``tacbench run ARGS --out OUT`` in a new Python process, its output captured. A
+    command this tacbench refuses (a flag renamed since it was recorded) ends with exit status 2
+    and the error as the last line of its output, as on the command line."""
+    command = [sys.executable, "-m", "tacbench", "run", *args, "--out", str(out)]
+    done = subprocess.run(command, capture_output=True, text=True, check=False)
+    return finished(done.returncode, done.stdout + done.stderr, out)
+
+
+def finished(exit_code: int, output: str, out: Path) -> CommandResult:
+    """A :class:`CommandResult` from a finished command that wrote under ``out``."""
     directories = tuple(sorted((out / "runs").glob("*/*/*/seed*")))
-    return CommandResult(int(code or 0), buffer.getvalue(), directories)
+    return CommandResult(exit_code, output, directories)

@@ -30,19 +30,19 @@ _WARM_UP = ("--learning-starts", "500")  # TAC and the off-policy baselines
 
 
 @dataclass(frozen=True)
-class RunSpec:
+class ReferenceRun:
     """One exact-tier reference run: a name and the ``tacbench run`` arguments (no ``--out``)."""
 
     name: str
     args: tuple[str, ...]
 
 
-def _tac(env: str, q: str) -> RunSpec:
-    return RunSpec(f"tac-{env}-q{q}", ("--env", env, "--q", q, *_WARM_UP, *_SHORT))
+def _tac(env: str, q: str) -> ReferenceRun:
+    return ReferenceRun(f"tac-{env}-q{q}", ("--env", env, "--q", q, *_WARM_UP, *_SHORT))
 
 
-def _baseline(algo: str, env: str, *extra: str) -> RunSpec:
-    return RunSpec(f"{algo}-{env}", ("--env", env, "--algo", algo, *extra, *_SHORT))
+def _baseline(algo: str, env: str, *extra: str) -> ReferenceRun:
+    return ReferenceRun(f"{algo}-{env}", ("--env", env, "--algo", algo, *extra, *_SHORT))
 
 
 # Every suite task runs TAC, each q in {1, 1.5, 2} on two tasks, and every baseline runs once.
@@ -50,7 +50,7 @@ def _baseline(algo: str, env: str, *extra: str) -> RunSpec:
 # start for the off-policy learners, TRPO's rollout (2,048 steps by default; PPO's Humanoid
 # table already has 512) shortened so that it trains three times, and a smaller TD3 minibatch
 # (its 400x300 networks made it the slowest run by far).
-EXACT_RUNS: tuple[RunSpec, ...] = (
+EXACT_RUNS: tuple[ReferenceRun, ...] = (
     _tac("HalfCheetah-v4", "1.5"),
     _tac("Ant-v4", "1"),
     _tac("Hopper-v4", "2"),

@@ -109,10 +109,10 @@ def _seed_args(seeds: Sequence[int]) -> list[str]:
 
 
 def _train(
-    args: Sequence[str], seeds: Sequence[int], out: Path, last: int
+    args: Sequence[str], seeds: Sequence[int], out: Path, last: int, runner: mf.Runner
 ) -> tuple[dict[int, float], dict[int, str], mf.CommandResult]:
     """Train ``args`` with ``seeds``; the scores of the complete runs and the others' reasons."""
-    result = mf.run_command([*args, *_seed_args(seeds)], out)
+    result = runner([*args, *_seed_args(seeds)], out)
     scores, problems = {}, {}
     for directory in result.directories:
         seed = int(directory.name.removeprefix("seed"))
@@ -127,7 +127,11 @@ def _train(
 
 
 def update_stat(
-    reference: Path, work: Path, groups: Sequence[StatGroup] = STAT_GROUPS, log: Log = print
+    reference: Path,
+    work: Path,
+    groups: Sequence[StatGroup] = STAT_GROUPS,
+    log: Log = print,
+    runner: mf.Runner = mf.subprocess_runner,
 ) -> Path:
     """Train every group with its reference seeds and write ``<reference>/stat``."""
     start, staging = time.perf_counter(), mf.staging_directory(reference, "stat")
@@ -135,7 +139,7 @@ def update_stat(
     for group in groups:
         t0 = time.perf_counter()
         scores, problems, result = _train(
-            group.args, group.reference_seeds, work / group.name, STAT_LAST
+            group.args, group.reference_seeds, work / group.name, STAT_LAST, runner
         )
         if problems:
             raise TacbenchError(
@@ -174,7 +178,11 @@ def update_stat(
 
 
 def check_stat(
-    reference: Path, work: Path, names: Sequence[str] = (), log: Log = print
+    reference: Path,
+    work: Path,
+    names: Sequence[str] = (),
+    log: Log = print,
+    runner: mf.Runner = mf.subprocess_runner,
 ) -> TierResult:
     """Train each recorded group (all, or those in ``names``) with its check seeds and test the
     fresh scores against the recorded ones."""
@@ -189,7 +197,7 @@ def check_stat(
     for entry in entries:
         t0 = time.perf_counter()
         fresh, problems, _ = _train(
-            entry["args"], entry["check_seeds"], work / entry["name"], manifest["last"]
+            entry["args"], entry["check_seeds"], work / entry["name"], manifest["last"], runner
         )
         log(
             f"{entry['name']}: trained {len(entry['check_seeds'])} seeds in "

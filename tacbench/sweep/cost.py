@@ -132,10 +132,7 @@ def measure(out: Path, pairs: Iterable[tuple[str, str]]) -> dict[tuple[str, str]
 
     import torch
 
-    from baselines import trainer
-    from baselines.config import make_configs
-    from tacbench import training
-    from tacbench.config import make_run_configs
+    from tacbench import trainers
     from tacbench.envs import paper_task
 
     torch.set_num_threads(1)
@@ -150,15 +147,16 @@ def measure(out: Path, pairs: Iterable[tuple[str, str]]) -> dict[tuple[str, str]
                 marks["last"] = (step, time.process_time())
             return False
 
-        if algo == "tac":
-            configs, _ = make_run_configs(
-                env, paper_task(env), [0], learning_starts=1000, **settings
-            )
-            training.train(configs, out, quiet=True, force=True, stop=stop)
-        else:
-            hp = ["learning_starts=1000"] if algo in ("ddpg", "td3", "sac-sb3") else []
-            baseline_configs = make_configs(algo, env, paper_task(env), [0], hp, **settings)[0]
-            trainer.train(baseline_configs, out, quiet=True, force=True, stop=stop)
+        warm_up = {"learning_starts": 1000}
+        configs, _ = trainers.make_configs(
+            algo,
+            env,
+            paper_task(env),
+            [0],
+            {**settings, **warm_up} if algo == "tac" else settings,
+            tac_settings_given=warm_up if algo in ("ddpg", "td3", "sac-sb3") else {},
+        )
+        trainers.train(configs, out, quiet=True, force=True, stop=stop)
         (s0, t0), (s1, t1) = marks["first"], marks["last"]
         result[(algo, env)] = (t1 - t0) / (s1 - s0)
     return result

@@ -20,7 +20,7 @@ from typing import IO, Any
 
 from tacbench import runs
 from tacbench.errors import TacbenchError
-from tacbench.launch import stop_signals
+from tacbench.interrupts import stop_signals
 from tacbench.sweep import executors, plan, state, summary
 from tacbench.sweep.presets import Preset
 from tacbench.sweep.progress import SweepProgress
@@ -72,7 +72,7 @@ class Options:
 
 
 @dataclass(frozen=True)
-class Result:
+class SweepResult:
     """How a sweep ended: the summary (also written to ``<out>/sweep/``) and its text."""
 
     summary: dict[str, Any]
@@ -89,7 +89,7 @@ class Result:
 
 def load_plan(
     preset: Preset, out: Path, options: Options, *, save: bool = True
-) -> tuple[plan.Plan, state.SweepState]:
+) -> tuple[plan.SweepPlan, state.SweepState]:
     """The plan from the run directories and failure history under ``out``. A failure found in
     a status.json but not in the history (a run that failed outside a sweep) is added to the
     history, which is saved if ``save`` (not for a dry run)."""
@@ -115,7 +115,9 @@ def load_plan(
     return built, history
 
 
-def run_sweep(preset: Preset, out: Path, options: Options, stream: IO[str] | None = None) -> Result:
+def run_sweep(
+    preset: Preset, out: Path, options: Options, stream: IO[str] | None = None
+) -> SweepResult:
     """Train every run of ``preset`` into ``out`` that is not complete; see the module doc."""
     with state.Lock(out):
         work, history = load_plan(preset, out, options)
@@ -127,7 +129,7 @@ def run_sweep(preset: Preset, out: Path, options: Options, stream: IO[str] | Non
         result = summary.summarize(final, history, command=options.command, interrupted=interrupted)
         text = summary.summary_text(result, options.command)
         summary.write_summary(out, result, text)
-        return Result(result, text, interrupted)
+        return SweepResult(result, text, interrupted)
 
 
 def _executor(out: Path, options: Options) -> executors.Executor:
@@ -150,7 +152,7 @@ class _Driver:
 
     def __init__(
         self,
-        work: plan.Plan,
+        work: plan.SweepPlan,
         history: state.SweepState,
         executor: executors.Executor,
         options: Options,

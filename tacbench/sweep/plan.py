@@ -15,16 +15,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
-from tacbench import runs
-from tacbench.config import RESULT_NEUTRAL_FIELDS, RunConfig, make_run_configs
+from tacbench import runs, trainers
+from tacbench.config import RESULT_NEUTRAL_FIELDS, RunConfig
 from tacbench.envs import SUITE
 from tacbench.errors import TacbenchError
 from tacbench.sweep.presets import Preset
 
 if TYPE_CHECKING:
-    from baselines.config import BaselineConfig
-
-    AnyConfig = RunConfig | BaselineConfig
+    from tacbench.trainers import AnyConfig
 
 State = Literal["new", "partial", "complete", "failed"]
 Action = Literal["skip", "train", "retry", "give-up"]
@@ -93,7 +91,7 @@ class Unit:
 
 
 @dataclass
-class Plan:
+class SweepPlan:
     """Every run of the sweep with its state and action, and the units to train."""
 
     preset: Preset
@@ -117,24 +115,18 @@ class Plan:
 
 def build_runs(preset: Preset, *, device: str = "cpu", threads: int = 1) -> list[Run]:
     """Every run of ``preset`` (narrowed already), in preset order, each directory once."""
-    from baselines.config import make_configs  # SB3's tables: only when the preset has baselines
-
     built: dict[str, Run] = {}
     for entry in preset.entries:
         settings = {**entry.settings, "device": device, "threads": threads}
         for task in entry.tasks:
             env_id = SUITE[task]
-            configs: Sequence[AnyConfig]
-            if entry.algo == "tac":
-                configs = [
-                    c
-                    for q in entry.q_values(task)
-                    for c in make_run_configs(env_id, task, entry.seeds, q=q, **settings)[0]
-                ]
-            else:
-                configs = make_configs(entry.algo, env_id, task, entry.seeds, entry.hp, **settings)[
-                    0
-                ]
+            configs = [
+                config
+                for q in entry.q_values(task) or (None,)
+                for config in trainers.make_configs(
+                    entry.algo, env_id, task, entry.seeds, settings, q=q, hp=entry.hp
+                )[0]
+            ]
             for config in configs:
                 run = Run(config, entry.label)
                 built.setdefault(run.key, run)
@@ -180,7 +172,7 @@ def make_plan(
     *,
     max_retries: int,
     group_seeds: bool,
-) -> Plan:
+) -> SweepPlan:
     """Each run's action and the units to train, from its status (:func:`read_status`) and its
     number of recorded failures: a run that failed more than ``max_retries`` times is given up
     on, a failed run with fewer failures is retried, complete runs are skipped."""
@@ -195,7 +187,7 @@ def make_plan(
         else:
             action = "retry" if status.state == "failed" else "train"
         planned.append(PlannedRun(run, status, n_failed, action))
-    return Plan(preset, out, planned, make_units(planned, group_seeds))
+    return SweepPlan(preset, out, planned, make_units(planned, group_seeds))
 
 
 def make_units(planned: Sequence[PlannedRun], group_seeds: bool) -> list[Unit]:

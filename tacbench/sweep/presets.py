@@ -27,6 +27,7 @@ from typing import Any
 
 from tacbench import config
 from tacbench.errors import TacbenchError
+from tacbench.settings import settings_of
 
 PAPER_TASKS = ("HalfCheetah", "Ant", "Hopper", "Swimmer", "Pusher", "Humanoid")  # line 767
 PAPER_Q_GRID = (0.5, 0.7, 1.0, 1.2, 1.5, 1.7, 2.0, 3.0, 5.0)  # section 7.1, line 797
@@ -141,16 +142,15 @@ PRESETS: dict[str, Preset] = {
 
 @dataclass(frozen=True)
 class Narrowing:
-    """What ``--env/--q/--algo/--seed/--steps/--checkpoint-every/--critic-target`` keep or set
-    (empty: all; None: the preset's)."""
+    """What ``--env/--q/--algo/--seed`` keep (empty: all) and the settings that replace the
+    preset's (``--steps``, ``--critic-target``, ...: config field -> value). A TAC setting
+    applies to TAC's entries; a run setting (:class:`tacbench.config.RunSettings`) to all."""
 
     tasks: tuple[str, ...] = ()
     q: tuple[float, ...] = ()
     algos: tuple[str, ...] = ()
     seeds: tuple[int, ...] = ()
-    steps: int | None = None
-    checkpoint_every: int | None = None
-    critic_target: str | None = None  # TAC entries only (the baselines have their own)
+    settings: Mapping[str, Any] = field(default_factory=lambda: MappingProxyType({}))
 
 
 def get_preset(name: str) -> Preset:
@@ -162,10 +162,10 @@ def get_preset(name: str) -> Preset:
 
 def narrow(preset: Preset, by: Narrowing) -> Preset:
     """``preset`` restricted to the tasks, q values, algorithms and seeds in ``by`` (each must
-    occur in the preset), with ``steps`` and ``checkpoint_every`` replacing the preset's, and
-    ``critic_target`` set on TAC's entries. A ``--q`` keeps TAC entries only: baselines have
-    no q."""
+    occur in the preset), with ``by.settings`` replacing the preset's (TAC settings on TAC's
+    entries only). A ``--q`` keeps TAC entries only: baselines have no q."""
     entries = preset.entries
+    run_settings = set(settings_of(config.RunSettings))
     by = replace(by, tasks=tuple(task_of(name) for name in by.tasks))
     _check_subset("--env", by.tasks, {t for e in entries for t in e.tasks})
     _check_subset("--algo", by.algos, {e.algo for e in entries})
@@ -188,13 +188,10 @@ def narrow(preset: Preset, by: Narrowing) -> Preset:
         seeds = tuple(s for s in entry.seeds if not by.seeds or s in by.seeds)
         if not tasks or not seeds:
             continue
-        settings = dict(entry.settings)
-        if by.steps is not None:
-            settings["total_steps"] = by.steps
-        if by.checkpoint_every is not None:
-            settings["checkpoint_every"] = by.checkpoint_every
-        if by.critic_target is not None and entry.algo == "tac":
-            settings["critic_target"] = by.critic_target
+        settings = {
+            **entry.settings,
+            **{k: v for k, v in by.settings.items() if entry.algo == "tac" or k in run_settings},
+        }
         kept.append(replace(entry, tasks=tasks, seeds=seeds, settings=_frozen(settings)))
     if not kept:
         raise TacbenchError(

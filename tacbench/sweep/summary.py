@@ -11,10 +11,10 @@ from typing import Any
 from tacbench import runs
 from tacbench.progress import duration
 from tacbench.sweep import cost, state
-from tacbench.sweep.plan import Plan, PlannedRun
+from tacbench.sweep.plan import PlannedRun, SweepPlan
 
 
-def counts(plan: Plan) -> dict[str, int]:
+def counts(plan: SweepPlan) -> dict[str, int]:
     """Runs by state (complete, partial, failed, new) and failed runs by what happens next."""
     by_state = Counter(p.status.state for p in plan.runs)
     return {
@@ -25,7 +25,7 @@ def counts(plan: Plan) -> dict[str, int]:
     }
 
 
-def describe_plan(plan: Plan, workers: int, group_seeds: bool) -> str:
+def describe_plan(plan: SweepPlan, workers: int, group_seeds: bool) -> str:
     """The dry-run report: counts by state, the units, steps left and the cost estimate."""
     c = counts(plan)
     total = sum(p.run.total_steps for p in plan.runs)
@@ -73,7 +73,7 @@ def describe_plan(plan: Plan, workers: int, group_seeds: bool) -> str:
     return "\n".join(lines)
 
 
-def summarize(plan: Plan, sweep_state: state.SweepState, **fields: Any) -> dict[str, Any]:
+def summarize(plan: SweepPlan, sweep_state: state.SweepState, **fields: Any) -> dict[str, Any]:
     """The summary of a finished (or stopped) sweep as a JSON-ready dict: ``fields`` (command,
     interrupted, ...), counts by state, and every run not complete with its failures."""
     unfinished = []

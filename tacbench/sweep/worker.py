@@ -26,12 +26,12 @@ from multiprocessing.synchronize import Event
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from tacbench import runs
+from tacbench import runs, trainers
 from tacbench.errors import TacbenchError
 from tacbench.sweep.plan import Unit
 
 if TYPE_CHECKING:
-    from tacbench.launch import Outcome
+    from tacbench.runs import Outcome
 
 Report = Callable[[int], bool]  # step -> whether to stop
 LOG_TAIL_BYTES = 64_000  # how much of an attempt's log a Ray task sends back to the driver
@@ -96,15 +96,10 @@ def execute(job: Job, report: Report, every_s: float = 1.0) -> JobResult:
 
 def _train(job: Job, stop: StopHook) -> list[Outcome]:
     configs: list[Any] = [run.config for run in job.unit.runs]
-    train: Callable[..., list[Outcome]]
-    if job.unit.algo == "tac":
-        from tacbench.training import train
-    else:
-        from baselines.trainer import train
 
     def call(members: list[Any]) -> list[Outcome]:
-        return list(
-            train(members, job.root, resume=True, quiet=True, command=job.command, stop=stop)
+        return trainers.train(
+            members, job.root, resume=True, quiet=True, command=job.command, stop=stop
         )
 
     try:

@@ -1,7 +1,23 @@
-"""Tsallis Actor-Critic (paper section 6): networks, losses, agent and replay buffer, no I/O."""
+"""Tsallis Actor-Critic: the algorithm, nothing else (no I/O, no environments).
 
-from tacbench.tac.agent import METRICS, TacAgent
+``maths`` the formulas both update paths share; ``networks`` member-batched MLPs; ``parameters``
+the flat parameter buffers, Adam and the targets; ``losses`` the reference losses; ``fused`` the
+same maths with hand-written gradients; ``update`` the one update interface; ``agent`` act,
+update and per-member state; ``buffer`` the member-batched replay buffer.
+"""
+
+from tacbench.tac.agent import TacAgent
 from tacbench.tac.buffer import ReplayBuffer
-from tacbench.tac.losses import Batch, TacLosses, tac_losses
+from tacbench.tac.losses import TacLosses, tac_losses
+from tacbench.tac.maths import METRICS, Batch, Coefficients, coefficients
 
-__all__ = ["METRICS", "Batch", "ReplayBuffer", "TacAgent", "TacLosses", "tac_losses"]
+__all__ = [
+    "METRICS",
+    "Batch",
+    "Coefficients",
+    "ReplayBuffer",
+    "TacAgent",
+    "TacLosses",
+    "coefficients",
+    "tac_losses",
+]

@@ -1,10 +1,13 @@
-"""MLPs with a leading member dimension K: K independent networks evaluated by batched products.
+"""MLPs with a leading member dimension: M independent networks evaluated by batched products.
 
-Every weight is shaped ``(K, in, out)`` and every bias ``(K, 1, out)``; inputs are ``(K, B, in)``
-and one ``torch.baddbmm`` per layer computes all members at once. Member k's initial weights
-are drawn from member k's own generator only, so they do not depend on the other members.
-Initialisation is the reference code's (TensorFlow ``tf.layers.dense``): Glorot-uniform
-weights and zero biases.
+A stack of M networks is a :class:`Layers`: weights ``(M, in, out)`` and biases ``(M, 1, out)``
+per layer, ReLU between layers. Inputs are ``(M, B, in)``. The layers are plain tensors (views of
+the flat parameter buffer, :mod:`tacbench.tac.parameters`), and the functions here are pure, so
+the eager path differentiates them with autograd and the fused path differentiates them by hand.
+
+Initialisation is the reference code's (TensorFlow ``tf.layers.dense``): Glorot-uniform weights
+and zero biases, member k's weights drawn from member k's own generator only, so they do not
+depend on the other members.
 """
 
 from __future__ import annotations
@@ -12,9 +15,25 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Sequence
+from typing import NamedTuple
 
 import torch
-from torch import nn
+
+from tacbench.tac.maths import log_std_from_tanh
+
+# ReLU's backward, g where the ReLU's output is > 0 (the overload itself: no per-call lookup)
+relu_backward = torch.ops.aten.threshold_backward.default
+
+
+class Layers(NamedTuple):
+    """M stacked MLPs, layer by layer: weights ``(M, in, out)`` and biases ``(M, 1, out)``."""
+
+    weights: list[torch.Tensor]
+    biases: list[torch.Tensor]
+
+    def members(self, index: slice) -> Layers:
+        """The layers of some members of the stack."""
+        return Layers([w[index] for w in self.weights], [b[index] for b in self.biases])
 
 
 def glorot_uniform(n_in: int, n_out: int, generators: Sequence[torch.Generator]) -> torch.Tensor:
@@ -25,77 +44,88 @@ def glorot_uniform(n_in: int, n_out: int, generators: Sequence[torch.Generator])
     return (torch.stack(draws) * 2.0 - 1.0) * limit
 
 
-class BatchedMLP(nn.Module):
-    """``sizes[0] -> ... -> sizes[-1]`` with ReLU between layers, for K members at once."""
-
-    def __init__(self, sizes: Sequence[int], generators: Sequence[torch.Generator]) -> None:
-        super().__init__()
-        n_members = len(generators)
-        self.weights = nn.ParameterList(
-            nn.Parameter(glorot_uniform(n_in, n_out, generators))
-            for n_in, n_out in itertools.pairwise(sizes)
-        )
-        self.biases = nn.ParameterList(
-            nn.Parameter(torch.zeros(n_members, 1, n_out)) for n_out in sizes[1:]
-        )
-
-    def forward(self, x: torch.Tensor, *, frozen: bool = False) -> torch.Tensor:
-        """``(K, B, in) -> (K, B, out)``. ``frozen=True`` uses detached weights, so gradients
-        reach the input but not this network's parameters."""
-        last = len(self.weights) - 1
-        for i, (weight, bias) in enumerate(zip(self.weights, self.biases, strict=True)):
-            if frozen:
-                weight, bias = weight.detach(), bias.detach()
-            x = torch.baddbmm(bias, x, weight)
-            if i < last:
-                x = torch.relu(x)
-        return x
+def init_layers(sizes: Sequence[int], generators: Sequence[torch.Generator]) -> Layers:
+    """``sizes[0] -> ... -> sizes[-1]`` for K = ``len(generators)`` members, layer by layer."""
+    pairs = list(itertools.pairwise(sizes))
+    return Layers(
+        [glorot_uniform(n_in, n_out, generators) for n_in, n_out in pairs],
+        [torch.zeros(len(generators), 1, n_out) for _, n_out in pairs],
+    )
 
 
-class Critic(nn.Module):
-    """A state value V(s) (``act_dim = 0``) or an action value Q(s, a), per member."""
+def linear(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
+    """``x @ weight + bias`` for stacked layers.
 
-    def __init__(
-        self,
-        obs_dim: int,
-        act_dim: int,
-        hidden: Sequence[int],
-        generators: Sequence[torch.Generator],
-    ) -> None:
-        super().__init__()
-        self.net = BatchedMLP([obs_dim + act_dim, *hidden, 1], generators)
-
-    def forward(
-        self, obs: torch.Tensor, action: torch.Tensor | None = None, *, frozen: bool = False
-    ) -> torch.Tensor:
-        """``(K, B, obs_dim)`` [and ``(K, B, act_dim)``] -> ``(K, B)``."""
-        x = obs if action is None else torch.cat([obs, action], dim=-1)
-        return self.net(x, frozen=frozen).squeeze(-1)
-
-
-class TanhGaussianPolicy(nn.Module):
-    """The mean and log standard deviation of a Gaussian that a tanh squashes into [-1, 1]^A.
-
-    log_std comes from a tanh head rescaled to ``[log_std_min, log_std_max]`` (reference code).
+    A layer with one output (the value heads) is a multiply-and-sum: MKL's batched product with a
+    single output column is several times slower once M > 1. Under ``torch.compile`` the bias is
+    added after the product, where Inductor fuses it into the next elementwise kernel
+    (``baddbmm`` first copies the broadcast bias into its whole output).
     """
+    if weight.shape[-1] == 1:
+        return torch.linalg.vecdot(x, weight.transpose(1, 2)).unsqueeze(-1).add_(bias)
+    if torch.compiler.is_compiling():
+        return torch.bmm(x, weight) + bias
+    return torch.baddbmm(bias, x, weight)
 
-    def __init__(
-        self,
-        obs_dim: int,
-        act_dim: int,
-        hidden: Sequence[int],
-        generators: Sequence[torch.Generator],
-        log_std_min: float,
-        log_std_max: float,
-    ) -> None:
-        super().__init__()
-        self.net = BatchedMLP([obs_dim, *hidden, 2 * act_dim], generators)
-        self.log_std_min = log_std_min
-        self.log_std_max = log_std_max
 
-    def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """``(K, B, obs_dim)`` -> mean ``mu`` and ``log_std``, each ``(K, B, act_dim)``."""
-        mu, raw = self.net(obs).chunk(2, dim=-1)
-        span = self.log_std_max - self.log_std_min
-        log_std = self.log_std_min + 0.5 * span * (torch.tanh(raw) + 1.0)
-        return mu, log_std
+def linear_input_grad(grad: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
+    """``grad @ weight^T``: the gradient at a layer's input; width 1 as a broadcast product."""
+    if weight.shape[-1] == 1:
+        return grad * weight.transpose(1, 2)
+    return torch.bmm(grad, weight.transpose(1, 2))
+
+
+def mlp(net: Layers, x: torch.Tensor, *, frozen: bool = False) -> torch.Tensor:
+    """``(M, B, in) -> (M, B, out)``. ``frozen=True`` uses detached weights, so gradients reach the
+    input but not the network's parameters."""
+    last = len(net.weights) - 1
+    for i, (weight, bias) in enumerate(zip(net.weights, net.biases, strict=True)):
+        if frozen:
+            weight, bias = weight.detach(), bias.detach()
+        x = linear(x, weight, bias)
+        if i < last:
+            x = torch.relu(x)
+    return x
+
+
+def mlp_with_inputs(net: Layers, x: torch.Tensor) -> tuple[torch.Tensor, list[torch.Tensor]]:
+    """:func:`mlp` (no autograd: ReLUs in place) and the input of every layer, for
+    :func:`mlp_backward`."""
+    inputs = []
+    last = len(net.weights) - 1
+    for i, (weight, bias) in enumerate(zip(net.weights, net.biases, strict=True)):
+        inputs.append(x)
+        x = linear(x, weight, bias)
+        if i < last:
+            x = x.relu_()
+    return x, inputs
+
+
+def mlp_backward(
+    net: Layers, grads: Layers, inputs: list[torch.Tensor], grad_out: torch.Tensor
+) -> None:
+    """Write into ``grads`` the weight and bias gradients of :func:`mlp` given the gradient at
+    the output and the layer inputs of :func:`mlp_with_inputs` (only their first
+    ``grad_out.shape[1]`` rows are used)."""
+    rows = grad_out.shape[1]
+    g = grad_out
+    for i in reversed(range(len(net.weights))):
+        x = inputs[i][:, :rows]
+        weight_grad = grads.weights[i]
+        if weight_grad.shape[-1] == 1:  # (M, in, 1) has the memory layout of (M, 1, in)
+            torch.bmm(g.transpose(1, 2), x, out=weight_grad.view(weight_grad.shape[0], 1, -1))
+        else:
+            torch.bmm(x.transpose(1, 2), g, out=weight_grad)
+        torch.sum(g, dim=1, keepdim=True, out=grads.biases[i])
+        if i:
+            g = relu_backward(linear_input_grad(g, net.weights[i]), x, 0)
+
+
+def policy_head(
+    out: torch.Tensor, act_dim: int, log_std_min: float, log_std_max: float
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """The tanh-squashed Gaussian policy's mean ``mu`` and ``log_std`` from its network's output
+    ``(M, B, 2A)``: one output layer of width 2A, the second half through the rescaled tanh
+    (reference code; :func:`tacbench.tac.maths.log_std_from_tanh`)."""
+    raw = out[..., act_dim:]
+    return out[..., :act_dim], log_std_from_tanh(torch.tanh(raw), log_std_min, log_std_max)

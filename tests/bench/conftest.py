@@ -1,4 +1,4 @@
-"""Saved benchmark baselines are per CPU class (``tacbench.machine.cpu_class``).
+"""Saved benchmark baselines are per CPU class (``tacbench.hardware.cpu_class``).
 
 Timings from one CPU say nothing about another, so ``tests/bench/baseline`` holds one folder
 per class, and pytest-benchmark's ``--benchmark-storage`` pointing at ``tests/bench/baseline``
@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from tacbench.machine import cpu_class
+from tacbench.hardware import cpu_class
 
 BASELINE = Path(__file__).resolve().parent / "baseline"
 

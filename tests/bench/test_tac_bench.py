@@ -18,9 +18,8 @@ from pytest_benchmark.fixture import BenchmarkFixture
 
 from tacbench import envs
 from tacbench.config import RunConfig
-from tacbench.tac.agent import METRICS, TacAgent
-from tacbench.tac.buffer import ReplayBuffer
-from tacbench.tac.speed import reuse_freed_memory
+from tacbench.hardware import configure_process
+from tacbench.tac import METRICS, ReplayBuffer, TacAgent, coefficients
 
 pytestmark = pytest.mark.bench
 
@@ -32,8 +31,7 @@ FILLED = 5000  # transitions in the buffer
 @pytest.fixture(scope="module", autouse=True)
 def one_thread() -> Iterator[None]:
     threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    reuse_freed_memory()
+    configure_process(1)
     yield
     torch.set_num_threads(threads)
 
@@ -62,9 +60,10 @@ def test_update(benchmark: BenchmarkFixture, path: str, k: int) -> None:
     batch = buffer.sample(rngs, BATCH)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # torch.compile's notes while compiling
+        c = coefficients([1.5] * k, [0.2] * k, torch.device("cpu"))
         for _ in range(3):  # compile, allocate
-            agent.update(batch, 1.5)
-    metrics = benchmark(agent.update, batch, 1.5)
+            agent.update(batch, c)
+    metrics = benchmark(agent.update, batch, c)
     assert metrics.shape == (k, len(METRICS))
     assert torch.isfinite(metrics).all()
 

@@ -8,9 +8,14 @@ from typing import Any
 
 import pytest
 
-from tacbench import config
+from tacbench import trainers
+from tacbench.cli import cli
+from tacbench.cli.regress import in_process
 
 REFERENCE = Path(__file__).resolve().parents[2] / "results" / "reference"
+RUNNER = in_process(
+    cli
+)  # the recorded commands run in this process, as `tacbench regress` runs them
 
 
 @pytest.fixture
@@ -19,11 +24,11 @@ def plant_tac_setting(monkeypatch: pytest.MonkeyPatch) -> Callable[..., None]:
     in what tacbench computes, e.g. ``tau=0.01``)."""
 
     def plant(**settings: Any) -> None:
-        original = config.make_run_configs
+        original = trainers.make_run_configs
 
         def planted(*args: Any, **kwargs: Any) -> Any:
             return original(*args, **{**kwargs, **settings})
 
-        monkeypatch.setattr(config, "make_run_configs", planted)
+        monkeypatch.setattr(trainers, "make_run_configs", planted)
 
     return plant

@@ -23,7 +23,7 @@ from tacbench.regress import manifest as mf
 from tacbench.regress.exact import update_exact
 from tacbench.regress.outcome import TierResult, format_result
 from tacbench.regress.specs import EXACT_RUNS
-from tests.regression.conftest import REFERENCE
+from tests.regression.conftest import REFERENCE, RUNNER
 
 pytestmark = pytest.mark.regression
 
@@ -42,14 +42,14 @@ def planting_reference(tmp_path_factory: pytest.TempPathFactory) -> Path:
     ``tacbench regress --update``'s code (so the planted-change tests run on any CPU class)."""
     reference = tmp_path_factory.mktemp("planting") / "reference"
     specs = [spec for spec in EXACT_RUNS if spec.name in (TAC_RUN, BASELINE_RUN)]
-    update_exact(reference, reference.parent / "work", specs, log=lambda _: None)
+    update_exact(reference, reference.parent / "work", specs, log=lambda _: None, runner=RUNNER)
     return reference
 
 
 @pytest.fixture(scope="module")
 def exact_check() -> dict[str, TierResult]:
     """One check of the whole exact tier (theory CSVs included), shared by the tests below."""
-    return {result.tier: result for result in regress.check(REFERENCE, "exact")}
+    return {result.tier: result for result in regress.check(REFERENCE, "exact", runner=RUNNER)}
 
 
 def _statuses(result: TierResult, name: str) -> dict[str, str]:
@@ -72,7 +72,9 @@ def test_reference_run_reproduces(exact_check: dict[str, TierResult], name: str)
 
 
 def test_planting_reference_reproduces(planting_reference: Path) -> None:
-    (result,) = regress.check(planting_reference, "exact", names=[TAC_RUN, BASELINE_RUN])
+    (result,) = regress.check(
+        planting_reference, "exact", names=[TAC_RUN, BASELINE_RUN], runner=RUNNER
+    )
     assert result.verdict == "PASS", format_result(result)
     assert {row.status for row in result.rows} == {"match"}
 
@@ -95,7 +97,9 @@ def test_planted_evaluation_seed_changes_eval_csv_alone(
 ) -> None:
     original = envs.eval_seeds
     monkeypatch.setattr(envs, "eval_seeds", lambda seed, step, n: original(seed + 1, step, n))
-    (result,) = regress.check(planting_reference, "exact", tmp_path, [TAC_RUN, BASELINE_RUN])
+    (result,) = regress.check(
+        planting_reference, "exact", tmp_path, [TAC_RUN, BASELINE_RUN], runner=RUNNER
+    )
     for name in (TAC_RUN, BASELINE_RUN):
         assert _statuses(result, name) == {
             "status": "match",
@@ -116,7 +120,7 @@ def test_planted_hyperparameter_table_change_is_caught(
         return {**table, "gamma": 0.9}, sections
 
     monkeypatch.setattr(hyperparams, "resolve", planted)
-    (result,) = regress.check(planting_reference, "exact", tmp_path, [BASELINE_RUN])
+    (result,) = regress.check(planting_reference, "exact", tmp_path, [BASELINE_RUN], runner=RUNNER)
     statuses = _statuses(result, BASELINE_RUN)
     assert statuses["eval.csv"] == statuses["losses.csv"] == "drift", format_result(result)
     assert result.verdict == "REGRESSION"

@@ -1,28 +1,10 @@
-"""``tacbench report``, ``tacbench figures`` and ``tacbench envs``."""
+"""``tacbench report``: figures, tables and statistics from run directories."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 import click
-
-from tacbench import config
-
-
-@click.command()
-@click.option(
-    "--out",
-    type=click.Path(file_okay=False, path_type=Path),
-    default=Path("results/figures"),
-    show_default=True,
-    help="Directory for the PNGs and CSVs (created if missing).",
-)
-def figures(out: Path) -> None:
-    """Write the paper's theory figures (PNG) and the numbers they plot (CSV)."""
-    from tacbench.figures import write_figures  # matplotlib only when this command runs
-
-    for path in write_figures(out):
-        click.echo(f"wrote {path}")
 
 
 @click.command()
@@ -98,25 +80,4 @@ def report(
         f"{len(runs)} runs loaded ({int(runs['partial'].sum())} partial), {len(skipped)} skipped"
         f"{' (see skipped.csv)' if skipped else ''}; wrote {out / 'index.html'} and "
         f"{out / 'report.md'}"
-    )
-
-
-@click.command(name="envs")
-def envs_command() -> None:
-    """List the paper's task suite with its Gymnasium ids and the paper's alpha and best q."""
-    from tacbench.envs import suite_table
-
-    header = (
-        f"{'task':<12} {'env':<16} {'obs':>4} {'act':>4} {'limit':>6} {'alpha':>6} {'best q':>7}"
-    )
-    click.echo(header + "  loads")
-    for row in suite_table():
-        click.echo(
-            f"{row['task']:<12} {row['env']:<16} {row['obs']!s:>4} {row['act']!s:>4} "
-            f"{row['limit']!s:>6} {config.PAPER_ALPHA[row['task']]:>6g} "
-            f"{config.PAPER_BEST_Q[row['task']]:>7g}  {row['ok']}"
-        )
-    click.echo(
-        "alpha and best q: paper appendix, per-task table. Any other registered Gymnasium id "
-        "with continuous actions also works with --env (default q = 1, alpha = 0.2)."
     )

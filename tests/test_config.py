@@ -65,7 +65,7 @@ def test_q_at_least_two_mentions_the_density_cap() -> None:
         ("q", 0.0, "q must be"),
         ("q", float("nan"), "q must be"),
         ("alpha", -0.1, "alpha must be"),
-        ("total_steps", 0, "--total-steps"),
+        ("total_steps", 0, "--steps"),
         ("batch_size", 2.5, "batch_size"),
         ("eval_episodes", 0, "--eval-episodes"),
         ("lnq", "log", "--lnq must be one of joint, per-dim"),

@@ -70,12 +70,12 @@ def test_narrowing() -> None:
     ppo = _runs("paper-comparison", algos=("ppo",), seeds=(0,))
     assert len(ppo) == 6 and {r.config.env for r in ppo} == set(SUITE.values())
     assert {r.config.algo for r in ppo} == {"ppo"} and {r.config.seed for r in ppo} == {0}
-    short = _runs("smoke", algos=("tac",), steps=400, checkpoint_every=100)
+    short = _runs("smoke", algos=("tac",), settings={"total_steps": 400, "checkpoint_every": 100})
     assert {(r.config.total_steps, r.config.checkpoint_every) for r in short} == {(400, 100)}
 
 
 def test_critic_target_applies_to_tac_runs_only() -> None:
-    runs = _runs("paper-comparison", seeds=(0,), critic_target="twin-q")
+    runs = _runs("paper-comparison", seeds=(0,), settings={"critic_target": "twin-q"})
     tac = [r for r in runs if r.config.algo == "tac"]
     assert tac and {r.config.critic_target for r in tac} == {"twin-q"}  # type: ignore[union-attr]
     assert all(r.config.variant.endswith("-twinq") for r in tac)

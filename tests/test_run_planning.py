@@ -11,7 +11,8 @@ import pytest
 from tacbench import runs
 from tacbench.config import RunConfig
 from tacbench.errors import TacbenchError
-from tacbench.launch import plan_runs, stop_signals
+from tacbench.interrupts import stop_signals
+from tacbench.runs import plan_runs
 
 pytestmark = pytest.mark.unit
 

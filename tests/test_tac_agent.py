@@ -9,8 +9,9 @@ import pytest
 import torch
 
 from tacbench.config import RunConfig
-from tacbench.tac.agent import METRICS, TacAgent
-from tacbench.tac.networks import BatchedMLP, TanhGaussianPolicy, glorot_uniform
+from tacbench.tac import METRICS, TacAgent, coefficients
+from tacbench.tac.maths import Coefficients
+from tacbench.tac.networks import glorot_uniform, init_layers, mlp, policy_head
 
 pytestmark = pytest.mark.unit
 
@@ -20,6 +21,10 @@ OBS, ACT = 5, 3
 def _agent(seeds: list[int], **overrides: object) -> TacAgent:
     config = RunConfig(env="Hopper-v4", q=1.5, alpha=0.2, hidden_sizes=(16,), **overrides)  # type: ignore[arg-type]
     return TacAgent(OBS, ACT, config, seeds, torch.device("cpu"))
+
+
+def _c(k: int, q: float = 1.5) -> Coefficients:
+    return coefficients([q] * k, [0.2] * k, torch.device("cpu"))
 
 
 def _batch(k: int, b: int = 12, seed: int = 0) -> dict[str, np.ndarray]:
@@ -39,13 +44,24 @@ def _params(agent: TacAgent, k: int) -> dict[str, torch.Tensor]:
 
 def test_batched_mlp_applies_each_members_own_weights() -> None:
     gens = [torch.Generator().manual_seed(s) for s in (1, 2)]
-    mlp = BatchedMLP([4, 6, 2], gens)
+    net = init_layers([4, 6, 2], gens)
+    with torch.no_grad():
+        for bias in net.biases:
+            bias.normal_()
     x = torch.randn(2, 7, 4)
-    out = mlp(x)
+    out = mlp(net, x)
     assert out.shape == (2, 7, 2)
     for k in range(2):
-        w0, b0, w1, b1 = mlp.weights[0][k], mlp.biases[0][k], mlp.weights[1][k], mlp.biases[1][k]
+        w0, b0, w1, b1 = net.weights[0][k], net.biases[0][k], net.weights[1][k], net.biases[1][k]
         torch.testing.assert_close(out[k], torch.relu(x[k] @ w0 + b0) @ w1 + b1)
+
+
+def test_a_value_head_of_width_one_is_the_same_product() -> None:
+    gens = [torch.Generator().manual_seed(s) for s in (1, 2, 3)]
+    net = init_layers([4, 6, 1], gens)
+    x = torch.randn(3, 7, 4)
+    hidden = torch.relu(torch.bmm(x, net.weights[0]) + net.biases[0])
+    torch.testing.assert_close(mlp(net, x), torch.bmm(hidden, net.weights[1]) + net.biases[1])
 
 
 def test_glorot_uniform_bounds_and_zero_biases() -> None:
@@ -53,13 +69,12 @@ def test_glorot_uniform_bounds_and_zero_biases() -> None:
     limit = math.sqrt(6 / 306)
     assert weights.abs().max() <= limit
     assert weights.abs().max() > 0.9 * limit
-    mlp = BatchedMLP([3, 4], [torch.Generator().manual_seed(0)])
-    assert not mlp.biases[0].any()
+    assert not init_layers([3, 4], [torch.Generator().manual_seed(0)]).biases[0].any()
 
 
 def test_log_std_stays_within_bounds() -> None:
-    policy = TanhGaussianPolicy(OBS, ACT, (8,), [torch.Generator().manual_seed(0)], -20.0, 2.0)
-    _, log_std = policy(torch.randn(1, 50, OBS) * 1e4)
+    net = init_layers([OBS, 8, 2 * ACT], [torch.Generator().manual_seed(0)])
+    _, log_std = policy_head(mlp(net, torch.randn(1, 50, OBS) * 1e4), ACT, -20.0, 2.0)
     assert log_std.min() >= -20.0
     assert log_std.max() <= 2.0
 
@@ -68,14 +83,12 @@ def test_member_initialisation_does_not_depend_on_other_members() -> None:
     alone, grouped = _agent([10]), _agent([0, 10, 20])
     for name, value in _params(alone, 0).items():
         assert torch.equal(value, _params(grouped, 1)[name]), name
-    assert not torch.equal(
-        _params(grouped, 0)["q1.net.weights.0"], _params(grouped, 1)["q1.net.weights.0"]
-    )
+    assert not torch.equal(_params(grouped, 0)["q1.weights.0"], _params(grouped, 1)["q1.weights.0"])
 
 
 def test_target_v_starts_as_a_copy_of_v() -> None:
     params = _params(_agent([3]), 0)
-    for key in ("net.weights.0", "net.biases.0", "net.weights.1"):
+    for key in ("weights.0", "biases.0", "weights.1"):
         assert torch.equal(params[f"v.{key}"], params[f"v_target.{key}"])
 
 
@@ -86,21 +99,22 @@ def test_actions_are_bounded_and_deterministic_action_is_tanh_mu() -> None:
     assert action.shape == (2, ACT)
     assert np.all(np.abs(action) <= 1.0)
     det = agent.act_deterministic(obs[:, None])
-    mu, _ = agent.policy(torch.as_tensor(obs[:, None], dtype=torch.float32))
-    np.testing.assert_allclose(det, torch.tanh(mu).detach().numpy())
+    obs_tensor = torch.as_tensor(obs[:, None], dtype=torch.float32)
+    mu, _ = policy_head(mlp(agent.params.networks.policy, obs_tensor), ACT, -20.0, 2.0)
+    np.testing.assert_allclose(det, torch.tanh(mu).numpy())
 
 
 def test_update_changes_weights_and_moves_target_v_by_tau() -> None:
     agent = _agent([0], tau=0.005)
     before = _params(agent, 0)
-    metrics = agent.update(_batch(1), q=1.5)
+    metrics = agent.update(_batch(1), _c(1))
     after = _params(agent, 0)
     assert metrics.shape == (1, len(METRICS))
     assert torch.isfinite(metrics).all()
     for net in ("policy", "q1", "q2", "v"):
-        assert not torch.equal(before[f"{net}.net.weights.0"], after[f"{net}.net.weights.0"])
-    expected = 0.995 * before["v_target.net.weights.0"] + 0.005 * after["v.net.weights.0"]
-    torch.testing.assert_close(after["v_target.net.weights.0"], expected)
+        assert not torch.equal(before[f"{net}.weights.0"], after[f"{net}.weights.0"])
+    expected = 0.995 * before["v_target.weights.0"] + 0.005 * after["v.weights.0"]
+    torch.testing.assert_close(after["v_target.weights.0"], expected)
 
 
 def test_members_train_independently() -> None:
@@ -110,8 +124,8 @@ def test_members_train_independently() -> None:
         batch = _batch(2, seed=step)
         batch["reward"][0] = np.nan  # member 0 diverges at once
         pair.alive &= torch.tensor([step == 0, True])  # the trainer retires it after step 0
-        pair.update(batch, q=1.5)
-        alone.update({key: value[1:] for key, value in batch.items()}, q=1.5)
+        pair.update(batch, _c(2))
+        alone.update({key: value[1:] for key, value in batch.items()}, _c(1))
     for name, value in _params(alone, 0).items():
         torch.testing.assert_close(_params(pair, 1)[name], value, rtol=1e-6, atol=1e-7)
 
@@ -119,12 +133,12 @@ def test_members_train_independently() -> None:
 def test_member_state_round_trip_continues_identically() -> None:
     agent = _agent([7, 8])
     for step in range(2):
-        agent.update(_batch(2, seed=step), q=1.5)
+        agent.update(_batch(2, seed=step), _c(2))
     restored = _agent([0, 1])
     restored.load_member_states([agent.member_state(0), agent.member_state(1)])
     batch = _batch(2, seed=5)
     torch.testing.assert_close(
-        agent.update(batch, q=1.5), restored.update(batch, q=1.5), rtol=0, atol=0
+        agent.update(batch, _c(2)), restored.update(batch, _c(2)), rtol=0, atol=0
     )
     np.testing.assert_array_equal(agent.act(batch["obs"][:, 0]), restored.act(batch["obs"][:, 0]))
     for k in range(2):
@@ -138,30 +152,31 @@ def test_twin_q_moves_the_target_critics_by_tau_and_leaves_v_alone(impl: str) ->
     before = _params(agent, 0)
     for name in ("weights.0", "biases.0", "weights.1"):
         for net in ("q1", "q2"):  # the targets start as copies
-            assert torch.equal(before[f"{net}_target.net.{name}"], before[f"{net}.net.{name}"])
-    metrics = agent.update(_batch(1), q=1.5)
+            assert torch.equal(before[f"{net}_target.{name}"], before[f"{net}.{name}"])
+    metrics = agent.update(_batch(1), _c(1))
     after = _params(agent, 0)
     assert metrics[0, METRICS.index("loss_v")] == 0.0
     for net in ("q1", "q2"):
         for name in ("weights.0", "biases.1"):
-            target, online = f"{net}_target.net.{name}", f"{net}.net.{name}"
+            target, online = f"{net}_target.{name}", f"{net}.{name}"
             expected = 0.995 * before[target] + 0.005 * after[online]
             torch.testing.assert_close(after[target], expected)
-    for name, value in before.items():  # V is not trained and the target V not averaged
-        if name.startswith(("v.", "v_target.")):
+    assert not any(name.startswith("v_target.") for name in after)  # no target V
+    for name, value in before.items():  # V is not trained
+        if name.startswith("v."):
             assert torch.equal(after[name], value), name
 
 
 def test_twin_q_member_state_round_trip_continues_identically() -> None:
     agent = _agent([7, 8], critic_target="twin-q")
     for step in range(2):
-        agent.update(_batch(2, seed=step), q=1.5)
+        agent.update(_batch(2, seed=step), _c(2))
     restored = _agent([0, 1], critic_target="twin-q")
     restored.load_member_states([agent.member_state(0), agent.member_state(1)])
-    assert "q1_target.net.weights.0" in agent.member_state(0)["params"]
+    assert "q1_target.weights.0" in agent.member_state(0)["params"]
     batch = _batch(2, seed=5)
     torch.testing.assert_close(
-        agent.update(batch, q=1.5), restored.update(batch, q=1.5), rtol=0, atol=0
+        agent.update(batch, _c(2)), restored.update(batch, _c(2)), rtol=0, atol=0
     )
     for k in range(2):
         for name, value in _params(agent, k).items():

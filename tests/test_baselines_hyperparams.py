@@ -172,11 +172,11 @@ def test_make_configs_applies_overrides_and_run_settings() -> None:
 
 def test_config_checks_its_hyperparameters() -> None:
     values, _ = hyperparams.resolve("ppo", "Hopper-v4", "Hopper")
-    assert BaselineConfig("ppo", "Hopper-v4", hyperparams=values).alpha is None
+    assert BaselineConfig(algo="ppo", env="Hopper-v4", hyperparams=values).alpha is None
     with pytest.raises(TacbenchError, match="lacks hyperparameters"):
-        BaselineConfig("ppo", "Hopper-v4", hyperparams={})
+        BaselineConfig(algo="ppo", env="Hopper-v4", hyperparams={})
     with pytest.raises(TacbenchError, match="n_epochs for ppo"):
-        BaselineConfig("ppo", "Hopper-v4", hyperparams={**values, "n_epochs": 0})
+        BaselineConfig(algo="ppo", env="Hopper-v4", hyperparams={**values, "n_epochs": 0})
 
 
 def test_tac_flags_map_to_hyperparameters_or_are_refused() -> None:

@@ -1,12 +1,10 @@
-"""``tacbench bench`` (speed against SB3) and ``tacbench regress`` (reference results)."""
+"""``tacbench bench``: TAC's speed against stable-baselines3's SAC, side by side."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 import click
-
-from tacbench.errors import TacbenchError
 
 
 @click.command()
@@ -84,66 +82,3 @@ def bench(
     if json_path is not None:
         json_path.write_text(json.dumps(measure.results_json(results, options), indent=1) + "\n")
         click.echo(f"wrote {json_path}")
-
-
-@click.command()
-@click.option(
-    "--against",
-    type=click.Path(file_okay=False, path_type=Path),
-    default=Path("results/reference"),
-    show_default=True,
-    help="Folder of the committed references (exact/, theory/, stat/).",
-)
-@click.option(
-    "--tier",
-    type=click.Choice(["exact", "theory", "stat"]),
-    default="exact",
-    show_default=True,
-    help="exact: short runs reproduced to the last digit, plus the theory CSVs (minutes); "
-    "theory: the CSVs alone; stat: longer runs on fresh seeds, tested for a drop in return.",
-)
-@click.option(
-    "--update",
-    is_flag=True,
-    help="Regenerate the tier's references on purpose (records commands, versions, date).",
-)
-@click.option(
-    "--only",
-    multiple=True,
-    metavar="NAME",
-    help="Repeatable: check only these exact runs or statistical groups (names in the manifest).",
-)
-@click.option(
-    "--work",
-    type=click.Path(file_okay=False, path_type=Path),
-    default=None,
-    help="Empty folder to keep the fresh runs in.  [default: a temporary folder, deleted]",
-)
-@click.pass_context
-def regress(
-    ctx: click.Context,
-    against: Path,
-    tier: str,
-    update: bool,
-    only: tuple[str, ...],
-    work: Path | None,
-) -> None:
-    """Compare fresh results with the committed references (docs/regression.md).
-
-    Prints what matched, what drifted and by how much. Exit status: 0 when nothing regressed
-    (a tier skipped for other library versions says why), 1 on a regression, 2 for a usage
-    error.
-    """
-    from tacbench import regress as checks  # torch only when this command runs
-
-    if update:
-        if only:
-            raise TacbenchError("--only selects what to check; --update regenerates a whole tier.")
-        for path in checks.update(against, tier, work, log=click.echo):
-            click.echo(f"wrote {path}")
-        return
-    results = checks.check(against, tier, work, only, log=click.echo)
-    for result in results:
-        click.echo(checks.format_result(result))
-    if any(result.regressions for result in results):
-        ctx.exit(1)

@@ -35,7 +35,7 @@ def _fake_run(out: Path, run: plan.Run, status: dict[str, Any] | None, **config:
     return directory
 
 
-def _plan(out: Path, options: driver.Options | None = None) -> plan.Plan:
+def _plan(out: Path, options: driver.Options | None = None) -> plan.SweepPlan:
     return driver.load_plan(SMOKE, out, options or driver.Options(), save=False)[0]
 
 

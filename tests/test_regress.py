@@ -12,17 +12,17 @@ import pytest
 import torch
 from click.testing import CliRunner
 
-from tacbench import machine, regress
+from tacbench import hardware, regress
 from tacbench.cli import cli
 from tacbench.errors import TacbenchError
 from tacbench.regress import exact, stat
 from tacbench.regress import manifest as mf
 from tacbench.regress.outcome import Row, TierResult, format_result
-from tacbench.regress.specs import EXACT_RUNS, STAT_ALPHA, STAT_GROUPS, RunSpec
+from tacbench.regress.specs import EXACT_RUNS, STAT_ALPHA, STAT_GROUPS, ReferenceRun
 
 pytestmark = pytest.mark.unit
 
-REFERENCE = Path(__file__).resolve().parents[2] / "results" / "reference"
+REFERENCE = Path(__file__).resolve().parents[1] / "results" / "reference"
 CSV = "step,q,loss\n1000,1.5,0.25\n2000,1.5,0.125\n"
 
 
@@ -174,11 +174,11 @@ def test_committed_manifests_record_provenance() -> None:
 def test_cpu_class_names_vendor_family_model_and_instruction_set() -> None:
     intel = "processor\t: 0\nvendor_id\t: GenuineIntel\ncpu family\t: 6\nmodel\t\t: 207\n"
     intel += "model name\t: Intel(R) Xeon(R) Processor\n\nprocessor\t: 1\nvendor_id\t: Other\n"
-    assert machine.cpu_identity(intel) == ["GenuineIntel", "6", "207"]
-    assert machine.cpu_name(intel) == "Intel(R) Xeon(R) Processor"
+    assert hardware.cpu_identity(intel) == ["GenuineIntel", "6", "207"]
+    assert hardware.cpu_name(intel) == "Intel(R) Xeon(R) Processor"
     arm = "processor\t: 0\nCPU implementer\t: 0x41\nCPU architecture: 8\nCPU part\t: 0xd0c\n"
-    assert machine.cpu_identity(arm) == ["0x41", "8", "0xd0c"]
-    here = machine.cpu_class()
+    assert hardware.cpu_identity(arm) == ["0x41", "8", "0xd0c"]
+    here = hardware.cpu_class()
     assert here.endswith(torch.backends.cpu.get_cpu_capability())
     assert mf.environment()["cpu"] == here
     assert mf.tier_directory(REFERENCE, "exact") == REFERENCE / "exact" / here
@@ -235,7 +235,7 @@ def test_exact_tier_is_skipped_on_a_cpu_class_without_references(tmp_path: Path)
     shutil.copytree(REFERENCE / "exact" / mf.recorded_cpu_classes(REFERENCE)[0], other)
     (result,) = regress.check(reference, "exact", names=["tac-Hopper-v4-q2"])
     assert result.verdict == "SKIPPED" and not result.rows
-    assert f"no exact references for this machine's CPU class {machine.cpu_class()}" in (
+    assert f"no exact references for this machine's CPU class {hardware.cpu_class()}" in (
         result.skipped
     )
     assert "recorded for x86_64-SomeVendor-1-2-AVX2" in result.skipped
@@ -322,14 +322,14 @@ def test_update_records_this_cpu_class_and_keeps_the_others(tmp_path: Path) -> N
     shutil.copytree(REFERENCE / "exact" / mf.recorded_cpu_classes(REFERENCE)[0], other)
     args = ("--env", "Hopper-v4", "--q", "1.5", "--learning-starts", "100", "--steps", "300")
     args += ("--eval-every", "150", "--eval-episodes", "1", "--checkpoint-every", "0", "--quiet")
-    tiny = RunSpec("tac-tiny", args)
+    tiny = ReferenceRun("tac-tiny", args)
     path = exact.update_exact(reference, tmp_path / "work", [tiny], log=lambda _: None)
     assert path == mf.tier_directory(reference, "exact") / mf.MANIFEST
     manifest = json.loads(path.read_text())
-    assert manifest["environment"]["cpu"] == machine.cpu_class()
+    assert manifest["environment"]["cpu"] == hardware.cpu_class()
     assert [run["name"] for run in manifest["runs"]] == ["tac-tiny"]
     assert (other / mf.MANIFEST).is_file()  # another CPU class's references are untouched
-    assert mf.recorded_cpu_classes(reference) == sorted([other.name, machine.cpu_class()])
+    assert mf.recorded_cpu_classes(reference) == sorted([other.name, hardware.cpu_class()])
     result = exact.check_exact(reference, tmp_path / "check", log=lambda _: None)
     assert result.verdict == "PASS", format_result(result)
     assert [row.status for row in result.rows] == ["match"] * 4

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
-from tacbench.bench import BenchOptions, Contestant, Result, contestants, table
+from tacbench.bench import BenchOptions, BenchResult, Contestant, contestants, table
 from tacbench.cli import cli
 from tacbench.errors import TacbenchError
 
@@ -21,9 +21,11 @@ def test_contestants_cover_both_paths_at_one_and_k_members() -> None:
     assert rows == [
         ("SB3 SAC", 1),
         ("TAC eager", 1),
+        ("TAC eager+compile", 1),
         ("TAC fused", 1),
         ("TAC fused+compile", 1),
         ("TAC eager", 4),
+        ("TAC eager+compile", 4),
         ("TAC fused", 4),
         ("TAC fused+compile", 4),
     ]
@@ -33,12 +35,12 @@ def test_contestants_cover_both_paths_at_one_and_k_members() -> None:
 
 
 def test_table_reports_rates_member_rates_and_ratios_to_sb3() -> None:
-    sb3 = Result(Contestant("SB3 SAC", 1), steps=[100, 100], seconds=[1.0, 1.0])
-    fused = Result(Contestant("TAC fused", 10, "fused"), steps=[50, 50], seconds=[0.5, 0.25])
+    sb3 = BenchResult(Contestant("SB3 SAC", 1), steps=[100, 100], seconds=[1.0, 1.0])
+    fused = BenchResult(Contestant("TAC fused", 10, "fused"), steps=[50, 50], seconds=[0.5, 0.25])
     assert fused.rate == pytest.approx(100 / 0.75)
     assert fused.member_rate == pytest.approx(1000 / 0.75)
     assert fused.spread == pytest.approx((100.0, 200.0))
-    lines = table([sb3, fused], BenchOptions()).splitlines()
+    lines = table([sb3, fused]).splitlines()
     assert lines[2] == "| SB3 SAC | 1 | 100 | 100 | 1.00x | 100-100 |"
     assert lines[3] == "| TAC fused | 10 | 133 | 1333 | 13.33x | 100-200 |"
 

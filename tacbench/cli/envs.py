@@ -1,0 +1,28 @@
+"""``tacbench envs``: the paper's task suite."""
+
+from __future__ import annotations
+
+import click
+
+from tacbench import config
+
+
+@click.command(name="envs")
+def envs_command() -> None:
+    """List the paper's task suite with its Gymnasium ids and the paper's alpha and best q."""
+    from tacbench.envs import suite_table
+
+    header = (
+        f"{'task':<12} {'env':<16} {'obs':>4} {'act':>4} {'limit':>6} {'alpha':>6} {'best q':>7}"
+    )
+    click.echo(header + "  loads")
+    for row in suite_table():
+        click.echo(
+            f"{row['task']:<12} {row['env']:<16} {row['obs']!s:>4} {row['act']!s:>4} "
+            f"{row['limit']!s:>6} {config.PAPER_ALPHA[row['task']]:>6g} "
+            f"{config.PAPER_BEST_Q[row['task']]:>7g}  {row['ok']}"
+        )
+    click.echo(
+        "alpha and best q: paper appendix, per-task table. Any other registered Gymnasium id "
+        "with continuous actions also works with --env (default q = 1, alpha = 0.2)."
+    )

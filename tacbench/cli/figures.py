@@ -1,0 +1,23 @@
+"""``tacbench figures``: the paper's theory figures and the numbers they plot."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+
+@click.command()
+@click.option(
+    "--out",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=Path("results/figures"),
+    show_default=True,
+    help="Directory for the PNGs and CSVs (created if missing).",
+)
+def figures(out: Path) -> None:
+    """Write the paper's theory figures (PNG) and the numbers they plot (CSV)."""
+    from tacbench.figures import write_figures  # matplotlib only when this command runs
+
+    for path in write_figures(out):
+        click.echo(f"wrote {path}")

@@ -1,0 +1,86 @@
+"""Click options generated from the declared settings (:mod:`tacbench.settings`).
+
+``tacbench run`` offers every setting of TAC's config with its default; ``tacbench sweep``
+offers the same settings as overrides of its preset, defaulting to the preset's value. Each
+option's help names the default's source. The option's destination is the config field's name,
+so a command passes its options to the config as they are.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable
+from typing import Any, TypeVar
+
+import click
+
+from tacbench.settings import Setting, settings_of
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+class IntTuple(click.ParamType):
+    """Comma-separated integers: ``400,300`` -> ``(400, 300)``."""
+
+    name = "integers"
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
+        if isinstance(value, tuple):
+            return value
+        try:
+            return tuple(int(part) for part in str(value).split(","))
+        except ValueError:
+            self.fail(f"{value!r} is not a comma-separated list of integers (400,300)", param, ctx)
+
+
+def _shown(value: Any) -> str:
+    if isinstance(value, tuple):
+        return ",".join(str(v) for v in value)
+    if isinstance(value, bool):
+        return "on" if value else "off"
+    return f"{value:g}" if isinstance(value, float) else str(value)
+
+
+def _option(declared: Setting, *, sweep: bool) -> Callable[[F], F]:
+    info = declared.info
+    default_text = "the preset's" if sweep else f"{_shown(declared.default)}; {info.source}"
+    kwargs: dict[str, Any] = {
+        "help": f"{info.help}  [default: {default_text}]",
+        "default": None if sweep else declared.default,
+    }
+    flags = [declared.flag]
+    if declared.type is bool:
+        flags = [f"{declared.flag}/--no-{declared.flag[2:]}"] if sweep else flags
+        kwargs["is_flag"] = not sweep or None
+    elif info.choices:
+        kwargs["type"] = click.Choice(info.choices)
+    elif declared.type == tuple[int, ...]:
+        kwargs["type"] = IntTuple()
+    else:
+        kwargs["type"] = declared.type
+    if info.metavar:
+        kwargs["metavar"] = info.metavar
+    kwargs = {k: v for k, v in kwargs.items() if v is not None or k == "default"}
+    return click.option(*flags, declared.name, **kwargs)
+
+
+def setting_options(cls: type, names: Iterable[str], *, sweep: bool = False) -> Callable[[F], F]:
+    """A decorator adding the options of settings ``names`` of config class ``cls``, in order;
+    with ``sweep`` each defaults to None (the preset's value)."""
+    declared = settings_of(cls)
+    decorators = [_option(declared[name], sweep=sweep) for name in names]
+
+    def decorate(function: F) -> F:
+        for decorator in reversed(decorators):
+            function = decorator(function)
+        return function
+
+    return decorate
+
+
+def cli_settings(cls: type, *, sweep: bool = False) -> list[str]:
+    """The names of ``cls``'s settings offered on the command line (by ``sweep``)."""
+    return [
+        name
+        for name, declared in settings_of(cls).items()
+        if declared.info.cli and (declared.info.sweep or not sweep)
+    ]

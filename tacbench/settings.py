@@ -1,0 +1,98 @@
+"""One declaration per setting: a config field that carries its flag, help text and source.
+
+A setting is a dataclass field made by :func:`setting`; its metadata (:class:`SettingInfo`)
+says how the command line spells it, what it means, where its default comes from and how it
+enters a run's variant name. ``tacbench run`` and ``tacbench sweep`` generate their options
+from these declarations (:mod:`tacbench.cli.options`), and the configs validate with the same
+flag names, so adding a TAC option is one field in :class:`tacbench.config.RunConfig` plus its
+use. No click and no torch here: the configs import this at CLI start-up.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import typing
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+_KEY = "tacbench"
+
+
+@dataclass(frozen=True)
+class SettingInfo:
+    """How a setting appears on the command line and in a run's name.
+
+    ``variant``: how a non-default value enters the run directory's variant name: a prefix to
+    which the value is appended (``"ls"`` -> ``-ls100000``), or for a choice a word per value
+    (``{"joint": "joint"}`` -> ``-joint``); None: never (the field cannot change what is
+    learned, or has its own path component). ``neutral``: the field cannot change any number a
+    run writes, so a resumed run may differ in it. ``cli``: offered by ``tacbench run`` (and
+    ``sweep``, unless ``sweep`` is False).
+    """
+
+    help: str
+    source: str
+    flag: str = ""
+    choices: tuple[str, ...] = ()
+    variant: str | Mapping[str, str] | None = None
+    neutral: bool = False
+    cli: bool = True
+    sweep: bool = True
+    metavar: str | None = None
+
+
+def setting(
+    default: Any,
+    help: str,
+    *,
+    source: str,
+    flag: str = "",
+    choices: Sequence[str] = (),
+    variant: str | Mapping[str, str] | None = None,
+    neutral: bool = False,
+    cli: bool = True,
+    sweep: bool = True,
+    metavar: str | None = None,
+) -> Any:
+    """A dataclass field with a default and its :class:`SettingInfo` (see there)."""
+    info = SettingInfo(help, source, flag, tuple(choices), variant, neutral, cli, sweep, metavar)
+    return field(default=default, metadata={_KEY: info})
+
+
+@dataclass(frozen=True)
+class Setting:
+    """A declared setting of a config class: its field name, type, default and info."""
+
+    name: str
+    type: Any
+    default: Any
+    info: SettingInfo
+
+    @property
+    def flag(self) -> str:
+        """The command-line flag, ``--name-with-dashes`` unless declared otherwise."""
+        return self.info.flag or "--" + self.name.replace("_", "-")
+
+
+def settings_of(cls: type) -> dict[str, Setting]:
+    """Every declared setting of config class ``cls`` (and its bases), in field order."""
+    hints = typing.get_type_hints(cls)
+    found = {}
+    for f in dataclasses.fields(cls):
+        if _KEY in f.metadata:
+            found[f.name] = Setting(f.name, hints[f.name], f.default, f.metadata[_KEY])
+    return found
+
+
+def flag_of(cls: type, name: str) -> str:
+    """The flag of setting ``name`` of ``cls`` (``--name`` for an undeclared field)."""
+    declared = settings_of(cls).get(name)
+    return declared.flag if declared else "--" + name.replace("_", "-")
+
+
+def neutral_fields(*classes: type) -> tuple[str, ...]:
+    """The fields of ``classes`` that cannot change a number a run writes."""
+    return tuple(
+        dict.fromkeys(n for cls in classes for n, s in settings_of(cls).items() if s.info.neutral)
+    )

@@ -1,0 +1,161 @@
+"""The formulas both update paths compute, written once: the eager reference
+(:mod:`tacbench.tac.losses`, autograd) and the fused path (:mod:`tacbench.tac.fused`, gradients
+by hand) import them from here.
+
+Shapes: K members, B samples, A action dimensions. Every per-member quantity (q, alpha, the
+density cap) is a tensor with a leading K, so members with different q or alpha share one
+batched computation and one compiled graph: the q = 1 case and the q >= 2 cap are selected per
+member with ``torch.where`` and ``clamp``, never by a Python branch.
+
+Paper references are to the appendix "Implementation Detail" of ``tsallis-rl-paper.tex``: the
+"Reparameterization Trick" (density of the squashed Gaussian) and the "Numerical Issue" (the
+density cap for q >= 2). Where the paper is silent the reference code decides (REFERENCE.md).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import NamedTuple
+
+import torch
+import torch.nn.functional as F
+
+LOG_DENSITY_FLOOR = math.log(1e-6)  # reference code: each per-dimension density >= 1e-6
+JACOBIAN_EPS_LOG = math.log(1e-6)  # SAC v1 and reference code: log(1 - tanh(z)^2 + 1e-6)
+HALF_LOG_2PI = 0.5 * math.log(2.0 * math.pi)
+
+LOSSES = ("loss_q1", "loss_q2", "loss_v", "loss_pi")
+# Diagnostics written to losses.csv besides the four losses (means over the batch).
+DIAGNOSTICS = ("log_pi", "lnq_pi", "q1_pi", "v", "std")
+METRICS = LOSSES + DIAGNOSTICS  # the columns of an update's metrics, (K, len(METRICS))
+
+
+class Batch(NamedTuple):
+    """A member-batched minibatch; actions are in the policy's [-1, 1] units."""
+
+    obs: torch.Tensor  # (K, B, obs_dim)
+    action: torch.Tensor  # (K, B, A)
+    reward: torch.Tensor  # (K, B)
+    next_obs: torch.Tensor  # (K, B, obs_dim)
+    terminated: torch.Tensor  # (K, B), 1.0 where s' is terminal (never for a time-limit end)
+
+
+def density_log_cap(q: float) -> float:
+    """The log of the paper's density cap ``10^(8/(q-1))`` for q >= 2 ("Numerical Issue"), +inf
+    (no cap) for q < 2."""
+    return 8.0 * math.log(10.0) / (q - 1.0) if q >= 2.0 else math.inf
+
+
+class Coefficients(NamedTuple):
+    """Each member's entropic index and entropy coefficient, as ``(K,)`` float32 tensors.
+
+    ``q_minus_one`` is computed in float64 before the cast (``q - 1`` of a float32 q would round
+    differently, e.g. for q = 1.2); ``log_cap`` is :func:`density_log_cap`.
+    """
+
+    q_minus_one: torch.Tensor
+    log_cap: torch.Tensor
+    alpha: torch.Tensor
+
+
+def coefficients(
+    qs: Sequence[float], alphas: Sequence[float], device: torch.device
+) -> Coefficients:
+    """:class:`Coefficients` of members with entropic indices ``qs`` and coefficients
+    ``alphas``, on ``device`` (the copy does not wait for the device)."""
+
+    def tensor(values: Sequence[float]) -> torch.Tensor:
+        return torch.tensor(values, dtype=torch.float32).to(device, non_blocking=True)
+
+    return Coefficients(
+        tensor([q - 1.0 for q in qs]),
+        tensor([density_log_cap(q) for q in qs]),
+        tensor(list(alphas)),
+    )
+
+
+def log_std_from_tanh(
+    tanh_raw: torch.Tensor, log_std_min: float, log_std_max: float
+) -> torch.Tensor:
+    """The policy's log standard deviation from the tanh of its raw head output, rescaled to
+    ``[log_std_min, log_std_max]`` (reference code)."""
+    return log_std_min + 0.5 * (log_std_max - log_std_min) * (tanh_raw + 1.0)
+
+
+class SquashedSample(NamedTuple):
+    """``a = tanh(z)``, ``z = mu + eps sigma``, and its per-dimension log-density.
+
+    ``log_jacobian`` is ``log(1 - tanh(z)^2)`` and ``log_jacobian_eps`` the same with SAC v1's
+    ``+ 1e-6`` inside the log; the fused path's gradient needs both.
+    """
+
+    action: torch.Tensor
+    log_jacobian: torch.Tensor
+    log_jacobian_eps: torch.Tensor
+    log_prob_dims: torch.Tensor
+
+
+def squashed_gaussian(
+    mu: torch.Tensor, log_std: torch.Tensor, std: torch.Tensor, eps: torch.Tensor
+) -> SquashedSample:
+    """Reparameterised action ``a = tanh(mu + eps * sigma)`` and ``log pi_i(a_i|s)`` per dimension.
+
+    Paper, "Reparameterization Trick": ``pi(a|s) = N(z; mu, sigma) |da/dz|^-1``. The paper prints
+    the Jacobian as ``prod_i (1 - tanh(z_i))``; the correct one (as in SAC) is
+    ``prod_i (1 - tanh(z_i)^2)``. Each factor gets SAC v1's (and the reference code's) ``+ 1e-6``,
+    which bounds a saturated dimension's log-density increase at ``-log(1e-6)``; its log is
+    ``logaddexp(log(1 - tanh(z)^2), log 1e-6)`` with ``log(1 - tanh(z)^2)`` computed stably as
+    ``2 (log 2 - z - softplus(-2 z))``. ``std`` is ``log_std.exp()``, passed in because both
+    paths need it elsewhere.
+    """
+    z = mu + eps * std
+    log_jacobian = 2.0 * (math.log(2.0) - z - F.softplus(-2.0 * z))
+    log_jacobian_eps = torch.logaddexp(log_jacobian, log_jacobian.new_full((), JACOBIAN_EPS_LOG))
+    log_prob_dims = (-0.5 * eps.square() - log_std - HALF_LOG_2PI) - log_jacobian_eps
+    return SquashedSample(torch.tanh(z), log_jacobian, log_jacobian_eps, log_prob_dims)
+
+
+def log_q_of_log(
+    log_p: torch.Tensor, q_minus_one: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """``ln_q(p)`` from ``log p`` and its slope ``d ln_q / d log p = p^(q-1)``, per member.
+
+    ``ln_q(p) = expm1((q-1) log p) / (q-1)`` (:func:`tacbench.tsallis.log_q`), ``log p`` itself
+    where q = 1; ``q_minus_one`` broadcasts against ``log_p``. The density is never formed, only
+    its log (it over- or underflows for peaked or many-dimensional policies).
+    """
+    is_one = q_minus_one == 0.0
+    # the branch that q = 1 does not take gets finite inputs, so that autograd's zero gradient
+    # through it stays zero (no 0/0, no 0 * inf from expm1 of a large log p)
+    safe = torch.where(is_one, 1.0, q_minus_one)
+    e = torch.expm1(safe * torch.where(is_one, 0.0, log_p))
+    return torch.where(is_one, log_p, e / safe), torch.where(is_one, 1.0, e + 1.0)
+
+
+def per_member(values: torch.Tensor, like: torch.Tensor) -> torch.Tensor:
+    """``(K,)`` values shaped to broadcast against a ``(K, ...)`` tensor ``like``."""
+    return values.view(-1, *([1] * (like.dim() - 1)))
+
+
+def lnq_of_policy(
+    log_prob_dims: torch.Tensor, c: Coefficients, lnq: str
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """``ln_q pi(a|s)`` ``(K, B)`` from per-dimension log-densities ``(K, B, A)``, and its
+    gradient with respect to each ``log pi_i`` ``(K, B, A)`` (for the fused path).
+
+    ``joint`` (paper): ln_q of the joint density ``exp(sum_i log pi_i)``. ``per-dim`` (reference
+    code): ``sum_i ln_q(pi_i)`` with each pi_i floored at 1e-6. Both equal ``log pi`` at q = 1.
+    For q >= 2 the density is capped at ``10^(8/(q-1))`` (paper, "Numerical Issue"), so
+    ``ln_q <= (10^8 - 1)/(q-1)``. A clamp passes the gradient only inside its bounds.
+    """
+    if lnq == "joint":
+        log_prob = log_prob_dims.sum(dim=-1)
+        cap = per_member(c.log_cap, log_prob)
+        value, slope = log_q_of_log(log_prob.clamp(max=cap), per_member(c.q_minus_one, log_prob))
+        return value, (slope * (log_prob <= cap)).unsqueeze(-1)
+    cap = per_member(c.log_cap, log_prob_dims)
+    clamped = log_prob_dims.clamp(min=LOG_DENSITY_FLOOR).clamp(max=cap)
+    value, slope = log_q_of_log(clamped, per_member(c.q_minus_one, log_prob_dims))
+    inside = (log_prob_dims >= LOG_DENSITY_FLOOR) & (log_prob_dims <= cap)
+    return value.sum(dim=-1), slope * inside

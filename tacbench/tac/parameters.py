@@ -1,0 +1,212 @@
+"""TAC's parameters for K members in one flat buffer: layout, initial weights, Adam, targets,
+per-member state.
+
+Every weight and bias of every trained network of every member lives in one contiguous float32
+buffer (``data``), with a gradient buffer, Adam's two moments and a step count of the same
+layout, so one fused Adam kernel updates everything and both update paths write their
+gradients into one place. The blocks, in order: the policy's layers, then the critic pair's
+layers (Q1's K members then Q2's, side by side, so the pair is one (2K)-member stack), then V's
+layers; each layer a weight block then a bias block. The target networks (the target V, or
+with ``critic_target`` twin-q the target critic pair) have a buffer of their source's layout,
+so the Polyak average is one ``lerp_``.
+
+Member k's initial weights are drawn from its own generator, network by network (policy, Q1,
+Q2, V, layer by layer; the target starts as a copy), so they do not depend on the other
+members.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Iterator, Mapping, Sequence
+from typing import Any, NamedTuple
+
+import torch
+
+from tacbench.tac.networks import Layers, init_layers
+
+ADAM_BETAS = (0.9, 0.999)  # torch.optim.Adam's defaults
+ADAM_EPS = 1e-8
+
+
+class Networks(NamedTuple):
+    """Views of the trained networks (or of their gradients): K, 2K and K members."""
+
+    policy: Layers
+    critics: Layers  # the K members of Q1, then the K members of Q2
+    v: Layers
+
+
+class FlatLayout:
+    """Where each block of a flat buffer starts and what shape it has."""
+
+    def __init__(self, shapes: Sequence[tuple[int, ...]]) -> None:
+        self.shapes = [tuple(shape) for shape in shapes]
+        sizes = [int(torch.Size(shape).numel()) for shape in self.shapes]
+        self.offsets = [0, *itertools.accumulate(sizes)]
+
+    @property
+    def size(self) -> int:
+        """The number of floats in the buffer."""
+        return self.offsets[-1]
+
+    def views(self, flat: torch.Tensor) -> list[torch.Tensor]:
+        """Each block as a view of ``flat``."""
+        return [
+            flat[start:stop].view(shape)
+            for start, stop, shape in zip(self.offsets, self.offsets[1:], self.shapes, strict=False)
+        ]
+
+
+def _pack(
+    groups: Sequence[Sequence[Layers]], device: torch.device
+) -> tuple[FlatLayout, torch.Tensor]:
+    """One flat buffer holding, per group of same-shaped stacks (one network, or Q1 and Q2), each
+    layer's weight block then its bias block, the group's stacks side by side."""
+    blocks = []
+    for group in groups:
+        for i in range(len(group[0].weights)):
+            blocks.append(torch.cat([layers.weights[i] for layers in group]))
+            blocks.append(torch.cat([layers.biases[i] for layers in group]))
+    layout = FlatLayout([block.shape for block in blocks])
+    data = torch.empty(layout.size, device=device)
+    for view, block in zip(layout.views(data), blocks, strict=True):
+        view.copy_(block)
+    return layout, data
+
+
+def _layers(blocks: Sequence[torch.Tensor]) -> Layers:
+    """Alternating weight and bias blocks as layers."""
+    return Layers(list(blocks[0::2]), list(blocks[1::2]))
+
+
+class TacParameters:
+    """The flat buffers of K members' TAC networks (see the module docstring)."""
+
+    def __init__(
+        self,
+        obs_dim: int,
+        act_dim: int,
+        hidden_sizes: Sequence[int],
+        generators: Sequence[torch.Generator],
+        *,
+        twin_q_targets: bool,
+        device: torch.device,
+    ) -> None:
+        self.n_members = len(generators)
+        policy = init_layers([obs_dim, *hidden_sizes, 2 * act_dim], generators)
+        q1, q2 = (init_layers([obs_dim + act_dim, *hidden_sizes, 1], generators) for _ in "12")
+        v = init_layers([obs_dim, *hidden_sizes, 1], generators)
+        self.n_layers = len(hidden_sizes) + 1
+        self.layout, self.data = _pack([[policy], [q1, q2], [v]], device)
+        self.grad = torch.zeros_like(self.data)
+        self.exp_avg = torch.zeros_like(self.data)
+        self.exp_avg_sq = torch.zeros_like(self.data)
+        self.step = torch.zeros((), dtype=torch.float32, device=device)
+        self.twin_q_targets = twin_q_targets
+        self.target_layout, self.target = _pack([[q1, q2]] if twin_q_targets else [[v]], device)
+        n = 2 * self.n_layers
+        self._target_source = slice(
+            self.layout.offsets[n if twin_q_targets else 2 * n],
+            self.layout.offsets[2 * n if twin_q_targets else 3 * n],
+        )
+        self.networks = self.views(self.data)
+        self.gradients = self.views(self.grad)
+        self.target_networks = _layers(self.target_layout.views(self.target))
+
+    def views(self, flat: torch.Tensor) -> Networks:
+        """Policy, critic pair and V views of a flat tensor of ``data``'s layout (``data``
+        itself, the gradient buffer, or a copy that autograd differentiates)."""
+        blocks = self.layout.views(flat)
+        n = 2 * self.n_layers
+        return Networks(_layers(blocks[:n]), _layers(blocks[n : 2 * n]), _layers(blocks[2 * n :]))
+
+    def adam_step(self, lr: float) -> None:
+        """One Adam step on every parameter from ``grad``: PyTorch's fused kernel with
+        ``torch.optim.Adam``'s defaults (betas 0.9, 0.999, eps 1e-8, no weight decay), called
+        directly: ``torch.optim.adam(..., fused=True)`` regroups its tensor lists at every call,
+        a tenth of a one-member update's time."""
+        self.step += 1
+        torch._fused_adam_(
+            [self.data],
+            [self.grad],
+            [self.exp_avg],
+            [self.exp_avg_sq],
+            [],
+            [self.step],
+            amsgrad=False,
+            lr=lr,
+            beta1=ADAM_BETAS[0],
+            beta2=ADAM_BETAS[1],
+            weight_decay=0.0,
+            eps=ADAM_EPS,
+            maximize=False,
+        )
+
+    def update_target(self, tau: float) -> None:
+        """Polyak average of the target networks: ``target <- (1 - tau) target + tau source``
+        (paper appendix: the target V; twin-q: the target critics, SAC v2)."""
+        self.target.lerp_(self.data[self._target_source], tau)
+
+    # --- per-member state (checkpoints hold one member each) ----------------------------------
+
+    def _named(
+        self, flat: torch.Tensor, target: torch.Tensor | None
+    ) -> Iterator[tuple[str, torch.Tensor]]:
+        """``(name, (K, ...) tensor)`` for every parameter of ``flat`` (and of the target)."""
+        k = self.n_members
+        nets = self.views(flat)
+        named = [
+            ("policy", nets.policy),
+            ("q1", nets.critics.members(slice(0, k))),
+            ("q2", nets.critics.members(slice(k, 2 * k))),
+            ("v", nets.v),
+        ]
+        if target is not None:
+            layers = _layers(self.target_layout.views(target))
+            if self.twin_q_targets:
+                named += [
+                    ("q1_target", layers.members(slice(0, k))),
+                    ("q2_target", layers.members(slice(k, 2 * k))),
+                ]
+            else:
+                named.append(("v_target", layers))
+        for prefix, layers in named:
+            for i, (weight, bias) in enumerate(zip(layers.weights, layers.biases, strict=True)):
+                yield f"{prefix}.weights.{i}", weight
+                yield f"{prefix}.biases.{i}", bias
+
+    def named_gradients(self) -> dict[str, torch.Tensor]:
+        """Every trained parameter's gradient ``(K, ...)``, named as in :meth:`member_state`."""
+        return dict(self._named(self.grad, None))
+
+    def member_state(self, k: int) -> dict[str, Any]:
+        """Member k's weights (targets included) and Adam state, as CPU tensors."""
+
+        def member(flat: torch.Tensor, target: torch.Tensor | None) -> dict[str, torch.Tensor]:
+            return {name: t[k].detach().cpu().clone() for name, t in self._named(flat, target)}
+
+        return {
+            "params": member(self.data, self.target),
+            "adam": {
+                "step": self.step.cpu().clone(),
+                "exp_avg": member(self.exp_avg, None),
+                "exp_avg_sq": member(self.exp_avg_sq, None),
+            },
+        }
+
+    def load_member_states(self, states: Sequence[Mapping[str, Any]]) -> None:
+        """Load one :meth:`member_state` per member (their Adam step counts must agree)."""
+        steps = [s["adam"]["step"] for s in states]
+        if any(not torch.equal(step, steps[0]) for step in steps):
+            raise ValueError("members have different Adam step counts")
+        with torch.no_grad():
+            for flat, target, key in (
+                (self.data, self.target, None),
+                (self.exp_avg, None, "exp_avg"),
+                (self.exp_avg_sq, None, "exp_avg_sq"),
+            ):
+                values = [s["params"] if key is None else s["adam"][key] for s in states]
+                for name, tensor in self._named(flat, target):
+                    tensor.copy_(torch.stack([v[name] for v in values]))
+            self.step.copy_(steps[0])

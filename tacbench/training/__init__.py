@@ -1,0 +1,94 @@
+"""Train TAC into run directories: :func:`train` (what ``tacbench run`` and the sweep call) and
+:func:`stepper` (for benchmarks and profiles).
+
+:func:`train` takes the configs of K members, plans each run directory (start, resume, skip;
+:func:`tacbench.runs.plan_runs`), and trains the members in lockstep as one group
+(:class:`loop.GroupTrainer`). Each member's checkpoint (:mod:`checkpoint`) holds everything its
+continuation depends on: weights, Adam moments, generators, the env's exact state (MuJoCo), the
+episode in progress, the partial losses window and the replay buffer, the latter written
+incrementally (only what was added since the previous checkpoint).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from pathlib import Path
+
+from tacbench import envs, runs
+from tacbench.config import RunConfig
+from tacbench.errors import TacbenchError
+from tacbench.hardware import configure_process
+from tacbench.interrupts import StopCheck, stop_signals
+from tacbench.runs import Outcome, plan_runs
+from tacbench.training.loop import LOSS_COLUMNS, GroupTrainer
+
+__all__ = ["LOSS_COLUMNS", "resolve_device", "stepper", "train"]
+
+
+def resolve_device(name: str) -> str:
+    """``cpu``, ``cuda`` or ``auto`` (cuda when available) -> a usable device name."""
+    import torch
+
+    if name == "auto":
+        return "cuda" if torch.cuda.is_available() else "cpu"
+    if name == "cuda" and not torch.cuda.is_available():
+        raise TacbenchError("--device cuda: no CUDA device is visible here; use --device cpu.")
+    return name
+
+
+def train(
+    configs: Sequence[RunConfig],
+    out: Path,
+    *,
+    resume: bool = False,
+    force: bool = False,
+    quiet: bool = False,
+    command: str = "",
+    stop: StopCheck | None = None,
+) -> list[Outcome]:
+    """Train the members ``configs`` (equal but for the seed) into their run directories.
+
+    ``stop`` is polled before every step with the step count; when it (or Ctrl-C / SIGTERM)
+    says stop, every member is checkpointed and left "running", to be continued with
+    ``resume=True``. Complete and failed runs are skipped unless ``force``.
+    """
+    shared = [{k: v for k, v in c.to_dict().items() if k != "seed"} for c in configs]
+    if (
+        not configs
+        or len({c.seed for c in configs}) != len(configs)
+        or shared.count(shared[0]) != len(shared)
+    ):
+        raise TacbenchError("members must share every setting but the seed, and differ in seed.")
+    envs.env_info(configs[0].env)  # an unusable task fails before any directory is touched
+    outcomes, active = plan_runs(configs, out, resume=resume, force=force)
+    if active:
+        configure_process(active[0][0].threads)
+        trainer = GroupTrainer([c for c, _ in active], [d for _, d in active], command, quiet)
+        with stop_signals() as received:
+            outcomes += trainer.run(
+                lambda step: bool(received) or (stop is not None and stop(step))
+            )
+    return sorted(outcomes, key=lambda o: o.seed)
+
+
+@contextmanager
+def stepper(configs: Sequence[RunConfig], out: Path) -> Iterator[Callable[[int], int]]:
+    """For benchmarks and profiles: fresh members ``configs`` (run directories under ``out``)
+    and a function that advances them by n steps (fewer at the end or when all have failed)
+    and returns the step reached. No signal handling; everything is closed on exit."""
+    directories = [runs.run_directory(out, c.algo, c.env, c.variant, c.seed) for c in configs]
+    configure_process(configs[0].threads)
+    trainer = GroupTrainer(list(configs), directories, "", quiet=True)
+
+    def advance(n: int) -> int:
+        for _ in range(n):
+            if trainer.step >= trainer.config.total_steps or not trainer.alive:
+                break
+            trainer.advance()
+        return trainer.step
+
+    try:
+        yield advance
+    finally:
+        trainer.close()

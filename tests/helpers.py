@@ -1,0 +1,111 @@
+"""What the tests share: tiny configs of every learner, training them quietly, comparing run
+directories, and running ``tacbench`` in a child process that a signal can interrupt."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from tacbench import trainers
+from tacbench.envs import paper_task
+from tacbench.regress.manifest import without_wall_clock
+from tacbench.runs import Outcome
+
+if TYPE_CHECKING:
+    from tacbench.trainers import AnyConfig
+
+RESULT_CSVS = ("eval.csv", "train.csv", "losses.csv")
+
+# Tiny budgets: 1,500 steps, evaluation (2 episodes) and a checkpoint every 500, losses every
+# 250; TAC and the off-policy baselines learn from step 1,000 with minibatches of 32; PPO and
+# TRPO roll out 512 steps, so the third rollout is cut short by the budget (not trained on).
+TINY_RUN = {
+    "total_steps": 1500,
+    "eval_every": 500,
+    "eval_episodes": 2,
+    "checkpoint_every": 500,
+    "log_every": 250,
+}
+TINY_TAC = {"learning_starts": 1000, "batch_size": 32}
+TINY_HP = {
+    "ddpg": ("learning_starts=1000", "batch_size=32"),
+    "td3": ("learning_starts=1000", "batch_size=32"),
+    "sac-sb3": ("learning_starts=1000", "batch_size=32"),
+    "ppo": ("n_steps=512", "batch_size=64", "n_epochs=2"),
+    "trpo": ("n_steps=512", "batch_size=64", "n_critic_updates=2"),
+}
+# every learner: TAC (both critic targets) and each baseline, as (algo, TAC settings) ids
+LEARNERS = ("tac", "tac-twinq", "ddpg", "td3", "sac-sb3", "ppo", "trpo")
+
+
+def tiny_configs(
+    learner: str,
+    env: str = "Hopper-v4",
+    seeds: Sequence[int] = (0,),
+    *,
+    q: float | None = 1.5,
+    alpha: float | None = 0.2,
+    **settings: Any,
+) -> list[AnyConfig]:
+    """Tiny-budget configs of ``learner`` (one of :data:`LEARNERS`) on ``env``, one per seed;
+    ``settings`` replace the tiny ones; q, alpha and TAC settings apply to TAC only (None: the
+    paper's q or alpha for the task)."""
+    algo = "tac" if learner.startswith("tac") else learner
+    run = {k: v for k, v in {**TINY_RUN, **settings}.items() if k not in TINY_TAC}
+    if algo == "tac":
+        tac = {**TINY_TAC, **settings}
+        if learner == "tac-twinq":
+            tac["critic_target"] = "twin-q"
+        configs, _ = trainers.make_configs(
+            algo, env, paper_task(env), seeds, {**run, **tac}, q=q, alpha=alpha
+        )
+    else:
+        configs, _ = trainers.make_configs(algo, env, paper_task(env), seeds, run, hp=TINY_HP[algo])
+    return configs
+
+
+def train(out: Path, configs: Sequence[AnyConfig], **kwargs: Any) -> list[Outcome]:
+    """Train ``configs`` into ``out`` without a progress display."""
+    return trainers.train(list(configs), out, quiet=True, **kwargs)
+
+
+def results_of(run: Path) -> dict[str, str]:
+    """A run directory's CSVs as text without their wall-clock column."""
+    return {name: without_wall_clock((run / name).read_text()) for name in RESULT_CSVS}
+
+
+def assert_same_results(a: Path, b: Path) -> None:
+    """Two run directories wrote the same CSVs, apart from wall-clock times."""
+    ours, theirs = results_of(a), results_of(b)
+    for name in RESULT_CSVS:
+        assert ours[name] == theirs[name], name
+
+
+def interrupt_cli(args: Sequence[str], when: str, *, timeout: float = 60.0) -> tuple[int, str]:
+    """Run ``tacbench ARGS`` in a child process, send it SIGINT once a line of its output
+    contains ``when``; its exit status and everything it printed."""
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    command = [sys.executable, "-m", "tacbench", *args]
+    proc = subprocess.Popen(
+        command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env
+    )
+    assert proc.stdout is not None
+    seen = []
+    for line in proc.stdout:
+        seen.append(line)
+        if when in line:
+            proc.send_signal(signal.SIGINT)
+            break
+    seen.append(proc.stdout.read())
+    return proc.wait(timeout=timeout), "".join(seen)
+
+
+def run_cli(args: Sequence[str]) -> subprocess.CompletedProcess[str]:
+    """Run ``tacbench ARGS`` in a child process to the end."""
+    command = [sys.executable, "-m", "tacbench", *args]
+    return subprocess.run(command, capture_output=True, text=True, check=False)

@@ -1,0 +1,97 @@
+"""The baselines' own behaviour end to end on tiny budgets: divergence, and the CLI (--algo, --hp
+and its errors). Their run directory, resume and determinism are tested with TAC's, for every
+learner (test_run_directory.py, test_resume.py, test_determinism.py)."""
+
+from __future__ import annotations
+
+import json
+import shlex
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+import pytest
+import torch
+from click.testing import CliRunner
+
+from baselines import callbacks
+from tacbench.cli import cli
+from tests.helpers import tiny_configs, train
+
+pytestmark = pytest.mark.smoke
+
+
+def test_non_finite_loss_marks_the_run_failed_and_keeps_the_checkpoint(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    record = callbacks.LossLogger.record
+    calls = {"critic_loss": 0}
+
+    def poisoned(self: callbacks.LossLogger, key: str, value: Any, exclude: Any = None) -> None:
+        if key == "train/critic_loss":
+            calls["critic_loss"] += 1
+            value = float("inf") if calls["critic_loss"] >= 200 else value  # update 200: step 1200
+        record(self, key, value, exclude)
+
+    monkeypatch.setattr(callbacks.LossLogger, "record", poisoned)
+    configs = tiny_configs("sac-sb3")
+    (outcome,) = train(tmp_path, configs)
+    status = json.loads((outcome.directory / "status.json").read_text())
+    assert (outcome.state, status["state"], status["step"]) == ("failed", "failed", 1200)
+    assert status["reason"].startswith("non-finite critic_loss at step 1200")
+    assert "last checkpoint is kept" in status["reason"]
+    assert torch.load(outcome.directory / "checkpoint" / "state.pt")["step"] == 1000
+    (again,) = train(tmp_path, configs, resume=True)
+    assert again.state == "skipped" and "failed at step 1200" in again.message
+
+
+CLI_TINY = ["--env", "Hopper-v4", "--steps", "300", "--eval-every", "100", "--eval-episodes", "1"]
+CLI_TINY += ["--quiet"]
+
+
+def test_cli_trains_two_seeds_then_skips_refuses_and_forces(tmp_path: Path) -> None:
+    args = ["--algo", "sac-sb3", *CLI_TINY, "--learning-starts", "200", "--alpha", "0.1"]
+    args += ["--hp", "batch_size=16", "--seed", "0", "--seed", "1", "--out", str(tmp_path)]
+    runner = CliRunner()
+    first = runner.invoke(cli, ["run", *args])
+    assert first.exit_code == 0, first.output
+    assert "overridden: {'ent_coef': 0.1, 'learning_starts': 200, 'batch_size': 16}" in first.output
+    assert "seed 0: complete" in first.output and "seed 1: complete" in first.output
+    (run,) = (tmp_path / "runs" / "sac-sb3" / "Hopper-v4").glob("*/seed1")
+    assert run.parent.name.startswith("batch_size16-ent_coef0.1-learning_starts200-")
+    metadata = json.loads((run / "config.json").read_text())
+    assert sorted(shlex.split(metadata["command"])) == sorted(["tacbench", "run", *args])
+    assert metadata["alpha"] == 0.1 and metadata["config"]["hyperparams"]["ent_coef"] == 0.1
+    assert pd.read_csv(run / "eval.csv")["step"].tolist() == [100, 200, 300]
+
+    again = runner.invoke(cli, ["run", *args])
+    assert again.exit_code == 0 and "already complete (300 steps)" in again.output
+    changed = runner.invoke(cli, ["run", *args, "--eval-every", "150"])
+    assert changed.exit_code == 2 and "eval_every: 100 -> 150" in changed.output
+    forced = runner.invoke(cli, ["run", *args, "--eval-every", "150", "--force"])
+    assert forced.exit_code == 0, forced.output
+    assert pd.read_csv(run / "eval.csv")["step"].tolist() == [150, 300]
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--algo", "td3", "--hp", "lr=3e-4"], "unknown hyperparameter 'lr' for td3."),
+        (["--algo", "td3", "--hp", "lr=3e-4"], "Valid keys: activation_fn, batch_size, buffer"),
+        (["--algo", "ppo", "--hp", "n_steps=abc"], "n_steps for ppo must be an integer >= 2"),
+        (["--algo", "ppo", "--hp", "n_steps"], "write key=value"),
+        (["--algo", "ppo", "--q", "1.5"], "--q is a TAC option that ppo does not use"),
+        (["--algo", "trpo", "--learning-starts", "5"], "--learning-starts is a TAC option"),
+        (["--algo", "td3", "--alpha", "0.1"], "--alpha is a TAC option that td3 does not use"),
+        (["--hp", "gamma=0.9"], "--hp sets a baseline's hyperparameters"),
+        (["--algo", "sac"], "'sac' is not one of 'tac', 'ddpg', 'td3', 'sac-sb3'"),
+    ],
+)
+def test_cli_refuses_bad_hyperparameters_clearly(
+    tmp_path: Path, args: list[str], message: str
+) -> None:
+    result = CliRunner().invoke(cli, ["run", "--env", "Hopper-v4", *args, "--out", str(tmp_path)])
+    assert result.exit_code == 2, result.output
+    assert message in result.output
+    assert "Traceback" not in result.output
+    assert not (tmp_path / "runs").exists()

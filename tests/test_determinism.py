@@ -1,0 +1,52 @@
+"""Reproducibility from the seed, for every learner: the same config trained twice writes the
+same CSVs (apart from wall-clock times), another seed does not; a TAC member starts exactly as
+it would alone, whatever shares its process."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from tests.helpers import LEARNERS, assert_same_results, results_of, tiny_configs, train
+
+pytestmark = pytest.mark.smoke
+
+
+@pytest.mark.parametrize("learner", LEARNERS)
+def test_same_seed_same_results_another_seed_other_results(tmp_path: Path, learner: str) -> None:
+    (first,) = train(tmp_path / "first", tiny_configs(learner))
+    (second,) = train(tmp_path / "second", tiny_configs(learner))
+    (other,) = train(tmp_path / "other", tiny_configs(learner, seeds=[1]))
+    assert first.state == second.state == other.state == "complete"
+    assert_same_results(first.directory, second.directory)
+    assert results_of(other.directory)["eval.csv"] != results_of(first.directory)["eval.csv"]
+
+
+def test_members_start_exactly_as_they_would_alone(tmp_path: Path) -> None:
+    warm_up = {"total_steps": 600, "learning_starts": 10_000, "eval_every": 600}
+    grouped = train(tmp_path / "group", tiny_configs("tac", seeds=[0, 10], **warm_up))
+    (alone,) = train(tmp_path / "alone", tiny_configs("tac", seeds=[10], **warm_up))
+    member = grouped[1].directory
+    assert [o.state for o in grouped] == ["complete", "complete"]
+    for name in ("eval.csv", "train.csv"):
+        assert results_of(member)[name] == results_of(alone.directory)[name]
+    a = torch.load(member / "checkpoint" / "state.pt", weights_only=True)
+    b = torch.load(alone.directory / "checkpoint" / "state.pt", weights_only=True)
+    for name, value in b["agent"]["params"].items():
+        assert torch.equal(a["agent"]["params"][name], value), name
+    chunks = sorted(p.name for p in (alone.directory / "checkpoint" / "replay").iterdir())
+    assert chunks == ["000000000000-000000000500.npz", "000000000500-000000000600.npz"]
+    for chunk in chunks:
+        with (
+            np.load(member / "checkpoint" / "replay" / chunk) as x,
+            np.load(alone.directory / "checkpoint" / "replay" / chunk) as y,
+        ):
+            for key in y.files:
+                np.testing.assert_array_equal(x[key], y[key], err_msg=key)
+    other = torch.load(grouped[0].directory / "checkpoint" / "state.pt", weights_only=True)
+    assert not torch.equal(
+        other["agent"]["params"]["q1.weights.0"], b["agent"]["params"]["q1.weights.0"]
+    )

@@ -1,0 +1,124 @@
+"""Resume, for every learner: stopped any number of times (before the start, in warm-up, while
+learning, mid-episode) and resumed, or crashed and resumed from its last checkpoint, a run
+writes exactly the CSVs of an uninterrupted one; Ctrl-C on the command line checkpoints and
+exits 130, and ``--resume`` completes it."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+
+import pandas as pd
+import pytest
+import torch
+
+from baselines import OFF_POLICY
+from tests.helpers import LEARNERS, assert_same_results, interrupt_cli, run_cli, tiny_configs, train
+
+pytestmark = pytest.mark.smoke
+
+# where a stop asked for at 0, 730 and 1234 takes effect: at once for TAC and the off-policy
+# baselines, at the end of the 512-step rollout in progress for PPO and TRPO
+ON_POLICY_STOPS = {0: 0, 730: 1024, 1234: 1536}
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(tmp_path_factory: pytest.TempPathFactory) -> Callable[[str], Path]:
+    """The run directory of one uninterrupted tiny Hopper run per learner, trained once."""
+    cache: dict[str, Path] = {}
+
+    def get(learner: str) -> Path:
+        if learner not in cache:
+            (outcome,) = train(tmp_path_factory.mktemp(learner), tiny_configs(learner))
+            assert outcome.state == "complete", outcome.message
+            cache[learner] = outcome.directory
+        return cache[learner]
+
+    return get
+
+
+@pytest.mark.parametrize("learner", LEARNERS)
+def test_stop_and_resume_equals_an_uninterrupted_run(
+    tmp_path: Path, uninterrupted: Callable[[str], Path], learner: str
+) -> None:
+    configs = tiny_configs(learner)
+    on_policy = configs[0].algo in ("ppo", "trpo")
+    for stop_at in (0, 730, 1234):
+        (outcome,) = train(tmp_path, configs, resume=True, stop=lambda s, at=stop_at: s >= at)
+        expected = ON_POLICY_STOPS[stop_at] if on_policy else stop_at
+        if expected >= 1500:  # the stop came in the last rollout: the run simply completes
+            assert outcome.state == "complete"
+            break
+        assert (outcome.state, outcome.step) == ("interrupted", expected)
+        assert "resume with" in outcome.message
+        status = json.loads((outcome.directory / "status.json").read_text())
+        assert (status["state"], status["step"]) == ("running", expected)
+    else:
+        (outcome,) = train(tmp_path, configs, resume=True)
+    assert outcome.state == "complete"
+    assert_same_results(uninterrupted(learner), outcome.directory)
+
+
+@pytest.mark.parametrize("learner", ["tac", "ddpg"])
+def test_resume_after_a_crash_drops_rows_past_the_last_checkpoint(
+    tmp_path: Path, uninterrupted: Callable[[str], Path], learner: str
+) -> None:
+    def crash(step: int) -> bool:
+        if step >= 1300:
+            raise RuntimeError("simulated crash")
+        return False
+
+    configs = tiny_configs(learner)
+    with pytest.raises(RuntimeError, match="simulated crash"):
+        train(tmp_path, configs, stop=crash)
+    c = configs[0]
+    run = tmp_path / "runs" / c.algo / "Hopper-v4" / c.variant / "seed0"
+    assert json.loads((run / "status.json").read_text())["step"] == 1000  # last checkpoint
+    assert pd.read_csv(run / "losses.csv")["step"].max() == 1250  # a row past it
+    (outcome,) = train(tmp_path, configs, resume=True)
+    assert outcome.state == "complete"
+    assert_same_results(uninterrupted(learner), run)
+    if c.algo in OFF_POLICY:
+        assert not (run / "checkpoint" / "replay" / "000000001000-000000001300.npz").exists()
+
+
+def test_resume_on_an_env_without_exact_state_starts_a_fresh_episode(tmp_path: Path) -> None:
+    configs = tiny_configs("tac", "Pendulum-v1", q=1.0, eval_every=0)
+    (first,) = train(tmp_path, configs, stop=lambda s: s >= 1100)
+    assert (first.state, first.step) == ("interrupted", 1100)
+    (outcome,) = train(tmp_path, configs, resume=True)
+    assert outcome.state == "complete"
+    episodes = pd.read_csv(outcome.directory / "train.csv")
+    # 200-step episodes; the one in progress at 1100 is dropped and a new one starts there
+    assert episodes["step"].tolist() == [200, 400, 600, 800, 1000, 1300, 1500]
+    assert (episodes["length"] == 200).all()
+
+
+@pytest.mark.parametrize(
+    ("args", "when", "rollout"),
+    [
+        (["--env", "Hopper-v4", "--steps", "2000", "--learning-starts", "1000"], "step 1000/", 1),
+        (["--algo", "ppo", "--env", "Hopper-v4", "--steps", "2000"], "step 500/", 512),
+    ],
+    ids=["tac", "ppo"],
+)
+def test_ctrl_c_checkpoints_and_resume_completes(
+    tmp_path: Path, args: list[str], when: str, rollout: int
+) -> None:
+    if rollout > 1:
+        args = [*args, "--hp", "n_steps=512", "--hp", "n_epochs=1"]
+    args = ["run", *args, "--eval-every", "500", "--eval-episodes", "1", "--out", str(tmp_path)]
+    code, output = interrupt_cli(args, when)
+    assert code == 130, output
+    assert "interrupted at step" in output and "--resume" in output
+    (run,) = (tmp_path / "runs").glob("*/Hopper-v4/*/seed0")
+    status = json.loads((run / "status.json").read_text())
+    assert status["state"] == "running" and status["step"] < 2000
+    assert status["step"] % rollout == 0  # PPO stops at the end of its rollout
+    assert torch.load(run / "checkpoint" / "state.pt")["step"] == status["step"]
+    resumed = run_cli([*args, "--resume"])
+    assert resumed.returncode == 0, resumed.stdout + resumed.stderr
+    assert pd.read_csv(run / "eval.csv")["step"].tolist() == [500, 1000, 1500, 2000]
+    train_steps = pd.read_csv(run / "train.csv")["step"]
+    assert train_steps.is_monotonic_increasing and not train_steps.duplicated().any()

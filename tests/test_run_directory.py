@@ -1,0 +1,110 @@
+"""The run directory contract (docs/results-schema.md) for every learner: TAC (both critic
+targets) and each baseline, on a locomotion (Hopper) and a manipulation task (Pusher), each
+trained once on a tiny budget: the path, config.json, status.json, the three CSVs' columns and
+rows, and the checkpoint's layout."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from importlib.metadata import version
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+
+from baselines import OFF_POLICY, algos, hyperparams
+from tacbench.envs import paper_task
+from tacbench.runs import EVAL_COLUMNS, TRAIN_COLUMNS
+from tacbench.training import LOSS_COLUMNS
+from tests.helpers import LEARNERS, tiny_configs, train
+
+pytestmark = pytest.mark.smoke
+
+METADATA_KEYS = {"algo", "env", "variant", "seed", "q", "alpha", "total_steps", "command"}
+METADATA_KEYS |= {"versions", "git_commit", "host", "created", "config"}
+TASKS = ("Hopper-v4", "Pusher-v5")
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory: pytest.TempPathFactory) -> Callable[[str, str], Path]:
+    """The run directory of one uninterrupted tiny run per (learner, env), trained once."""
+    cache: dict[tuple[str, str], Path] = {}
+
+    def get(learner: str, env: str) -> Path:
+        if (learner, env) not in cache:
+            out = tmp_path_factory.mktemp(f"{learner}-{env}")
+            (outcome,) = train(out, tiny_configs(learner, env))
+            assert outcome.state == "complete", outcome.message
+            cache[learner, env] = outcome.directory
+        return cache[learner, env]
+
+    return get
+
+
+@pytest.mark.parametrize("env", TASKS)
+@pytest.mark.parametrize("learner", LEARNERS)
+def test_every_learner_writes_the_documented_run_directory(
+    trained: Callable[[str, str], Path], learner: str, env: str
+) -> None:
+    run = trained(learner, env)
+    (config,) = tiny_configs(learner, env)
+    assert run.parts[-5:] == ("runs", config.algo, env, config.variant, "seed0")
+    metadata = json.loads((run / "config.json").read_text())
+    assert set(metadata) >= METADATA_KEYS
+    assert (metadata["algo"], metadata["env"], metadata["seed"]) == (config.algo, env, 0)
+    assert metadata["config"] == config.to_dict()
+    assert metadata["versions"]["stable_baselines3"] == version("stable-baselines3")
+    status = json.loads((run / "status.json").read_text())
+    assert (status["state"], status["step"]) == ("complete", 1500)
+    assert set(status) == {"state", "step", "reason", "updated"}
+
+    evals = pd.read_csv(run / "eval.csv")
+    assert tuple(evals.columns) == EVAL_COLUMNS
+    assert evals["step"].tolist() == [500, 1000, 1500]
+    assert np.isfinite(evals["return_mean"]).all() and (evals["length_mean"] >= 1).all()
+    if env == "Pusher-v5":
+        assert (evals["length_mean"] == 100).all()  # Pusher never terminates early
+    episodes = pd.read_csv(run / "train.csv")
+    assert tuple(episodes.columns) == TRAIN_COLUMNS
+    assert episodes["step"].is_monotonic_increasing and episodes["step"].iloc[-1] <= 1500
+    assert episodes["length"].sum() == episodes["step"].iloc[-1]  # every step of every episode
+
+    losses = pd.read_csv(run / "losses.csv")
+    checkpoint = run / "checkpoint"
+    state = torch.load(checkpoint / "state.pt", weights_only=True)
+    assert state["step"] == 1500
+    replay = sorted(p.name for p in (checkpoint / "replay").glob("*.npz"))
+    chunks = ["000000000000-000000000500.npz", "000000000500-000000001000.npz"]
+    chunks.append("000000001000-000000001500.npz")
+    if config.algo == "tac":
+        assert (metadata["q"], metadata["alpha"], metadata["members"]) == (1.5, 0.2, [0])
+        assert list(losses.columns) == ["step", *LOSS_COLUMNS]
+        assert losses["step"].tolist() == [1000, 1250, 1500]  # first update after step 1000
+        assert losses["updates"].tolist() == [1, 250, 250]
+        assert np.isfinite(losses.drop(columns="step")).all().all()
+        assert replay == chunks
+        return
+    assert metadata["q"] is None
+    assert metadata["alpha"] == (0.2 if config.algo == "sac-sb3" else None)
+    table, _ = hyperparams.resolve(config.algo, env, paper_task(env))
+    assert metadata["hp_overrides"] == {
+        k: v for k, v in config.hyperparams.items() if table[k] != v
+    }
+    assert list(losses.columns) == ["step", *algos.loss_columns(config)]
+    assert sorted(p.name for p in checkpoint.glob("*.zip")) == ["model-000000001500.zip"]
+    if config.algo in OFF_POLICY:  # SB3 updates from step 1001: 250 updates per 250-step window
+        assert losses["step"].tolist() == [1250, 1500]
+        assert losses["n_updates"].tolist() == [250, 500]
+        assert np.isfinite(losses["critic_loss"]).all() and np.isfinite(losses["actor_loss"]).all()
+        assert replay == chunks
+        with np.load(checkpoint / "replay" / replay[0]) as chunk:
+            assert chunk["observations"].dtype == np.float32
+            assert len(chunk["rewards"]) == 500
+    else:  # one row per trained rollout; the rollout cut at 1500 is not trained on
+        assert losses["step"].tolist() == [512, 1024]
+        assert np.isfinite(losses["value_loss"]).all()
+        assert replay == []
+        assert (state["normalize"] is not None) == config.hyperparams["normalize"]

@@ -1,0 +1,308 @@
+"""The update paths against each other: the fused update (tacbench.tac.fused, gradients by hand)
+against the eager reference (losses.tac_losses and autograd), and each compiled against itself
+uncompiled: the same losses, diagnostics and gradients on the same batch, for members with
+different q and alpha in one group, the same Adam step and target average, interchangeable
+checkpoints, and a clean torch.compile fallback."""
+
+from __future__ import annotations
+
+import math
+import warnings
+from typing import Any
+
+import numpy as np
+import pytest
+import torch
+from torch.optim.adam import adam
+
+from tacbench.config import RunConfig
+from tacbench.tac import update as update_module
+from tacbench.tac.agent import TacAgent
+from tacbench.tac.maths import (
+    LOG_DENSITY_FLOOR,
+    METRICS,
+    Batch,
+    Coefficients,
+    coefficients,
+    squashed_gaussian,
+)
+from tacbench.tac.networks import mlp, policy_head
+from tacbench.tac.parameters import TacParameters
+
+pytestmark = pytest.mark.unit
+
+OBS, ACT = 5, 3
+SEEDS = [3, 4, 5]
+CPU = torch.device("cpu")
+
+
+def _agent(impl: str, hidden: tuple[int, ...] = (16,), **overrides: Any) -> TacAgent:
+    config = RunConfig(
+        env="Hopper-v4", q=1.5, alpha=0.2, hidden_sizes=hidden, impl=impl, **overrides
+    )
+    agent = TacAgent(OBS, ACT, config, SEEDS, CPU)
+    with torch.no_grad():  # a wide spread of log_std, so the ln_q floor and cap both matter
+        agent.params.networks.policy.weights[-1].mul_(4.0)
+        agent.params.target_networks.biases[-1].add_(0.3)  # the target differs from its source
+    return agent
+
+
+def _c(q: float | list[float], alpha: float | list[float] = 0.2) -> Coefficients:
+    qs = q if isinstance(q, list) else [q] * len(SEEDS)
+    alphas = alpha if isinstance(alpha, list) else [alpha] * len(SEEDS)
+    return coefficients(qs, alphas, CPU)
+
+
+def _batch(seed: int = 0, b: int = 64) -> tuple[Batch, torch.Tensor]:
+    g = torch.Generator().manual_seed(seed)
+    k = len(SEEDS)
+    batch = Batch(
+        obs=torch.randn(k, b, OBS, generator=g) * 2,
+        action=torch.rand(k, b, ACT, generator=g) * 2 - 1,
+        reward=torch.randn(k, b, generator=g),
+        next_obs=torch.randn(k, b, OBS, generator=g) * 2,
+        terminated=(torch.rand(k, b, generator=g) < 0.2).float(),
+    )
+    return batch, torch.randn(k, b, ACT, generator=g) * 3.0
+
+
+def _close(ours: torch.Tensor, reference: torch.Tensor, rtol: float, name: str) -> None:
+    """Equal up to ``rtol`` of the reference's largest magnitude (float32 rounding)."""
+    scale = reference.abs().max().item()
+    error = (ours - reference).abs().max().item()
+    assert error <= rtol * max(scale, 1e-12), (name, error, scale)
+
+
+def _compare(
+    ours: TacAgent,
+    reference: TacAgent,
+    c: Coefficients,
+    rtol: float,
+    eps_next: torch.Tensor | None = None,
+) -> None:
+    """Both agents' metrics and gradients on one batch agree to ``rtol``; the retired member
+    (index 1, when marked) gets no gradient."""
+    batch, eps = _batch()
+    expected, expected_grads = reference.gradients(batch, eps, c, eps_next)
+    metrics, grads = ours.gradients(batch, eps, c, eps_next)
+    assert metrics.shape == (len(SEEDS), len(METRICS))
+    for i, name in enumerate(METRICS):
+        _close(metrics[:, i], expected[:, i], rtol, name)
+    assert sorted(grads) == sorted(expected_grads)
+    for name, grad in expected_grads.items():
+        _close(grads[name], grad, rtol, name)
+        if not bool(ours.alive[1]):
+            assert not grads[name][1].any(), name
+
+
+@pytest.mark.parametrize("lnq", ["per-dim", "joint"])
+@pytest.mark.parametrize("q", [0.5, 1.0, 1.5, 2.0, 3.0])
+@pytest.mark.parametrize("hidden", [(16,), (8, 8)])
+def test_fused_losses_and_gradients_equal_the_eager_ones(
+    lnq: str, q: float, hidden: tuple[int, ...]
+) -> None:
+    eager, fused = _agent("eager", hidden, lnq=lnq), _agent("fused", hidden, lnq=lnq)
+    for agent in (eager, fused):
+        agent.alive[1] = False  # a retired member: zero gradients, its metrics still reported
+    _compare(fused, eager, _c(q), 2e-6)
+
+
+@pytest.mark.parametrize("lnq", ["per-dim", "joint"])
+@pytest.mark.parametrize("impl", ["eager", "fused"])
+def test_a_group_of_mixed_q_and_alpha_equals_single_q_groups(lnq: str, impl: str) -> None:
+    """Members at q = 1, 1.7 and 3 (the q >= 2 cap) with three alphas: each member's losses
+    and gradients are those of a group where every member has its q and alpha."""
+    qs, alphas = [1.0, 1.7, 3.0], [0.2, 0.1, 0.05]
+    agent = _agent(impl, lnq=lnq)
+    batch, eps = _batch()
+    mixed, mixed_grads = agent.gradients(batch, eps, _c(qs, alphas))
+    for k, (q, alpha) in enumerate(zip(qs, alphas, strict=True)):
+        single, single_grads = agent.gradients(batch, eps, _c(q, alpha))
+        assert torch.equal(mixed[k], single[k]), (q, alpha)
+        for name, grad in single_grads.items():
+            assert torch.equal(mixed_grads[name][k], grad[k]), (name, q)
+
+
+@pytest.mark.parametrize(("q", "lnq"), [(1.0, "per-dim"), (1.5, "per-dim"), (3.0, "joint")])
+def test_twin_q_fused_losses_and_gradients_equal_the_eager_ones(q: float, lnq: str) -> None:
+    eager = _agent("eager", lnq=lnq, critic_target="twin-q")
+    fused = _agent("fused", lnq=lnq, critic_target="twin-q")
+    for agent in (eager, fused):
+        agent.alive[1] = False
+    eps_next = torch.randn(len(SEEDS), 64, ACT, generator=torch.Generator().manual_seed(9))
+    _compare(fused, eager, _c(q), 2e-6, eps_next)
+    batch, eps = _batch()
+    metrics, grads = fused.gradients(batch, eps, _c(q), eps_next)
+    assert not metrics[:, METRICS.index("loss_v")].any()
+    assert not any(g.any() for name, g in grads.items() if name.startswith("v."))  # no V
+
+
+def test_the_comparison_covers_the_floor_and_the_cap() -> None:
+    """The batch above puts per-dimension log-densities below the 1e-6 floor and above the
+    q = 3 cap (log 10^4), so the clamps' gradient masks are compared, not just their insides."""
+    agent = _agent("eager")
+    batch, eps = _batch()
+    with torch.no_grad():
+        mu, log_std = policy_head(mlp(agent.params.networks.policy, batch.obs), ACT, -20.0, 2.0)
+        log_prob_dims = squashed_gaussian(mu, log_std, log_std.exp(), eps).log_prob_dims
+    assert (log_prob_dims < LOG_DENSITY_FLOOR).float().mean() > 0.005
+    assert (log_prob_dims > 4 * math.log(10)).float().mean() > 0.01
+    assert (log_prob_dims.sum(-1) > 4 * math.log(10)).float().mean() > 0.01
+
+
+def _parameters() -> TacParameters:
+    gens = [torch.Generator().manual_seed(s) for s in (0, 1)]
+    return TacParameters(OBS, ACT, (4,), gens, twin_q_targets=False, device=CPU)
+
+
+def test_flat_adam_step_equals_torch_adam() -> None:
+    flat, g = _parameters(), torch.Generator().manual_seed(0)
+    param = torch.nn.Parameter(flat.data.clone())
+    optimizer = torch.optim.Adam([param], lr=1e-3)
+    for _ in range(3):
+        grad = torch.randn(flat.data.shape, generator=g)
+        param.grad = grad
+        flat.grad.copy_(grad)
+        optimizer.step()
+        flat.adam_step(1e-3)
+    torch.testing.assert_close(flat.data, param.detach(), rtol=1e-6, atol=1e-7)
+    torch.testing.assert_close(flat.step, torch.tensor(3.0))
+
+
+def test_flat_adam_step_is_bit_identical_to_torch_fused_adam() -> None:
+    flat, g = _parameters(), torch.Generator().manual_seed(1)
+    n = flat.data.numel()
+    data, m, v, step = flat.data.clone(), torch.zeros(n), torch.zeros(n), torch.zeros(())
+    for _ in range(3):
+        flat.grad.copy_(torch.randn(n, generator=g))
+        adam([data], [flat.grad.clone()], [m], [v], [], [step], fused=True, foreach=False,
+             capturable=False, differentiable=False, grad_scale=None, found_inf=None,
+             has_complex=False, amsgrad=False, beta1=0.9, beta2=0.999, lr=1e-3,
+             weight_decay=0.0, eps=1e-8, maximize=False)  # fmt: skip
+        flat.adam_step(1e-3)
+    assert torch.equal(flat.data, data) and torch.equal(flat.exp_avg_sq, v)
+    assert torch.equal(flat.step, step)
+
+
+def _weights(agent: TacAgent) -> dict[str, torch.Tensor]:
+    return {name: t.clone() for name, t in agent.member_state(0)["params"].items()}
+
+
+def _arrays(b: int) -> dict[str, np.ndarray]:
+    batch, _ = _batch(b=b)
+    return {name: value.numpy() for name, value in batch._asdict().items()}
+
+
+def test_one_update_moves_the_weights_and_target_v_like_the_eager_update() -> None:
+    eager, fused = _agent("eager"), _agent("fused")
+    arrays = _arrays(32)
+    before = _weights(eager)
+    torch.testing.assert_close(
+        eager.update(arrays, _c(1.5)), fused.update(arrays, _c(1.5)), rtol=2e-6, atol=1e-6
+    )
+    after_eager, after_fused = _weights(eager), _weights(fused)
+    for name, value in after_eager.items():
+        moved = (value - before[name]).abs().max().item()
+        error = (after_fused[name] - value).abs().max().item()
+        # Adam's first step moves each weight by about lr = 1e-3 whatever its gradient's size,
+        # so gradients that agree to rounding move the weights alike but for tiny ones
+        assert error <= max(1e-2 * moved, 1e-7), (name, error, moved)
+    assert not torch.equal(after_fused["v_target.weights.0"], before["v_target.weights.0"])
+
+
+@pytest.mark.parametrize(("source", "target"), [("fused", "eager"), ("eager", "fused")])
+def test_checkpoints_load_across_the_two_paths(source: str, target: str) -> None:
+    trained = _agent(source)
+    arrays = _arrays(16)
+    for _ in range(2):
+        trained.update(arrays, _c(1.5))
+    restored = _agent(target)
+    restored.load_member_states([trained.member_state(k) for k in range(len(SEEDS))])
+    for k in range(len(SEEDS)):
+        saved, loaded = trained.member_state(k), restored.member_state(k)
+        for part in ("params", "exp_avg", "exp_avg_sq"):
+            ours = loaded["params"] if part == "params" else loaded["adam"][part]
+            theirs = saved["params"] if part == "params" else saved["adam"][part]
+            assert ours.keys() == theirs.keys()
+            for name, value in theirs.items():
+                assert torch.equal(ours[name], value), (part, name)
+        assert torch.equal(loaded["adam"]["step"], saved["adam"]["step"])
+    twin = _agent(source)  # the same continuation on the source's own path, for comparison
+    twin.load_member_states([trained.member_state(k) for k in range(len(SEEDS))])
+    torch.testing.assert_close(
+        restored.update(arrays, _c(1.5)), twin.update(arrays, _c(1.5)), rtol=2e-6, atol=1e-6
+    )
+
+
+def test_act_is_the_policy_networks_computation_exactly() -> None:
+    agent = _agent("fused")
+    obs = np.random.default_rng(0).normal(size=(len(SEEDS), 7, OBS))
+    policy = agent.params.networks.policy
+
+    def head(x: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
+        return policy_head(mlp(policy, torch.as_tensor(x, dtype=torch.float32)), ACT, -20.0, 2.0)
+
+    mu, _ = head(obs)
+    np.testing.assert_array_equal(agent.act_deterministic(obs), torch.tanh(mu).numpy())
+    state = [g.get_state() for g in agent.generators]
+    action = agent.act(obs[:, 0])
+    for g, s in zip(agent.generators, state, strict=True):
+        g.set_state(s)
+    mu, log_std = head(obs[:, :1])
+    noise = torch.stack([torch.randn(1, ACT, generator=g) for g in agent.generators])
+    np.testing.assert_array_equal(action, torch.tanh(mu + noise * log_std.exp())[:, 0].numpy())
+
+
+def test_compile_falls_back_to_the_uncompiled_update_where_it_fails(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    def broken_compile(fn: Any, **_: Any) -> Any:
+        def fail(*args: Any) -> Any:
+            raise RuntimeError("no C++ compiler")
+
+        return fail
+
+    monkeypatch.setattr(update_module.torch, "compile", broken_compile)
+    compiled, plain = _agent("fused", compile=True), _agent("fused")
+    batch, eps = _batch()
+    with pytest.warns(RuntimeWarning, match=r"no C\+\+ compiler"):
+        metrics, grads = compiled.gradients(batch, eps, _c(1.5))
+    reference, reference_grads = plain.gradients(batch, eps, _c(1.5))
+    assert torch.equal(metrics, reference)
+    for name, grad in reference_grads.items():
+        assert torch.equal(grads[name], grad), name
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # warned once, then the fallback is silent
+        compiled.gradients(batch, eps, _c(1.5))
+
+
+@pytest.mark.compile
+@pytest.mark.parametrize("impl", ["fused", "eager"])
+def test_compiled_update_equals_the_uncompiled_one(impl: str) -> None:
+    """torch.compile of each path (seconds to half a minute of compilation, cached on disk
+    afterwards): a group of members at q = 1, 1.5 and 3 (q = 1 and the q >= 2 cap in one graph)
+    within float32 rounding of the uncompiled update, then other q values without a fallback
+    or a recompilation."""
+    compiled, plain = _agent(impl, compile=True), _agent(impl)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        _compare(compiled, plain, _c([1.0, 1.5, 3.0], [0.2, 0.1, 0.05]), 1e-5)
+        frames = torch._dynamo.utils.counters["stats"]["unique_graphs"]
+        assert frames >= 1
+        for q in ([1.2, 2.0, 5.0], [0.5, 1.0001, 1.9]):
+            _compare(compiled, plain, _c(q), 1e-5)
+        assert torch._dynamo.utils.counters["stats"]["unique_graphs"] == frames  # no recompile
+    assert not [w for w in caught if "torch.compile of TAC's update" in str(w.message)]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("impl", ["fused", "eager"])
+def test_compiled_twin_q_update_equals_the_uncompiled_one_across_q(impl: str) -> None:
+    """torch.compile with twin-q (tens of seconds of compilation): the same numbers, to the
+    rounding of Inductor's reordered reductions, for a sequence of q values that crosses q = 1
+    and the cap at q = 2, as a linear q schedule does."""
+    compiled = _agent(impl, compile=True, critic_target="twin-q")
+    plain = _agent(impl, critic_target="twin-q")
+    eps_next = torch.randn(len(SEEDS), 64, ACT, generator=torch.Generator().manual_seed(9))
+    for q in (1.0, 1.0001, 1.5, 2.0, 2.1, 3.0, 5.0, 1.2):
+        _compare(compiled, plain, _c(q), 1e-5, eps_next)
