@@ -44,7 +44,7 @@ class Contestant:
 
     name: str
     members: int
-    impl: str = ""  # TAC's impl; "" for SB3
+    tac: bool = False  # TAC, or SB3's SAC
     compile: bool = False
 
 
@@ -99,15 +99,14 @@ class BenchOptions:
 
 
 def contestants(options: BenchOptions) -> list[Contestant]:
-    """SB3's SAC, then TAC eager and fused at K = 1 and K = ``members``, each also compiled
-    with ``compile``."""
+    """SB3's SAC, then TAC at K = 1 and K = ``members``: uncompiled (unless not ``eager``) and,
+    with ``compile``, compiled."""
     rows = [Contestant("SB3 SAC", 1)] if options.sb3 else []
-    impls = ("eager", "fused") if options.eager else ("fused",)
     for k in dict.fromkeys((1, options.members)):
-        for impl in impls:
-            rows.append(Contestant(f"TAC {impl}", k, impl))
-            if options.compile:
-                rows.append(Contestant(f"TAC {impl}+compile", k, impl, compile=True))
+        if options.eager:
+            rows.append(Contestant("TAC", k, tac=True))
+        if options.compile:
+            rows.append(Contestant("TAC compiled", k, tac=True, compile=True))
     return rows
 
 
@@ -119,7 +118,6 @@ def _tac_configs(options: BenchOptions, contestant: Contestant) -> list[RunConfi
         learning_starts=options.learning_starts,
         eval_every=0,
         checkpoint_every=0,
-        impl=contestant.impl,
         compile=contestant.compile,
         device=options.device,
         threads=options.threads,
@@ -168,7 +166,7 @@ def _sb3_sac(options: BenchOptions) -> Iterator[Advance]:
 
 @contextlib.contextmanager
 def _learner(options: BenchOptions, contestant: Contestant, out: Path) -> Iterator[Advance]:
-    if not contestant.impl:
+    if not contestant.tac:
         with _sb3_sac(options) as advance:
             yield advance
         return
@@ -216,7 +214,7 @@ def machine() -> dict[str, Any]:
 
 def table(results: list[BenchResult]) -> str:
     """The side-by-side table: steps/s, member-steps/s and the ratio to SB3's SAC."""
-    sb3 = next((r for r in results if not r.contestant.impl), None)
+    sb3 = next((r for r in results if not r.contestant.tac), None)
     lines = [
         "| learner | members | steps/s | member-steps/s | vs SB3 SAC | rounds (steps/s) |",
         "|---|---|---|---|---|---|",

@@ -14,14 +14,14 @@ sparsemax); otherwise it is found by vectorised bisection: on psi inside the exa
 ``[max z, max z - ln_q(1/n)]`` for q < 2, and for q > 2 (where exp_q is infinitely steep at the
 edge of its support) on the smallest supported probability once the support is known.
 
-The torch function :func:`log_q_of_log` is what TAC needs: ``ln_q`` of a density given its log.
+TAC's torch version, ``ln_q`` of a density given its log with q per member, is
+:func:`tacbench.tac.maths.log_q_of_log`.
 """
 
 from __future__ import annotations
 
 import numpy as np
 import numpy.typing as npt
-import torch
 from scipy.special import logsumexp
 
 from tacbench.errors import TacbenchError
@@ -263,15 +263,3 @@ def q_max(f: ArrayLike, q: float, alpha: float = 1.0) -> Array:
     with np.errstate(invalid="ignore"):
         gap = np.sum(np.where(pi > 0, (values - f_max) * pi, 0.0), axis=-1, keepdims=True)
     return (f_max + gap + alpha * _entropy(pi, q))[..., 0]
-
-
-def log_q_of_log(log_p: torch.Tensor, q: float) -> torch.Tensor:
-    """``ln_q(p)`` given ``log p``, differentiably: ``expm1((q-1) log p) / (q-1)``, log p at q = 1.
-
-    This is how TAC evaluates ``ln_q pi(a|s)`` from the policy's log-probability without ever
-    forming the density (which over- or underflows for peaked or many-dimensional policies).
-    """
-    q = check_q(q)
-    if q == 1.0:
-        return log_p
-    return torch.expm1((q - 1.0) * log_p) / (q - 1.0)

@@ -20,29 +20,24 @@ def test_contestants_cover_both_paths_at_one_and_k_members() -> None:
     rows = [(c.name, c.members) for c in contestants(BenchOptions(members=4, compile=True))]
     assert rows == [
         ("SB3 SAC", 1),
-        ("TAC eager", 1),
-        ("TAC eager+compile", 1),
-        ("TAC fused", 1),
-        ("TAC fused+compile", 1),
-        ("TAC eager", 4),
-        ("TAC eager+compile", 4),
-        ("TAC fused", 4),
-        ("TAC fused+compile", 4),
+        ("TAC", 1),
+        ("TAC compiled", 1),
+        ("TAC", 4),
+        ("TAC compiled", 4),
     ]
-    assert [c.name for c in contestants(BenchOptions(members=1, sb3=False, eager=False))] == [
-        "TAC fused"
-    ]
+    options = BenchOptions(members=1, sb3=False, eager=False, compile=True)
+    assert [c.name for c in contestants(options)] == ["TAC compiled"]
 
 
 def test_table_reports_rates_member_rates_and_ratios_to_sb3() -> None:
     sb3 = BenchResult(Contestant("SB3 SAC", 1), steps=[100, 100], seconds=[1.0, 1.0])
-    fused = BenchResult(Contestant("TAC fused", 10, "fused"), steps=[50, 50], seconds=[0.5, 0.25])
-    assert fused.rate == pytest.approx(100 / 0.75)
-    assert fused.member_rate == pytest.approx(1000 / 0.75)
-    assert fused.spread == pytest.approx((100.0, 200.0))
-    lines = table([sb3, fused]).splitlines()
+    tac = BenchResult(Contestant("TAC", 10, tac=True), steps=[50, 50], seconds=[0.5, 0.25])
+    assert tac.rate == pytest.approx(100 / 0.75)
+    assert tac.member_rate == pytest.approx(1000 / 0.75)
+    assert tac.spread == pytest.approx((100.0, 200.0))
+    lines = table([sb3, tac]).splitlines()
     assert lines[2] == "| SB3 SAC | 1 | 100 | 100 | 1.00x | 100-100 |"
-    assert lines[3] == "| TAC fused | 10 | 133 | 1333 | 13.33x | 100-200 |"
+    assert lines[3] == "| TAC | 10 | 133 | 1333 | 13.33x | 100-200 |"
 
 
 @pytest.mark.parametrize(
@@ -63,14 +58,12 @@ def test_bench_command_runs_every_contestant_and_writes_json(tmp_path: Path) -> 
     args = ["bench", "--env", "Pendulum-v1", "--members", "2", "--steps", "4", "--rounds", "2"]
     result = CliRunner().invoke(cli, [*args, "--learning-starts", "3", "--json", str(out)])
     assert result.exit_code == 0, result.output
-    assert "| SB3 SAC | 1 |" in result.output and "| TAC fused | 2 |" in result.output
+    assert "| SB3 SAC | 1 |" in result.output and "| TAC | 2 |" in result.output
     record = json.loads(out.read_text())
     assert [(r["name"], r["members"]) for r in record["results"]] == [
         ("SB3 SAC", 1),
-        ("TAC eager", 1),
-        ("TAC fused", 1),
-        ("TAC eager", 2),
-        ("TAC fused", 2),
+        ("TAC", 1),
+        ("TAC", 2),
     ]
     assert all(r["steps"] == [2, 2] and len(r["seconds"]) == 2 for r in record["results"])
     assert record["machine"]["cores"] >= 1

@@ -1,6 +1,10 @@
-"""The CLI's error contract: a TacbenchError prints its message, no traceback, exit status 2."""
+"""The CLI: a TacbenchError prints its message, no traceback, exit status 2; the options of
+`run` and `sweep` are generated from the declared settings."""
 
 from __future__ import annotations
+
+from pathlib import Path
+from unittest import mock
 
 import click
 import pytest
@@ -9,7 +13,12 @@ from click.testing import CliRunner
 from tacbench import __version__
 from tacbench.cli import cli
 from tacbench.cli.common import Group
+from tacbench.cli.run import run
+from tacbench.cli.sweep import sweep
+from tacbench.config import RunConfig
 from tacbench.errors import TacbenchError
+from tacbench.settings import settings_of
+from tacbench.sweep import presets
 
 pytestmark = pytest.mark.unit
 
@@ -46,3 +55,53 @@ def test_other_exceptions_are_not_swallowed() -> None:
 def test_version() -> None:
     result = CliRunner().invoke(cli, ["--version"])
     assert result.exit_code == 0 and __version__ in result.output
+
+
+def test_run_offers_every_declared_setting_with_its_default_and_source() -> None:
+    options = {opt for p in run.params for opt in p.opts}
+    for name, declared in settings_of(RunConfig).items():
+        if not declared.info.cli:
+            continue
+        assert declared.flag in options, name
+        param = next(p for p in run.params if p.name == name)
+        assert isinstance(param, click.Option) and param.help is not None
+        assert declared.info.source in param.help, name
+        assert param.default == declared.default, name
+
+
+def test_sweep_overrides_default_to_the_presets_value() -> None:
+    names = {p.name: p for p in sweep.params}
+    for name, declared in settings_of(RunConfig).items():
+        offered = declared.info.cli and declared.info.sweep
+        assert (name in names) == offered, name
+        if offered:
+            assert names[name].default is None, name
+
+
+@pytest.mark.parametrize(
+    ("args", "settings"),
+    [
+        ([], {}),
+        (["--compile"], {"compile": True}),
+        (["--no-compile", "--steps", "300"], {"compile": False, "total_steps": 300}),
+        (["--hidden-sizes", "400,300"], {"hidden_sizes": (400, 300)}),
+    ],
+)
+def test_sweep_passes_only_the_settings_given(args: list[str], settings: dict) -> None:
+    seen: dict = {}
+
+    def narrow(preset: object, by: presets.Narrowing) -> object:
+        seen.update(by.settings)
+        raise SystemExit(0)
+
+    with mock.patch.object(presets, "narrow", narrow):
+        result = CliRunner().invoke(cli, ["sweep", "--preset", "smoke", "--dry-run", *args])
+    assert result.exit_code == 0, result.output
+    assert seen == settings
+
+
+def test_a_bad_list_of_layer_widths_is_a_usage_error(tmp_path: Path) -> None:
+    args = ["run", "--env", "Hopper-v4", "--hidden-sizes", "400,x", "--out", str(tmp_path)]
+    result = CliRunner().invoke(cli, args)
+    assert result.exit_code == 2
+    assert "'400,x' is not a comma-separated list of integers" in result.output

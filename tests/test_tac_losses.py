@@ -5,13 +5,21 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 import torch
 
 from tacbench.tac.losses import LossSettings, TacLosses, tac_losses
-from tacbench.tac.maths import Batch, coefficients, lnq_of_policy, squashed_gaussian
+from tacbench.tac.maths import (
+    Batch,
+    coefficients,
+    lnq_of_policy,
+    log_q_of_log,
+    squashed_gaussian,
+)
 from tacbench.tac.networks import Layers, mlp, policy_head
 from tacbench.tac.parameters import Networks, TacParameters
+from tacbench.tsallis import log_q
 
 pytestmark = pytest.mark.unit
 
@@ -77,7 +85,7 @@ def _losses(
 def _lnq(log_dims: torch.Tensor, q: float, form: str) -> float:
     c = coefficients([q], [0.2], torch.device("cpu"))
     c = type(c)(*(t.double() for t in c))
-    return lnq_of_policy(log_dims, c, form)[0].item()
+    return lnq_of_policy(log_dims, c, form).item()
 
 
 def test_losses_match_hand_computed_values_on_constant_networks() -> None:
@@ -190,18 +198,18 @@ def test_squashed_gaussian_log_density_matches_torch_distributions() -> None:
     mu = torch.tensor([[[0.1, -0.4, 1.2]]])
     log_std = torch.tensor([[[-0.5, 0.2, -1.0]]])
     eps = torch.tensor([[[0.3, -0.7, 1.1]]])
-    sample = squashed_gaussian(mu, log_std, log_std.exp(), eps)
+    action, log_prob_dims = squashed_gaussian(mu, log_std, log_std.exp(), eps)
     z = mu + eps * log_std.exp()
     expected = torch.distributions.Normal(mu, log_std.exp()).log_prob(z) - torch.log(
         1 - torch.tanh(z) ** 2 + 1e-6
     )
-    torch.testing.assert_close(sample.action, torch.tanh(z))
-    torch.testing.assert_close(sample.log_prob_dims, expected, rtol=1e-5, atol=1e-6)
+    torch.testing.assert_close(action, torch.tanh(z))
+    torch.testing.assert_close(log_prob_dims, expected, rtol=1e-5, atol=1e-6)
 
 
 def test_saturated_tanh_raises_log_density_by_at_most_log_1e6() -> None:
     mu, log_std, eps = torch.full((1, 1, 1), 50.0), torch.zeros(1, 1, 1), torch.zeros(1, 1, 1)
-    log_dims = squashed_gaussian(mu, log_std, log_std.exp(), eps).log_prob_dims
+    _, log_dims = squashed_gaussian(mu, log_std, log_std.exp(), eps)
     gaussian = -0.5 * math.log(2 * math.pi)
     assert log_dims.item() == pytest.approx(gaussian - math.log(1e-6), rel=1e-5)
     assert torch.isfinite(log_dims).all()
@@ -291,3 +299,23 @@ def test_members_do_not_mix() -> None:
     for a, b in zip(both[:4], single[:4], strict=True):
         torch.testing.assert_close(a[1:], b, rtol=1e-6, atol=1e-6)
     torch.testing.assert_close(both.diagnostics[1:], single.diagnostics, rtol=1e-6, atol=1e-6)
+
+
+@pytest.mark.parametrize("q", [0.5, 1.0, 1.5, 2.0, 5.0])
+def test_log_q_of_log_matches_numpy_and_has_the_slope_p_to_the_q_minus_one(q: float) -> None:
+    log_p = torch.linspace(-30.0, 5.0, 50, dtype=torch.float64, requires_grad=True)
+    out = log_q_of_log(log_p, torch.tensor(q - 1.0, dtype=torch.float64))
+    assert np.allclose(out.detach().numpy(), log_q(np.exp(log_p.detach().numpy()), q))
+    out.sum().backward()
+    assert log_p.grad is not None and torch.isfinite(log_p.grad).all()
+    # d ln_q(p) / d log p = p^(q-1)
+    assert torch.allclose(log_p.grad, torch.exp((q - 1.0) * log_p.detach()))
+
+
+def test_q_equal_one_members_get_finite_gradients_from_huge_log_densities() -> None:
+    """The q = 1 branch of ln_q must not poison its gradient with the other branch's overflow
+    (expm1 of a large log p is inf; 0 * inf would be NaN)."""
+    log_p = torch.tensor([[400.0], [400.0]], requires_grad=True)
+    out = log_q_of_log(log_p, torch.tensor([[0.0], [-0.5]]))
+    out[0].sum().backward()
+    assert log_p.grad is not None and log_p.grad.tolist() == [[1.0], [0.0]]

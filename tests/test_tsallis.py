@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
@@ -15,7 +14,6 @@ from tacbench.errors import TacbenchError
 from tacbench.tsallis import (
     exp_q,
     log_q,
-    log_q_of_log,
     q_max,
     q_potential,
     q_softmax,
@@ -146,7 +144,8 @@ def test_q_near_one_matches_softmax_and_log_sum_exp() -> None:
 
 def _sparsemax_by_root_finding(z: np.ndarray) -> np.ndarray:
     """Euclidean projection onto the simplex: [z - tau]_+ with tau from a scalar root finder."""
-    tau = brentq(lambda t: np.maximum(z - t, 0.0).sum() - 1.0, z.min() - 1.0, z.max())
+    # at max z - 2 the largest term alone is 2 > 1 (max z - 1 can round to a sum just below 1)
+    tau = brentq(lambda t: np.maximum(z - t, 0.0).sum() - 1.0, z.max() - 2.0, z.max())
     return np.maximum(z - tau, 0.0)
 
 
@@ -217,14 +216,3 @@ def test_vectorised_over_leading_axes() -> None:
 def test_bad_input_raises_the_project_error(call: object, message: str) -> None:
     with pytest.raises(TacbenchError, match=message):
         call()  # type: ignore[operator]
-
-
-@pytest.mark.parametrize("q", [0.5, 1.0, 1.5, 2.0, 5.0])
-def test_torch_log_q_of_log_matches_numpy_and_is_differentiable(q: float) -> None:
-    log_p = torch.linspace(-30.0, 5.0, 50, dtype=torch.float64, requires_grad=True)
-    out = log_q_of_log(log_p, q)
-    assert np.allclose(out.detach().numpy(), log_q(np.exp(log_p.detach().numpy()), q))
-    out.sum().backward()
-    assert log_p.grad is not None and torch.isfinite(log_p.grad).all()
-    # d ln_q(p) / d log p = p^(q-1)
-    assert torch.allclose(log_p.grad, torch.exp((q - 1.0) * log_p.detach()))

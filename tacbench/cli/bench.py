@@ -29,7 +29,7 @@ import click
 )
 @click.option("--compile", "compile_", is_flag=True, help="Add rows for TAC under torch.compile.")
 @click.option("--no-sb3", is_flag=True, help="Leave out stable-baselines3's SAC.")
-@click.option("--no-eager", is_flag=True, help="Leave out TAC's eager (reference) update.")
+@click.option("--no-eager", is_flag=True, help="Leave out the rows of TAC uncompiled.")
 @click.option(
     "--device", type=click.Choice(["cpu", "cuda", "auto"]), default="cpu", show_default=True
 )
@@ -54,9 +54,9 @@ def bench(
     threads: int,
     json_path: Path | None,
 ) -> None:
-    """TAC (eager and fused; one and --members members) against stable-baselines3's SAC with
-    the paper's settings, side by side in this process: steps/s and ratios (docs/performance.md).
-    """
+    """TAC (uncompiled and, with --compile, compiled; one and --members members) against
+    stable-baselines3's SAC with the paper's settings, side by side in this process: steps/s and
+    ratios (docs/performance.md)."""
     import json
 
     from tacbench import bench as measure  # torch and SB3 only when this command runs

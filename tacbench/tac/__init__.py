@@ -1,9 +1,9 @@
 """Tsallis Actor-Critic: the algorithm, nothing else (no I/O, no environments).
 
-``maths`` the formulas both update paths share; ``networks`` member-batched MLPs; ``parameters``
-the flat parameter buffers, Adam and the targets; ``losses`` the reference losses; ``fused`` the
-same maths with hand-written gradients; ``update`` the one update interface; ``agent`` act,
-update and per-member state; ``buffer`` the member-batched replay buffer.
+``maths`` the formulas below the losses; ``networks`` member-batched MLPs; ``parameters`` the
+flat parameter buffers, Adam and the targets; ``losses`` all losses in one function; ``update``
+their gradient by autograd (optionally compiled), Adam and the targets; ``agent`` act, update and
+per-member state; ``buffer`` the member-batched replay buffer.
 """
 
 from tacbench.tac.agent import TacAgent

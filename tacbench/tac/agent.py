@@ -4,7 +4,7 @@ Member k has its own ``torch.Generator`` seeded with its seed alone. It draws me
 weights (:mod:`tacbench.tac.parameters`), its exploration noise and its reparameterisation noise,
 so none of these depend on the other members. The noise is drawn on the CPU and moved to the
 device, so a seed draws the same numbers on every device. The update itself is
-:class:`tacbench.tac.update.TacUpdate` (``config.impl``, ``config.compile``).
+:class:`tacbench.tac.update.TacUpdate` (``config.compile``).
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ import torch
 from tacbench.config import RunConfig
 from tacbench.tac.losses import LossSettings
 from tacbench.tac.maths import Batch, Coefficients
-from tacbench.tac.networks import mlp_with_inputs, policy_head
+from tacbench.tac.networks import mlp, policy_head
 from tacbench.tac.parameters import TacParameters
 from tacbench.tac.update import TacUpdate
 
@@ -51,7 +51,6 @@ class TacAgent:
         self._update = TacUpdate(
             self.params,
             settings,
-            impl=config.impl,
             compile=config.compile,
             learning_rate=config.learning_rate,
             tau=config.tau,
@@ -71,7 +70,7 @@ class TacAgent:
 
     def _policy(self, obs: npt.ArrayLike) -> tuple[torch.Tensor, torch.Tensor]:
         """The policy's ``mu`` and ``log_std``: ``(K, n, obs_dim) -> 2 x (K, n, act_dim)``."""
-        out = mlp_with_inputs(self.params.networks.policy, self._tensor(obs))[0]
+        out = mlp(self.params.networks.policy, self._tensor(obs))
         c = self.config
         return policy_head(out, self.act_dim, c.log_std_min, c.log_std_max)
 
@@ -109,8 +108,8 @@ class TacAgent:
         self, batch: Batch, eps: torch.Tensor, c: Coefficients, eps_next: torch.Tensor | None = None
     ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         """The metrics of :meth:`update` and the gradient of every trained parameter (named as
-        in :meth:`member_state`) for one minibatch and noise, by this agent's path, without
-        changing any weight. For comparing the paths."""
+        in :meth:`member_state`) for one minibatch and noise, compiled if this agent's
+        update is, without changing any weight. For comparing the paths."""
         metrics = self._update.gradients(batch, eps, self.alive, c, eps_next)
         return metrics, {k: v.clone() for k, v in self.params.named_gradients().items()}
 

@@ -1,16 +1,14 @@
-"""All TAC losses in one pure function, commented with the paper's equation labels: the reference
-that autograd differentiates (``--impl eager``) and that the fused path's hand-written gradients
-(:mod:`tacbench.tac.fused`) are tested against.
+"""All TAC losses in one pure function, commented with the paper's equation labels; autograd
+differentiates it on every path (:mod:`tacbench.tac.update`).
 
-Shapes: K members, B samples, A action dimensions. Every loss is per member, shape ``(K,)``;
-the members never mix, so summing the losses over members gives each member exactly the
-gradient it would get alone. q and alpha are per member (:class:`~tacbench.tac.maths.Coefficients`).
+Shapes: K members, B samples, A action dimensions. Every loss is per member, shape ``(K,)``; the
+members never mix, so summing the losses over members gives each member exactly the gradient it
+would get alone. q and alpha are per member (:class:`~tacbench.tac.maths.Coefficients`).
 
 Paper references are to the appendix "Implementation Detail" of ``tsallis-rl-paper.tex``:
 ``eqn:q_obj`` (Q loss), ``eqn:v_obj`` (V loss), ``eqn:pol_obj`` (policy loss). The formulas
-both paths share (the squashed Gaussian's density, ln_q, the cap) are in
-:mod:`tacbench.tac.maths`. Where the paper is silent the reference code decides (REFERENCE.md).
-"""
+below them (the squashed Gaussian's density, ln_q, the cap) are in :mod:`tacbench.tac.maths`.
+Where the paper is silent the reference code decides (REFERENCE.md)."""
 
 from __future__ import annotations
 
@@ -49,8 +47,8 @@ def _policy_sample(
     and the policy's standard deviation."""
     mu, log_std = policy_head(mlp(policy, obs), eps.shape[-1], s.log_std_min, s.log_std_max)
     std = log_std.exp()
-    sample = squashed_gaussian(mu, log_std, std, eps)
-    return sample.action, sample.log_prob_dims, std
+    action, log_prob_dims = squashed_gaussian(mu, log_std, std, eps)
+    return action, log_prob_dims, std
 
 
 def tac_losses(
@@ -76,7 +74,7 @@ def tac_losses(
     alpha = c.alpha[:, None]
     # a~ ~ pi(.|s) by the reparameterisation trick, and ln_q pi(a~|s)
     new_action, log_prob_dims, std = _policy_sample(nets.policy, batch.obs, eps, s)
-    lnq_pi, _ = lnq_of_policy(log_prob_dims, c, s.lnq)
+    lnq_pi = lnq_of_policy(log_prob_dims, c, s.lnq)
 
     # eqn:q_obj  J_theta = E[ 1/2 (Q_theta(s,a) - r - gamma V_psi-(s'))^2 ]; time-limit ends
     # are not terminal, so only a true terminal state drops the bootstrap (reference code).
@@ -90,7 +88,7 @@ def tac_losses(
             )
             pairs = torch.cat([batch.next_obs, next_action], dim=-1).repeat(2, 1, 1)
             q_next = mlp(target, pairs).view(2, k, -1)
-            lnq_next, _ = lnq_of_policy(next_log_prob_dims, c, s.lnq)
+            lnq_next = lnq_of_policy(next_log_prob_dims, c, s.lnq)
             v_next = torch.minimum(q_next[0], q_next[1]) - alpha * lnq_next
         q_target = batch.reward + s.gamma * (1.0 - batch.terminated) * v_next
     # Q1 and Q2 are one stack of 2K critics: both evaluated at (s, a) at once

@@ -1,6 +1,6 @@
-"""The formulas both update paths compute, written once: the eager reference
-(:mod:`tacbench.tac.losses`, autograd) and the fused path (:mod:`tacbench.tac.fused`, gradients
-by hand) import them from here.
+"""The formulas of TAC's losses below the losses themselves (:mod:`tacbench.tac.losses`): the
+squashed Gaussian's density, ln_q, the q >= 2 cap, the log-std mapping, and the order of the
+metrics an update reports. The agent's ``act`` and the losses take them from here.
 
 Shapes: K members, B samples, A action dimensions. Every per-member quantity (q, alpha, the
 density cap) is a tensor with a leading K, so members with different q or alpha share one
@@ -83,22 +83,9 @@ def log_std_from_tanh(
     return log_std_min + 0.5 * (log_std_max - log_std_min) * (tanh_raw + 1.0)
 
 
-class SquashedSample(NamedTuple):
-    """``a = tanh(z)``, ``z = mu + eps sigma``, and its per-dimension log-density.
-
-    ``log_jacobian`` is ``log(1 - tanh(z)^2)`` and ``log_jacobian_eps`` the same with SAC v1's
-    ``+ 1e-6`` inside the log; the fused path's gradient needs both.
-    """
-
-    action: torch.Tensor
-    log_jacobian: torch.Tensor
-    log_jacobian_eps: torch.Tensor
-    log_prob_dims: torch.Tensor
-
-
 def squashed_gaussian(
     mu: torch.Tensor, log_std: torch.Tensor, std: torch.Tensor, eps: torch.Tensor
-) -> SquashedSample:
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Reparameterised action ``a = tanh(mu + eps * sigma)`` and ``log pi_i(a_i|s)`` per dimension.
 
     Paper, "Reparameterization Trick": ``pi(a|s) = N(z; mu, sigma) |da/dz|^-1``. The paper prints
@@ -106,20 +93,18 @@ def squashed_gaussian(
     ``prod_i (1 - tanh(z_i)^2)``. Each factor gets SAC v1's (and the reference code's) ``+ 1e-6``,
     which bounds a saturated dimension's log-density increase at ``-log(1e-6)``; its log is
     ``logaddexp(log(1 - tanh(z)^2), log 1e-6)`` with ``log(1 - tanh(z)^2)`` computed stably as
-    ``2 (log 2 - z - softplus(-2 z))``. ``std`` is ``log_std.exp()``, passed in because both
-    paths need it elsewhere.
+    ``2 (log 2 - z - softplus(-2 z))``. ``std`` is ``log_std.exp()``, passed in because the
+    caller reports it too.
     """
     z = mu + eps * std
     log_jacobian = 2.0 * (math.log(2.0) - z - F.softplus(-2.0 * z))
     log_jacobian_eps = torch.logaddexp(log_jacobian, log_jacobian.new_full((), JACOBIAN_EPS_LOG))
     log_prob_dims = (-0.5 * eps.square() - log_std - HALF_LOG_2PI) - log_jacobian_eps
-    return SquashedSample(torch.tanh(z), log_jacobian, log_jacobian_eps, log_prob_dims)
+    return torch.tanh(z), log_prob_dims
 
 
-def log_q_of_log(
-    log_p: torch.Tensor, q_minus_one: torch.Tensor
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """``ln_q(p)`` from ``log p`` and its slope ``d ln_q / d log p = p^(q-1)``, per member.
+def log_q_of_log(log_p: torch.Tensor, q_minus_one: torch.Tensor) -> torch.Tensor:
+    """``ln_q(p)`` from ``log p``, differentiably, per member.
 
     ``ln_q(p) = expm1((q-1) log p) / (q-1)`` (:func:`tacbench.tsallis.log_q`), ``log p`` itself
     where q = 1; ``q_minus_one`` broadcasts against ``log_p``. The density is never formed, only
@@ -130,7 +115,7 @@ def log_q_of_log(
     # through it stays zero (no 0/0, no 0 * inf from expm1 of a large log p)
     safe = torch.where(is_one, 1.0, q_minus_one)
     e = torch.expm1(safe * torch.where(is_one, 0.0, log_p))
-    return torch.where(is_one, log_p, e / safe), torch.where(is_one, 1.0, e + 1.0)
+    return torch.where(is_one, log_p, e / safe)
 
 
 def per_member(values: torch.Tensor, like: torch.Tensor) -> torch.Tensor:
@@ -138,11 +123,8 @@ def per_member(values: torch.Tensor, like: torch.Tensor) -> torch.Tensor:
     return values.view(-1, *([1] * (like.dim() - 1)))
 
 
-def lnq_of_policy(
-    log_prob_dims: torch.Tensor, c: Coefficients, lnq: str
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """``ln_q pi(a|s)`` ``(K, B)`` from per-dimension log-densities ``(K, B, A)``, and its
-    gradient with respect to each ``log pi_i`` ``(K, B, A)`` (for the fused path).
+def lnq_of_policy(log_prob_dims: torch.Tensor, c: Coefficients, lnq: str) -> torch.Tensor:
+    """``ln_q pi(a|s)`` ``(K, B)`` from per-dimension log-densities ``(K, B, A)``.
 
     ``joint`` (paper): ln_q of the joint density ``exp(sum_i log pi_i)``. ``per-dim`` (reference
     code): ``sum_i ln_q(pi_i)`` with each pi_i floored at 1e-6. Both equal ``log pi`` at q = 1.
@@ -151,11 +133,8 @@ def lnq_of_policy(
     """
     if lnq == "joint":
         log_prob = log_prob_dims.sum(dim=-1)
-        cap = per_member(c.log_cap, log_prob)
-        value, slope = log_q_of_log(log_prob.clamp(max=cap), per_member(c.q_minus_one, log_prob))
-        return value, (slope * (log_prob <= cap)).unsqueeze(-1)
+        capped = log_prob.clamp(max=per_member(c.log_cap, log_prob))
+        return log_q_of_log(capped, per_member(c.q_minus_one, log_prob))
     cap = per_member(c.log_cap, log_prob_dims)
     clamped = log_prob_dims.clamp(min=LOG_DENSITY_FLOOR).clamp(max=cap)
-    value, slope = log_q_of_log(clamped, per_member(c.q_minus_one, log_prob_dims))
-    inside = (log_prob_dims >= LOG_DENSITY_FLOOR) & (log_prob_dims <= cap)
-    return value.sum(dim=-1), slope * inside
+    return log_q_of_log(clamped, per_member(c.q_minus_one, log_prob_dims)).sum(dim=-1)

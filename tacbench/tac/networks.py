@@ -3,7 +3,7 @@
 A stack of M networks is a :class:`Layers`: weights ``(M, in, out)`` and biases ``(M, 1, out)``
 per layer, ReLU between layers. Inputs are ``(M, B, in)``. The layers are plain tensors (views of
 the flat parameter buffer, :mod:`tacbench.tac.parameters`), and the functions here are pure, so
-the eager path differentiates them with autograd and the fused path differentiates them by hand.
+autograd differentiates them with respect to that buffer.
 
 Initialisation is the reference code's (TensorFlow ``tf.layers.dense``): Glorot-uniform weights
 and zero biases, member k's weights drawn from member k's own generator only, so they do not
@@ -20,9 +20,6 @@ from typing import NamedTuple
 import torch
 
 from tacbench.tac.maths import log_std_from_tanh
-
-# ReLU's backward, g where the ReLU's output is > 0 (the overload itself: no per-call lookup)
-relu_backward = torch.ops.aten.threshold_backward.default
 
 
 class Layers(NamedTuple):
@@ -68,13 +65,6 @@ def linear(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.T
     return torch.baddbmm(bias, x, weight)
 
 
-def linear_input_grad(grad: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
-    """``grad @ weight^T``: the gradient at a layer's input; width 1 as a broadcast product."""
-    if weight.shape[-1] == 1:
-        return grad * weight.transpose(1, 2)
-    return torch.bmm(grad, weight.transpose(1, 2))
-
-
 def mlp(net: Layers, x: torch.Tensor, *, frozen: bool = False) -> torch.Tensor:
     """``(M, B, in) -> (M, B, out)``. ``frozen=True`` uses detached weights, so gradients reach the
     input but not the network's parameters."""
@@ -86,39 +76,6 @@ def mlp(net: Layers, x: torch.Tensor, *, frozen: bool = False) -> torch.Tensor:
         if i < last:
             x = torch.relu(x)
     return x
-
-
-def mlp_with_inputs(net: Layers, x: torch.Tensor) -> tuple[torch.Tensor, list[torch.Tensor]]:
-    """:func:`mlp` (no autograd: ReLUs in place) and the input of every layer, for
-    :func:`mlp_backward`."""
-    inputs = []
-    last = len(net.weights) - 1
-    for i, (weight, bias) in enumerate(zip(net.weights, net.biases, strict=True)):
-        inputs.append(x)
-        x = linear(x, weight, bias)
-        if i < last:
-            x = x.relu_()
-    return x, inputs
-
-
-def mlp_backward(
-    net: Layers, grads: Layers, inputs: list[torch.Tensor], grad_out: torch.Tensor
-) -> None:
-    """Write into ``grads`` the weight and bias gradients of :func:`mlp` given the gradient at
-    the output and the layer inputs of :func:`mlp_with_inputs` (only their first
-    ``grad_out.shape[1]`` rows are used)."""
-    rows = grad_out.shape[1]
-    g = grad_out
-    for i in reversed(range(len(net.weights))):
-        x = inputs[i][:, :rows]
-        weight_grad = grads.weights[i]
-        if weight_grad.shape[-1] == 1:  # (M, in, 1) has the memory layout of (M, 1, in)
-            torch.bmm(g.transpose(1, 2), x, out=weight_grad.view(weight_grad.shape[0], 1, -1))
-        else:
-            torch.bmm(x.transpose(1, 2), g, out=weight_grad)
-        torch.sum(g, dim=1, keepdim=True, out=grads.biases[i])
-        if i:
-            g = relu_backward(linear_input_grad(g, net.weights[i]), x, 0)
 
 
 def policy_head(

@@ -1,19 +1,16 @@
-"""TAC's parameters for K members in one flat buffer: layout, initial weights, Adam, targets,
-per-member state.
+"""TAC's parameters for K members in one flat buffer: layout, initial weights, Adam, targets, per-
+member state.
 
 Every weight and bias of every trained network of every member lives in one contiguous float32
 buffer (``data``), with a gradient buffer, Adam's two moments and a step count of the same
-layout, so one fused Adam kernel updates everything and both update paths write their
-gradients into one place. The blocks, in order: the policy's layers, then the critic pair's
-layers (Q1's K members then Q2's, side by side, so the pair is one (2K)-member stack), then V's
-layers; each layer a weight block then a bias block. The target networks (the target V, or
-with ``critic_target`` twin-q the target critic pair) have a buffer of their source's layout,
-so the Polyak average is one ``lerp_``.
+layout, so one fused Adam kernel updates everything. The blocks, in order: the policy's layers,
+then the critic pair's layers (Q1's K members then Q2's, side by side, so the pair is one
+(2K)-member stack), then V's layers; each layer a weight block then a bias block. The target
+networks (the target V, or with ``critic_target`` twin-q the target critic pair) have a buffer
+of their source's layout, so the Polyak average is one ``lerp_``.
 
-Member k's initial weights are drawn from its own generator, network by network (policy, Q1,
-Q2, V, layer by layer; the target starts as a copy), so they do not depend on the other
-members.
-"""
+Member k's initial weights are drawn from its own generator, network by network (policy, Q1, Q2,
+V, layer by layer; the target starts as a copy), so they do not depend on the other members."""
 
 from __future__ import annotations
 
@@ -30,7 +27,7 @@ ADAM_EPS = 1e-8
 
 
 class Networks(NamedTuple):
-    """Views of the trained networks (or of their gradients): K, 2K and K members."""
+    """Views of the trained networks (or of a gradient of them): K, 2K and K members."""
 
     policy: Layers
     critics: Layers  # the K members of Q1, then the K members of Q2
@@ -111,12 +108,11 @@ class TacParameters:
             self.layout.offsets[2 * n if twin_q_targets else 3 * n],
         )
         self.networks = self.views(self.data)
-        self.gradients = self.views(self.grad)
         self.target_networks = _layers(self.target_layout.views(self.target))
 
     def views(self, flat: torch.Tensor) -> Networks:
         """Policy, critic pair and V views of a flat tensor of ``data``'s layout (``data``
-        itself, the gradient buffer, or a copy that autograd differentiates)."""
+        itself, a gradient, or the tensor that autograd differentiates)."""
         blocks = self.layout.views(flat)
         n = 2 * self.n_layers
         return Networks(_layers(blocks[:n]), _layers(blocks[n : 2 * n]), _layers(blocks[2 * n :]))

@@ -1,22 +1,20 @@
-"""One TAC update for K members, behind one interface: the gradients (eager or fused, either
-one optionally under ``torch.compile``), then one fused Adam step and the target average.
+"""One TAC update for K members: the gradient of :func:`tacbench.tac.losses.tac_losses` by
+autograd, optionally under ``torch.compile``, then one fused Adam step and the target average.
 
-* ``eager`` (the reference): autograd, through ``torch.func.grad``, over
-  :func:`tacbench.tac.losses.tac_losses`, the losses written once with the paper's equation
-  labels. Adding a loss term is one edit there.
-* ``fused`` (the default, docs/performance.md): :func:`tacbench.tac.fused.fused_gradients`, the
-  same maths with the gradients written by hand, about twice as fast uncompiled on small
-  networks. Tests compare it with ``eager`` on the same batch (float32 rounding).
-* ``compile``: ``torch.compile`` of the chosen gradient function. On a CPU, Inductor turns the
-  elementwise chains into a few C++ loops and, with its C++ wrapper, calls them from C++ (it
-  needs a C++ compiler; the first update compiles for seconds to tens of seconds, cached on
-  disk afterwards). q and alpha enter as per-member tensors, so one graph serves every q, a
-  group of members with different q, and a q schedule, without recompiling. On a GPU it uses
-  mode ``reduce-overhead`` (CUDA graphs) with the persistent buffers marked static. Where
-  compilation fails, a warning says so and the uncompiled function runs instead.
+The losses are written once, with the paper's equation labels, and differentiated by autograd
+on every path: adding a loss term is one edit in ``losses.py``. Eager, the gradient is
+``torch.autograd.grad``; compiled, it is ``torch.func.grad`` of the same function, which
+``torch.compile`` traces into one graph of the forward and backward pass (Dynamo cannot trace
+``torch.autograd.grad``; eagerly, ``torch.func.grad`` is the slower of the two). On a CPU,
+Inductor turns the elementwise chains into a few C++ loops and, with its C++ wrapper, calls them
+from C++ (it needs a C++ compiler; the first update compiles for seconds to tens of seconds,
+cached on disk afterwards). q and alpha enter as per-member tensors, so one graph serves every
+q, a group of members with different q, and a q schedule, without recompiling. On a GPU it uses
+mode ``reduce-overhead`` (CUDA graphs) with the persistent buffers marked static. Where
+compilation fails, a warning says so and the eager gradient runs instead.
 
-Both paths write into the same flat gradient buffer (:class:`TacParameters`), so Adam and the
-target update are shared, and a checkpoint is the same whichever path wrote it.
+Adam and the target average stay outside the compiled graph: inside it they made the update
+slower (docs/performance.md, "One source for the maths").
 """
 
 from __future__ import annotations
@@ -27,8 +25,6 @@ from typing import Any
 
 import torch
 
-from tacbench.config import IMPLS
-from tacbench.tac.fused import fused_gradients
 from tacbench.tac.losses import LossSettings, tac_losses
 from tacbench.tac.maths import Batch, Coefficients
 from tacbench.tac.networks import Layers
@@ -54,25 +50,7 @@ CPU_COMPILE_OPTIONS: dict[str, str | int | bool | Callable[..., Any]] = {
 Gradients = Callable[..., torch.Tensor]
 
 
-def eager_gradients(
-    params: TacParameters,
-    batch: Batch,
-    eps: torch.Tensor,
-    alive: torch.Tensor,
-    c: Coefficients,
-    s: LossSettings,
-    eps_next: torch.Tensor | None = None,
-) -> torch.Tensor:
-    """The reference path: the gradient of :func:`tac_losses` summed over the live members, by
-    autograd, written into ``params.grad``; returns the metrics ``(K, len(METRICS))``."""
-    grad, metrics = _loss_gradient(
-        params.data, params, params.target_networks, batch, eps, alive, c, s, eps_next
-    )
-    params.grad.copy_(grad)
-    return metrics
-
-
-def _total_loss(
+def total_loss(
     theta: torch.Tensor,
     params: TacParameters,
     target: Layers,
@@ -84,17 +62,15 @@ def _total_loss(
     eps_next: torch.Tensor | None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """The sum of the live members' four losses at parameters ``theta`` (``params.data``'s
-    layout), and the detached metrics."""
+    layout), which autograd differentiates, and the detached metrics ``(K, len(METRICS))``.
+    Members never mix, so each member's gradient is its own losses'."""
     losses = tac_losses(params.views(theta), target, batch, eps, c, s, eps_next)
     per_member = torch.stack([losses.q1, losses.q2, losses.v, losses.pi], dim=-1)
     total = torch.where(alive, per_member.sum(dim=-1), 0.0).sum()
     return total, torch.cat([per_member.detach(), losses.diagnostics], dim=-1)
 
 
-_loss_gradient = torch.func.grad(_total_loss, has_aux=True)
-
-
-def _fused(
+def eager_gradients(
     params: TacParameters,
     batch: Batch,
     eps: torch.Tensor,
@@ -103,29 +79,53 @@ def _fused(
     s: LossSettings,
     eps_next: torch.Tensor | None = None,
 ) -> torch.Tensor:
-    """The fused path on ``params``' views (gradients written into ``params.grad``)."""
-    return fused_gradients(
-        params.networks, params.gradients, params.target_networks, batch, eps, alive, c, s, eps_next
+    """:func:`total_loss`'s gradient by ``torch.autograd.grad``, written into ``params.grad``;
+    returns the metrics."""
+    with torch.enable_grad():
+        theta = params.data.detach().requires_grad_()
+        total, metrics = total_loss(
+            theta, params, params.target_networks, batch, eps, alive, c, s, eps_next
+        )
+        (grad,) = torch.autograd.grad(total, theta)
+    params.grad.copy_(grad)
+    return metrics
+
+
+_traceable_gradient = torch.func.grad(total_loss, has_aux=True)
+
+
+def traceable_gradients(
+    params: TacParameters,
+    batch: Batch,
+    eps: torch.Tensor,
+    alive: torch.Tensor,
+    c: Coefficients,
+    s: LossSettings,
+    eps_next: torch.Tensor | None = None,
+) -> torch.Tensor:
+    """:func:`eager_gradients` by ``torch.func.grad``, which ``torch.compile`` can trace."""
+    grad, metrics = _traceable_gradient(
+        params.data, params, params.target_networks, batch, eps, alive, c, s, eps_next
     )
+    params.grad.copy_(grad)
+    return metrics
 
 
-def _compiled(
-    function: Gradients, device: torch.device, persistent: list[torch.Tensor]
-) -> Gradients:
-    """``function`` compiled for ``device`` on first use, or, where compilation fails, as is
-    (with one warning)."""
-    if device.type == "cuda":
-        for tensor in persistent:
+def _compiled(params: TacParameters) -> Gradients:
+    """:func:`traceable_gradients` compiled for the parameters' device on first use, or, where
+    compilation fails, :func:`eager_gradients` (with one warning)."""
+    if params.data.device.type == "cuda":
+        for tensor in (params.data, params.grad, params.target):
             torch._dynamo.mark_static_address(tensor)
-        current = [torch.compile(function, mode="reduce-overhead")]
+        current = [torch.compile(traceable_gradients, mode="reduce-overhead")]
     else:
-        current = [torch.compile(function, options=CPU_COMPILE_OPTIONS)]
+        current = [torch.compile(traceable_gradients, options=CPU_COMPILE_OPTIONS)]
 
     def gradients(*args: Any) -> torch.Tensor:
         try:
             return current[0](*args)
-        except Exception as err:  # compilation failed: the same function, uncompiled
-            if current[0] is function:
+        except Exception as err:  # compilation failed: the same gradient, uncompiled
+            if current[0] is eager_gradients:
                 raise
             warnings.warn(
                 f"torch.compile of TAC's update failed ({type(err).__name__}: {err}); "
@@ -133,34 +133,27 @@ def _compiled(
                 RuntimeWarning,
                 stacklevel=2,
             )
-            current[0] = function
-            return function(*args)
+            current[0] = eager_gradients
+            return eager_gradients(*args)
 
     return gradients
 
 
 class TacUpdate:
-    """Gradients by ``impl`` (optionally compiled), one Adam step, the target average."""
+    """The gradient (optionally compiled), one Adam step, the target average."""
 
     def __init__(
         self,
         params: TacParameters,
         settings: LossSettings,
         *,
-        impl: str,
         compile: bool,
         learning_rate: float,
         tau: float,
     ) -> None:
-        if impl not in IMPLS:
-            raise ValueError(f"impl must be one of {IMPLS} (got {impl!r})")
         self.params, self.settings = params, settings
         self.learning_rate, self.tau = learning_rate, tau
-        function: Gradients = _fused if impl == "fused" else eager_gradients
-        if compile:
-            persistent = [params.data, params.grad, params.target]
-            function = _compiled(function, params.data.device, persistent)
-        self._gradients = function
+        self._gradients: Gradients = _compiled(params) if compile else eager_gradients
 
     def gradients(
         self,
