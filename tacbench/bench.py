@@ -30,7 +30,7 @@ from typing import Any
 import torch
 
 from tacbench import envs, training
-from tacbench.config import RunConfig, make_run_configs
+from tacbench.config import PAPER_Q_GRID, PAPER_SEEDS, RunConfig, make_run_configs
 from tacbench.errors import TacbenchError
 from tacbench.hardware import configure_process, cpu_class, cpu_name
 
@@ -46,6 +46,7 @@ class Contestant:
     members: int
     tac: bool = False  # TAC, or SB3's SAC
     compile: bool = False
+    qs: tuple[float, ...] = ()  # the members' q values (empty: the task's paper q for all)
 
 
 @dataclass
@@ -83,6 +84,7 @@ class BenchOptions:
     rounds: int = 5
     learning_starts: int = 1000
     compile: bool = False
+    grid: bool = False
     sb3: bool = True
     eager: bool = True
     device: str = "cpu"
@@ -107,18 +109,23 @@ def contestants(options: BenchOptions) -> list[Contestant]:
             rows.append(Contestant("TAC", k, tac=True))
         if options.compile:
             rows.append(Contestant("TAC compiled", k, tac=True, compile=True))
+    if options.grid:  # the paper's q grid of one task in one process: 9 q x 10 seeds
+        members = len(PAPER_Q_GRID) * len(PAPER_SEEDS)
+        rows.append(Contestant("TAC q grid compiled", members, True, True, PAPER_Q_GRID))
     return rows
 
 
 def _tac_configs(options: BenchOptions, contestant: Contestant) -> list[RunConfig]:
+    n_seeds = contestant.members // max(1, len(contestant.qs))
     configs, _ = make_run_configs(
         options.env,
         envs.paper_task(options.env),
-        list(range(0, 10 * contestant.members, 10)),  # the paper's seeds 0, 10, 20, ...
+        list(range(0, 10 * n_seeds, 10)),  # the paper's seeds 0, 10, 20, ...
+        contestant.qs,
         learning_starts=options.learning_starts,
         eval_every=0,
         checkpoint_every=0,
-        compile=contestant.compile,
+        compile="on" if contestant.compile else "off",
         device=options.device,
         threads=options.threads,
     )

@@ -29,6 +29,7 @@ from tacbench.settings import flag_of, neutral_fields, setting, settings_of
 
 TOTAL_STEPS = 1_000_000  # reference code: 200 epochs x 5,000 steps; paper figures span 1M steps
 PAPER_SEEDS = (0, 10, 20, 30, 40, 50, 60, 70, 80, 90)  # paper, Hyperparameter Settings table
+PAPER_Q_GRID = (0.5, 0.7, 1.0, 1.2, 1.5, 1.7, 2.0, 3.0, 5.0)  # paper, section 7.1 (tex line 797)
 
 # paper, per-task table (lines 2059-2067): alpha 0.05 for Humanoid, 0.2 for every other task.
 PAPER_ALPHA: dict[str, float] = {
@@ -59,6 +60,11 @@ LNQ_MODES = ("joint", "per-dim")
 CRITIC_TARGETS = ("v", "twin-q")
 Q_SCHEDULES = ("constant", "linear")
 DEVICES = ("cpu", "cuda")
+COMPILE_CHOICES = ("auto", "on", "off")
+# --compile auto compiles runs with at least this many learning steps: compiling TAC's update
+# took 18-23 s with a cold cache and saved 2.8 ms per step at K = 1 (5.8 ms at K = 10), so it
+# pays after about 8,000 steps; 20,000 leaves a margin (docs/performance.md, AMD EPYC class)
+COMPILE_AUTO_LEARNING_STEPS = 20_000
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -211,11 +217,13 @@ class RunConfig(RunSettings):
     log_std_max: float = setting(
         2.0, "Upper bound of the policy's log std.", source="reference code", variant="log_std_max"
     )
-    compile: bool = setting(
-        False,
-        "torch.compile TAC's update: the same maths, 3-4x faster on a CPU; the first update "
-        "compiles for seconds (a CPU needs a C++ compiler; falls back without).",
-        source="issue 7 (docs/performance.md)",
+    compile: str = setting(
+        "auto",
+        "torch.compile TAC's update: the same maths, 3-4x faster on a CPU, after a compilation "
+        "of 10-25 s (a CPU needs a C++ compiler). auto: on when the run has at least "
+        f"{COMPILE_AUTO_LEARNING_STEPS:,} learning steps and a C++ compiler is found.",
+        source="issue 17: the break-even measured in docs/performance.md",
+        choices=COMPILE_CHOICES,
     )
 
     def __post_init__(self) -> None:
@@ -232,8 +240,9 @@ class RunConfig(RunSettings):
             ("q_schedule", Q_SCHEDULES),
         ):
             _check_choice(self, name, getattr(self, name), choices)
-        if not isinstance(self.compile, bool):
-            raise TacbenchError(f"compile must be true or false (got {self.compile!r}).")
+        _check_choice(self, "compile", self.compile, COMPILE_CHOICES)
+        if self.compile == "auto":  # what is used is recorded: a resumed run keeps it
+            object.__setattr__(self, "compile", self._auto_compile())
         if self.algo != "tac":
             raise TacbenchError(f"RunConfig is TAC's config; got algo={self.algo!r}.")
         check_integers(self, learning_starts=0, batch_size=1, buffer_size=1)
@@ -250,6 +259,19 @@ class RunConfig(RunSettings):
             raise TacbenchError(
                 "need 0 <= q_schedule_start < q_schedule_end <= 1 (fractions of steps)."
             )
+
+    @property
+    def learning_steps(self) -> int:
+        """Environment steps after the random warm-up."""
+        return max(0, self.total_steps - self.learning_starts)
+
+    def _auto_compile(self) -> str:
+        """``--compile auto``: on for a run long enough to repay the compilation, where a C++
+        compiler is found (the note of :func:`compile_note` says which applied)."""
+        from tacbench.hardware import cpp_compiler  # torch's Inductor: only when it matters
+
+        long_enough = self.learning_steps >= COMPILE_AUTO_LEARNING_STEPS
+        return "on" if long_enough and cpp_compiler() is not None else "off"
 
     @property
     def variant(self) -> str:
@@ -345,33 +367,31 @@ def make_run_configs(
     env: str,
     task: str | None,
     seeds: Sequence[int],
-    q: float | None = None,
-    alpha: float | None = None,
+    qs: Sequence[float] = (),
+    alphas: Sequence[float] = (),
     **overrides: Any,
 ) -> tuple[list[RunConfig], list[str]]:
-    """One config per seed (the members of one process) and notes on the defaults chosen.
+    """One config per (q, alpha, seed) of the cross product (the members of one process) and
+    notes on the defaults chosen.
 
-    ``task`` is the paper's name for ``env`` (None if the paper did not run it); ``q`` and
-    ``alpha`` left as None take the paper's values for that task.
+    ``task`` is the paper's name for ``env`` (None if the paper did not run it); ``qs`` and
+    ``alphas`` left empty take the paper's values for that task.
     """
+    for flag, values in (("--seed", seeds), ("--q", qs), ("--alpha", alphas)):
+        if len(set(values)) != len(values):
+            raise TacbenchError(f"{flag} values must differ (got {list(values)}).")
     if not seeds:
         raise TacbenchError("give at least one --seed.")
-    if len(set(seeds)) != len(seeds):
-        raise TacbenchError(f"--seed values must differ (got {list(seeds)}).")
     paper_q, paper_alpha, q_source, alpha_source = paper_defaults(task)
     notes = []
-    if q is None:
+    if not qs:
         notes.append(f"q = {paper_q:g}: {q_source}")
-    if alpha is None:
+    if not alphas:
         notes.append(f"alpha = {paper_alpha:g}: {alpha_source}")
     configs = [
-        RunConfig(
-            env=env,
-            q=paper_q if q is None else q,
-            alpha=paper_alpha if alpha is None else alpha,
-            seed=seed,
-            **overrides,
-        )
+        RunConfig(env=env, q=q, alpha=alpha, seed=seed, **overrides)
+        for q in qs or (paper_q,)
+        for alpha in alphas or (paper_alpha,)
         for seed in seeds
     ]
     if configs[0].update_schedule == "episode" and len(configs) > 1:
@@ -379,7 +399,30 @@ def make_run_configs(
             "--update-schedule episode updates at each member's own episode ends, so the members "
             "cannot run in lockstep: train one --seed per process (or use --update-schedule step)."
         )
-    if configs[0].q >= 2:
-        cap = 10 ** (8 / (configs[0].q - 1))
-        notes.append(f"q >= 2: the policy density is capped at {cap:.3g} (paper, Numerical Issue)")
+    for q in sorted({c.q for c in configs if c.q >= 2}):
+        cap = 10 ** (8 / (q - 1))
+        notes.append(
+            f"q = {q:g} >= 2: the policy density is capped at {cap:.3g} (paper, Numerical Issue)"
+        )
+    notes.append(compile_note(configs[0], overrides.get("compile", "auto")))
     return configs, notes
+
+
+def compile_note(config: RunConfig, asked: str) -> str:
+    """What ``--compile`` resolved to for ``config``, and why."""
+    if asked != "auto":
+        return f"compile: {config.compile} (--compile {asked})"
+    if config.learning_steps < COMPILE_AUTO_LEARNING_STEPS:
+        return (
+            f"compile: off (--compile auto: {config.learning_steps:,} learning steps, fewer than "
+            f"the {COMPILE_AUTO_LEARNING_STEPS:,} that repay the compilation)"
+        )
+    if config.compile == "off":
+        return (
+            "WARNING: compile: off (--compile auto found no C++ compiler, which torch.compile "
+            "needs on a CPU; install one, e.g. Debian's g++, for a 3-4x faster update)"
+        )
+    return (
+        f"compile: on (--compile auto: {config.learning_steps:,} learning steps repay the "
+        "compilation of the first update)"
+    )

@@ -12,6 +12,7 @@ the exact regression references (``tacbench.regress``) and the saved benchmark b
 from __future__ import annotations
 
 import ctypes
+import os
 import platform
 import re
 import sys
@@ -66,6 +67,25 @@ def cpu_class() -> str:
 
     parts = [platform.machine(), *cpu_identity(), torch.backends.cpu.get_cpu_capability()]
     return "-".join(re.sub(r"[^A-Za-z0-9_.]+", "_", part) for part in parts)
+
+
+def memory_bytes() -> int:
+    """This machine's physical memory (POSIX; 8 GiB where it cannot be read)."""
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return 8 << 30
+
+
+@cache
+def cpp_compiler() -> str | None:
+    """The C++ compiler torch.compile's Inductor would use on a CPU, or None if there is none."""
+    from torch._inductor import cpp_builder
+
+    try:
+        return str(cpp_builder.get_cpp_compiler())
+    except Exception:  # Inductor raises its own InvalidCxxCompiler (and others) when none works
+        return None
 
 
 def configure_process(threads: int) -> None:

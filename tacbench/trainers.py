@@ -36,18 +36,19 @@ def make_configs(
     seeds: Sequence[int],
     settings: Mapping[str, Any],
     *,
-    q: float | None = None,
-    alpha: float | None = None,
+    qs: Sequence[float] = (),
+    alphas: Sequence[float] = (),
     tac_settings_given: Mapping[str, Any] | None = None,
     hp: Sequence[str] = (),
 ) -> tuple[list[AnyConfig], list[str]]:
-    """One config per seed for ``algo`` on ``env`` (``task``: its paper name) and notes on the
+    """One config per member for ``algo`` on ``env`` (``task``: its paper name; TAC: the cross
+    product of ``qs``, ``alphas`` and ``seeds``, empty ones the paper's) and notes on the
     defaults chosen. ``settings``: config fields (TAC's, or the run settings for a baseline).
     For a baseline, ``tac_settings_given`` (TAC settings the user gave, q and alpha included)
     become its hyperparameters where it has an equivalent, and ``hp`` holds ``KEY=VALUE``
     overrides of its table."""
     if algo == "tac":
-        configs, notes = make_run_configs(env, task, seeds, q=q, alpha=alpha, **settings)
+        configs, notes = make_run_configs(env, task, seeds, qs, alphas, **settings)
         return list(configs), notes
     from baselines import config as baseline_config  # torch and SB3 only when this runs
 

@@ -50,11 +50,12 @@ def tiny_configs(
     *,
     q: float | None = 1.5,
     alpha: float | None = 0.2,
+    qs: Sequence[float] = (),
     **settings: Any,
 ) -> list[AnyConfig]:
     """Tiny-budget configs of ``learner`` (one of :data:`LEARNERS`) on ``env``, one per seed;
-    ``settings`` replace the tiny ones; q, alpha and TAC settings apply to TAC only (None: the
-    paper's q or alpha for the task)."""
+    ``settings`` replace the tiny ones; q (or several, ``qs``), alpha and TAC settings apply to
+    TAC only (None: the paper's q or alpha for the task)."""
     algo = "tac" if learner.startswith("tac") else learner
     run = {k: v for k, v in {**TINY_RUN, **settings}.items() if k not in TINY_TAC}
     if algo == "tac":
@@ -62,7 +63,13 @@ def tiny_configs(
         if learner == "tac-twinq":
             tac["critic_target"] = "twin-q"
         configs, _ = trainers.make_configs(
-            algo, env, paper_task(env), seeds, {**run, **tac}, q=q, alpha=alpha
+            algo,
+            env,
+            paper_task(env),
+            seeds,
+            {**run, **tac},
+            qs=qs or ([] if q is None else [q]),
+            alphas=() if alpha is None else [alpha],
         )
     else:
         configs, _ = trainers.make_configs(algo, env, paper_task(env), seeds, run, hp=TINY_HP[algo])

@@ -82,8 +82,8 @@ def test_sweep_overrides_default_to_the_presets_value() -> None:
     ("args", "settings"),
     [
         ([], {}),
-        (["--compile"], {"compile": True}),
-        (["--no-compile", "--steps", "300"], {"compile": False, "total_steps": 300}),
+        (["--compile", "on"], {"compile": "on"}),
+        (["--compile", "off", "--steps", "300"], {"compile": "off", "total_steps": 300}),
         (["--hidden-sizes", "400,300"], {"hidden_sizes": (400, 300)}),
     ],
 )

@@ -7,6 +7,7 @@ import json
 import pytest
 import torch
 
+from tacbench import hardware
 from tacbench.config import PAPER_SEEDS, RunConfig, make_run_configs, paper_defaults
 from tacbench.errors import TacbenchError
 
@@ -50,13 +51,45 @@ def test_make_run_configs_fills_in_the_papers_values_and_says_so() -> None:
     assert [(c.q, c.alpha, c.seed) for c in configs] == [(1.2, 0.05, 0), (1.2, 0.05, 10)]
     assert any("q = 1.2" in note and "Humanoid" in note for note in notes)
     assert any("alpha = 0.05" in note for note in notes)
-    configs, notes = make_run_configs("Hopper-v4", "Hopper", [0], q=1.5, alpha=0.3)
-    assert (configs[0].q, configs[0].alpha, notes) == (1.5, 0.3, [])
+    configs, notes = make_run_configs("Hopper-v4", "Hopper", [0], [1.5], [0.3], compile="off")
+    assert (configs[0].q, configs[0].alpha, notes) == (1.5, 0.3, ["compile: off (--compile off)"])
+
+
+def test_members_are_the_cross_product_of_q_alpha_and_seed() -> None:
+    configs, notes = make_run_configs("Hopper-v4", "Hopper", [0, 10], [0.5, 2.0], [0.1, 0.2])
+    assert [(c.q, c.alpha, c.seed) for c in configs] == [
+        (q, alpha, seed) for q in (0.5, 2.0) for alpha in (0.1, 0.2) for seed in (0, 10)
+    ]
+    assert {c.variant for c in configs} == {"q0.5-a0.1", "q0.5-a0.2", "q2-a0.1", "q2-a0.2"}
+    assert any(note.startswith("q = 2 >= 2: the policy density is capped") for note in notes)
+    for flag, kwargs in (("--q", {"qs": [1, 1]}), ("--alpha", {"alphas": [0.2, 0.2]})):
+        with pytest.raises(TacbenchError, match=f"{flag} values must differ"):
+            make_run_configs("Hopper-v4", "Hopper", [0], **kwargs)  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize(
+    ("steps", "compiler", "expected", "note"),
+    [
+        (1_000_000, "g++", "on", "compile: on (--compile auto: 990,000 learning steps"),
+        (29_999, "g++", "off", "compile: off (--compile auto: 19,999 learning steps, fewer"),
+        (1_000_000, None, "off", "WARNING: compile: off (--compile auto found no C++ compiler"),
+    ],
+)
+def test_compile_auto_compiles_long_runs_where_a_compiler_is_found(
+    monkeypatch: pytest.MonkeyPatch, steps: int, compiler: str | None, expected: str, note: str
+) -> None:
+    monkeypatch.setattr(hardware, "cpp_compiler", lambda: compiler)
+    configs, notes = make_run_configs("Hopper-v4", "Hopper", [0], total_steps=steps)
+    assert configs[0].compile == expected  # what is used is what config.json records
+    assert any(n.startswith(note) for n in notes), notes
+    assert RunConfig.from_dict(configs[0].to_dict()) == configs[0]
+    forced, notes = make_run_configs("Hopper-v4", "Hopper", [0], total_steps=steps, compile="on")
+    assert forced[0].compile == "on" and "compile: on (--compile on)" in notes
 
 
 def test_q_at_least_two_mentions_the_density_cap() -> None:
     _, notes = make_run_configs("Hopper-v4", "Hopper", [0])
-    assert any("capped at 1e+08" in note for note in notes)
+    assert any("q = 2 >= 2: the policy density is capped at 1e+08" in note for note in notes)
 
 
 @pytest.mark.parametrize(
@@ -74,6 +107,7 @@ def test_q_at_least_two_mentions_the_density_cap() -> None:
         ("gamma", 1.5, "gamma"),
         ("hidden_sizes", (), "hidden_sizes"),
         ("q_schedule_start", 0.95, "q_schedule_start"),
+        ("compile", True, "--compile must be one of auto, on, off"),
     ],
 )
 def test_invalid_values_are_refused_with_what_to_do(

@@ -122,3 +122,21 @@ def test_ctrl_c_checkpoints_and_resume_completes(
     assert pd.read_csv(run / "eval.csv")["step"].tolist() == [500, 1000, 1500, 2000]
     train_steps = pd.read_csv(run / "train.csv")["step"]
     assert train_steps.is_monotonic_increasing and not train_steps.duplicated().any()
+
+
+def test_a_mixed_group_stopped_and_resumed_continues_every_member_exactly(tmp_path: Path) -> None:
+    """Members at q = 1 and 2 (q = 1 and the cap in one group) with two seeds each."""
+    configs = tiny_configs("tac", seeds=[0, 10], qs=[1.0, 2.0])
+    reference = train(tmp_path / "reference", configs)
+    for stop_at in (730, 1234):
+        stopped = train(
+            tmp_path / "resumed", configs, resume=True, stop=lambda s, at=stop_at: s >= at
+        )
+        assert {(o.state, o.step) for o in stopped} == {("interrupted", stop_at)}
+    resumed = train(tmp_path / "resumed", configs, resume=True)
+    assert [o.state for o in resumed] == ["complete"] * 4
+    for a, b in zip(reference, resumed, strict=True):
+        assert a.directory.relative_to(tmp_path / "reference") == b.directory.relative_to(
+            tmp_path / "resumed"
+        )
+        assert_same_results(a.directory, b.directory)

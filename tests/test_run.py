@@ -19,6 +19,7 @@ from click.testing import CliRunner
 from tacbench.cli import cli
 from tacbench.config import PAPER_ALPHA, PAPER_BEST_Q, RunConfig
 from tacbench.envs import SUITE
+from tacbench.errors import TacbenchError
 from tacbench.runs import Outcome
 from tests.helpers import tiny_configs, train
 
@@ -146,3 +147,72 @@ def test_twin_q_critic_target_has_no_v_loss_and_names_its_variant(tmp_path: Path
     assert outcome.directory.parent.name == "q1.5-a0.2-twinq-ls1000-bs32"
     losses = pd.read_csv(outcome.directory / "losses.csv")
     assert (losses["loss_v"] == 0).all() and losses["loss_q1"].gt(0).all()
+
+
+def test_members_of_two_q_and_two_seeds_write_the_runs_they_would_write_alone(
+    tmp_path: Path,
+) -> None:
+    settings = {"total_steps": 1000, "learning_starts": 500, "eval_every": 500}
+    group = tiny_configs("tac", seeds=[0, 10], qs=[1.0, 2.0], **settings)
+    outcomes = _train(tmp_path / "group", *group)  # type: ignore[arg-type]
+    assert {o.state for o in outcomes} == {"complete"}
+    directories = {(o.directory.parent.name, o.seed): o.directory for o in outcomes}
+    assert sorted(directories) == [
+        (f"q{q}-a0.2-ls500-bs32", seed) for q in (1, 2) for seed in (0, 10)
+    ]
+    for config in group:
+        member = directories[(config.variant, config.seed)]
+        (alone,) = _train(tmp_path / f"alone-{config.variant}", config)  # type: ignore[arg-type]
+        ours = json.loads((member / "config.json").read_text())
+        theirs = json.loads((alone.directory / "config.json").read_text())
+        assert ours["config"] == theirs["config"]  # only the members list differs
+        assert (len(ours["members"]), len(theirs["members"])) == (4, 1)
+        # the evaluation before learning: the same initial weights and warm-up as alone
+        before = [pd.read_csv(d / "eval.csv").iloc[0] for d in (member, alone.directory)]
+        assert before[0]["step"] == 500 and before[0]["return_mean"] == before[1]["return_mean"]
+        assert (pd.read_csv(member / "losses.csv")["q"] == config.q).all()
+    from tacbench.report import ReportOptions, analyse
+
+    report = analyse(ReportOptions(results=tmp_path / "group", out=tmp_path / "report"))
+    runs = report.runset.runs
+    assert len(runs) == 4 and sorted(runs["q"].unique()) == [1.0, 2.0]
+
+
+def test_a_member_that_diverges_is_retired_and_the_others_finish(tmp_path: Path) -> None:
+    # Humanoid with the joint ln_q: q = 1.2 overflows float32 at the first update, q = 1 does not
+    configs = tiny_configs("tac", "Humanoid-v4", q=None, qs=[1.0, 1.2], alpha=0.05, lnq="joint")
+    by_q = {o.directory.parent.name.split("-")[0]: o for o in _train(tmp_path, *configs)}  # type: ignore[arg-type]
+    assert (by_q["q1.2"].state, by_q["q1.2"].step) == ("failed", 1000)
+    assert by_q["q1"].state == "complete"
+    assert pd.read_csv(by_q["q1"].directory / "eval.csv")["step"].tolist() == [500, 1000, 1500]
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--q", "1", "--q", "1"], "--q values must differ (got [1.0, 1.0])"),
+        (["--alpha", "0.2", "--alpha", "0.2"], "--alpha values must differ"),
+        (["--algo", "td3", "--alpha", "0.1", "--alpha", "0.2"], "repeatable for TAC only"),
+    ],
+)
+def test_repeated_values_are_refused_and_nothing_is_written(
+    tmp_path: Path, args: list[str], message: str
+) -> None:
+    result = CliRunner().invoke(cli, ["run", "--env", "Hopper-v4", *args, "--out", str(tmp_path)])
+    assert result.exit_code == 2 and message in result.output, result.output
+    assert not (tmp_path / "runs").exists()
+
+
+def test_members_that_differ_in_more_than_q_alpha_and_seed_are_refused(tmp_path: Path) -> None:
+    (a,) = tiny_configs("tac", lnq="joint")
+    (b,) = tiny_configs("tac", seeds=[1])
+    (c,) = tiny_configs("tac", "Ant-v4", seeds=[2])
+    with pytest.raises(
+        TacbenchError, match="differ only in q, alpha and the seed; these differ: lnq"
+    ):
+        _train(tmp_path, a, b)  # type: ignore[arg-type]
+    with pytest.raises(TacbenchError, match="these differ: env: 'Hopper-v4' -> 'Ant-v4'"):
+        _train(tmp_path, b, c)  # type: ignore[arg-type]
+    with pytest.raises(TacbenchError, match="the same run"):
+        _train(tmp_path, b, b)  # type: ignore[arg-type]
+    assert not (tmp_path / "runs").exists()

@@ -80,7 +80,8 @@ def test_every_learner_writes_the_documented_run_directory(
     chunks = ["000000000000-000000000500.npz", "000000000500-000000001000.npz"]
     chunks.append("000000001000-000000001500.npz")
     if config.algo == "tac":
-        assert (metadata["q"], metadata["alpha"], metadata["members"]) == (1.5, 0.2, [0])
+        assert (metadata["q"], metadata["alpha"]) == (1.5, 0.2)
+        assert metadata["members"] == [{"q": 1.5, "alpha": 0.2, "seed": 0}]
         assert list(losses.columns) == ["step", *LOSS_COLUMNS]
         assert losses["step"].tolist() == [1000, 1250, 1500]  # first update after step 1000
         assert losses["updates"].tolist() == [1, 250, 250]

@@ -82,8 +82,8 @@ def _assert_complete_rows(run: Path, steps: int) -> None:
 
 
 def test_local_sweep_with_members_then_rerun_skips_everything(tmp_path: Path) -> None:
-    args = _sweep_args(tmp_path, "--algo", "tac", "--algo", "ppo", "--group-seeds")
-    args += ["--steps", "600", "--workers", "2"]
+    args = _sweep_args(tmp_path, "--algo", "tac", "--algo", "ppo")
+    args += ["--steps", "600", "--workers", "1"]  # one worker: the four TAC runs in one unit
     runner = CliRunner()
     first = runner.invoke(cli, args)
     assert first.exit_code == 0, first.output
@@ -92,8 +92,9 @@ def test_local_sweep_with_members_then_rerun_skips_everything(tmp_path: Path) ->
     ppo = sorted((tmp_path / "runs" / "ppo" / "Hopper-v4").glob("*/seed*"))
     assert [p.parent.name for p in tac] == ["q1-a0.2-ls500-bs32"] * 2 + ["q2-a0.2-ls500-bs32"] * 2
     assert len(ppo) == 2
-    for run in tac:
-        assert json.loads((run / "config.json").read_text())["members"] == [0, 10]
+    every = [{"q": q, "alpha": 0.2, "seed": seed} for q in (1.0, 2.0) for seed in (0, 10)]
+    for run in tac:  # the task's four TAC runs (two q, two seeds) as members of one unit
+        assert json.loads((run / "config.json").read_text())["members"] == every
         _assert_complete_rows(run, 600)
     for run in ppo:
         assert pd.read_csv(run / "eval.csv")["step"].tolist() == [500, 600]
@@ -101,7 +102,7 @@ def test_local_sweep_with_members_then_rerun_skips_everything(tmp_path: Path) ->
     summary = json.loads((tmp_path / "sweep" / "summary.json").read_text())
     assert summary["counts"]["complete"] == 6 and summary["unfinished"] == []
     assert summary["interrupted"] is False
-    assert len(list((tmp_path / "sweep" / "logs").glob("*.log"))) == 4  # 2 member units + 2 PPO
+    assert len(list((tmp_path / "sweep" / "logs").glob("*.log"))) == 3  # the TAC unit + 2 PPO
     assert not (tmp_path / "sweep" / "lock").exists()
 
     before = {p: p.stat().st_mtime_ns for p in tmp_path.glob("runs/**/*") if p.is_file()}

@@ -14,7 +14,7 @@ from typing import Any
 import pytest
 from click.testing import CliRunner
 
-from tacbench import runs
+from tacbench import hardware, runs
 from tacbench.cli import cli
 from tacbench.errors import TacbenchError
 from tacbench.sweep import cost, driver, plan, state, summary, worker
@@ -69,10 +69,10 @@ def test_counts_and_steps_left_match_a_hand_count(smoke_out: tuple[Path, list[pl
         "retry",
         *["train"] * 3,
     ]
-    assert len(work.units) == 7
+    assert len(work.units) == 6  # the two new TAC runs (q2, both seeds) are members of one
     retry = [u for u in work.units if u.retry]
     assert retry == [plan.Unit((all_runs[4],), retry=(all_runs[4].key,))]
-    text = summary.describe_plan(work, workers=2, group_seeds=False)
+    text = summary.describe_plan(work, workers=2, group="none")
     assert "8 runs: 1 complete, 1 partial, 1 failed (1 to retry, 0 given up" in text
     assert "5 not started" in text and "environment steps left: 5,800 of 8,000" in text
 
@@ -104,20 +104,61 @@ def test_another_config_in_a_run_directory_stops_the_plan(tmp_path: Path) -> Non
     assert _plan(other).runs[0].status == plan.Status("partial", 0)
 
 
-def test_group_seeds_makes_member_units_at_equal_resume_steps(tmp_path: Path) -> None:
+def test_grouping_makes_member_units_at_equal_resume_steps(tmp_path: Path) -> None:
     tac = narrow(SMOKE, Narrowing(algos=("tac", "ppo")))
     all_runs = plan.build_runs(tac)
     _fake_run(tmp_path, all_runs[3], {"state": "running", "step": 500})  # q2 seed 10
-    work = driver.load_plan(tac, tmp_path, driver.Options(group_seeds=True), save=False)[0]
-    assert [u.key for u in work.units] == [
+    by_seed = driver.load_plan(tac, tmp_path, driver.Options(group="seeds"), save=False)[0]
+    assert [u.key for u in by_seed.units] == [
         "runs/tac/Hopper-v4/q1-a0.2-ls500-bs32/seeds0,10",
         "runs/tac/Hopper-v4/q2-a0.2-ls500-bs32/seed0",
         "runs/tac/Hopper-v4/q2-a0.2-ls500-bs32/seed10",
         *(r.key for r in all_runs[4:]),  # baselines are never grouped
     ]
-    assert "5 units to train (one process or Ray task each; TAC seeds grouped as members)" in (
-        summary.describe_plan(work, 1, True)
+    by_task = driver.load_plan(tac, tmp_path, driver.Options(group="task"), save=False)[0]
+    assert (
+        [[r.key for r in u.runs] for u in by_task.units]
+        == [
+            [r.key for r in all_runs[:3]],  # q1 seeds 0 and 10, q2 seed 0: all at step 0
+            [all_runs[3].key],  # resumes from step 500
+            *([r.key] for r in all_runs[4:]),
+        ]
     )
+    assert by_task.units[0].key.startswith("runs/tac/Hopper-v4/members3-")
+    text = summary.describe_plan(by_task, 1, "task")
+    assert "4 units to train (one process or Ray task each; --group task: TAC runs" in text
+    assert "  tac Hopper-v4: 2 units of 1-3 members, up to 0.1 GiB each" in text
+    alone = driver.load_plan(tac, tmp_path, driver.Options(group="none"), save=False)[0]
+    assert [u.key for u in alone.units] == [r.key for r in all_runs]
+
+
+def test_a_q_by_seed_grid_is_split_into_near_equal_units_of_at_most_members(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(hardware, "memory_bytes", lambda: 64 << 30)  # 90 Hopper members fit
+    grid = narrow(get_preset("paper-q-grid"), Narrowing(tasks=("Hopper",)))
+    assert len(plan.build_runs(grid)) == 90
+    cases = [(1, None, [90]), (2, None, [45, 45]), (1, 40, [30] * 3), (1, 7, [7] * 12 + [6])]
+    for workers, members, sizes in cases:  # with 2 workers, each gets a unit
+        options = driver.Options(group="task", members=members, workers=workers)
+        work = driver.load_plan(grid, tmp_path, options, save=False)[0]
+        assert [len(u.runs) for u in work.units] == sizes, members
+        assert len({r.key for u in work.units for r in u.runs}) == 90
+    assert cost.members_per_unit(90, 1 << 30, workers=2, groups=1, memory=16 << 30) == 6
+    assert cost.members_per_unit(90, 1 << 20, workers=16, groups=6, memory=64 << 30) == 30
+    assert cost.members_per_unit(3, 1 << 20, workers=1, groups=1, memory=8 << 30, limit=2) == 2
+
+
+@pytest.mark.parametrize(
+    ("options", "message"),
+    [
+        ({"members": 0}, "--members must be at least 1"),
+        ({"group": "q"}, "--group must be one of task, seeds, none"),
+    ],
+)
+def test_bad_grouping_options_are_refused(options: dict[str, Any], message: str) -> None:
+    with pytest.raises(TacbenchError, match=message):
+        driver.Options(**options)
 
 
 def test_measured_throughput_replaces_the_default(tmp_path: Path) -> None:

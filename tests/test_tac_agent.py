@@ -19,7 +19,8 @@ OBS, ACT = 5, 3
 
 
 def _agent(seeds: list[int], **overrides: object) -> TacAgent:
-    config = RunConfig(env="Hopper-v4", q=1.5, alpha=0.2, hidden_sizes=(16,), **overrides)  # type: ignore[arg-type]
+    settings = {"compile": "off", **overrides}
+    config = RunConfig(env="Hopper-v4", q=1.5, alpha=0.2, hidden_sizes=(16,), **settings)  # type: ignore[arg-type]
     return TacAgent(OBS, ACT, config, seeds, torch.device("cpu"))
 
 

@@ -36,7 +36,8 @@ CPU = torch.device("cpu")
 
 
 def _agent(hidden: tuple[int, ...] = (16,), **overrides: Any) -> TacAgent:
-    config = RunConfig(env="Hopper-v4", q=1.5, alpha=0.2, hidden_sizes=hidden, **overrides)
+    settings = {"compile": "off", **overrides}
+    config = RunConfig(env="Hopper-v4", q=1.5, alpha=0.2, hidden_sizes=hidden, **settings)
     agent = TacAgent(OBS, ACT, config, SEEDS, CPU)
     with torch.no_grad():  # a wide spread of log_std, so the ln_q floor and cap both matter
         agent.params.networks.policy.weights[-1].mul_(4.0)
@@ -183,7 +184,7 @@ def test_compile_falls_back_to_the_uncompiled_update_where_it_fails(
         return fail
 
     monkeypatch.setattr(update_module.torch, "compile", broken_compile)
-    compiled, plain = _agent(compile=True), _agent()
+    compiled, plain = _agent(compile="on"), _agent()
     batch, eps = _batch()
     with pytest.warns(RuntimeWarning, match=r"no C\+\+ compiler"):
         metrics, grads = compiled.gradients(batch, eps, _c(1.5))
@@ -202,7 +203,7 @@ def test_compiled_update_equals_the_eager_one() -> None:
     afterwards): a group of members at q = 1, 1.5 and 3 (q = 1 and the q >= 2 cap in one graph),
     one of them retired, within float32 rounding of the eager update, then other q values
     without a fallback or a recompilation."""
-    compiled, plain = _agent(compile=True), _agent()
+    compiled, plain = _agent(compile="on"), _agent()
     for agent in (compiled, plain):
         agent.alive[1] = False
     with warnings.catch_warnings(record=True) as caught:
@@ -222,7 +223,7 @@ def test_compiled_twin_q_update_equals_the_eager_one_across_q(lnq: str) -> None:
     """torch.compile with twin-q (tens of seconds of compilation): the same numbers, to the
     rounding of Inductor's reordered reductions, for a sequence of q values that crosses q = 1
     and the cap at q = 2, as a linear q schedule does."""
-    compiled = _agent(compile=True, critic_target="twin-q", lnq=lnq)
+    compiled = _agent(compile="on", critic_target="twin-q", lnq=lnq)
     plain = _agent(critic_target="twin-q", lnq=lnq)
     eps_next = torch.randn(len(SEEDS), 64, ACT, generator=torch.Generator().manual_seed(9))
     for q in (1.0, 1.0001, 1.5, 2.0, 2.1, 3.0, 5.0, 1.2):

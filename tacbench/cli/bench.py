@@ -28,6 +28,11 @@ import click
     help="Untimed random steps before learning starts.",
 )
 @click.option("--compile", "compile_", is_flag=True, help="Add rows for TAC under torch.compile.")
+@click.option(
+    "--grid",
+    is_flag=True,
+    help="Add a row for the paper's q grid of the task in one process (9 q x 10 seeds, compiled).",
+)
 @click.option("--no-sb3", is_flag=True, help="Leave out stable-baselines3's SAC.")
 @click.option("--no-eager", is_flag=True, help="Leave out the rows of TAC uncompiled.")
 @click.option(
@@ -48,6 +53,7 @@ def bench(
     rounds: int,
     learning_starts: int,
     compile_: bool,
+    grid: bool,
     no_sb3: bool,
     no_eager: bool,
     device: str,
@@ -71,6 +77,7 @@ def bench(
         rounds=rounds,
         learning_starts=learning_starts,
         compile=compile_,
+        grid=grid,
         sb3=not no_sb3,
         eager=not no_eager,
         device=training.resolve_device(device),

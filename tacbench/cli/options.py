@@ -35,8 +35,6 @@ class IntTuple(click.ParamType):
 def _shown(value: Any) -> str:
     if isinstance(value, tuple):
         return ",".join(str(v) for v in value)
-    if isinstance(value, bool):
-        return "on" if value else "off"
     return f"{value:g}" if isinstance(value, float) else str(value)
 
 
@@ -47,11 +45,7 @@ def _option(declared: Setting, *, sweep: bool) -> Callable[[F], F]:
         "help": f"{info.help}  [default: {default_text}]",
         "default": None if sweep else declared.default,
     }
-    flags = [declared.flag]
-    if declared.type is bool:
-        flags = [f"{declared.flag}/--no-{declared.flag[2:]}"] if sweep else flags
-        kwargs["is_flag"] = not sweep or None
-    elif info.choices:
+    if info.choices:
         kwargs["type"] = click.Choice(info.choices)
     elif declared.type == tuple[int, ...]:
         kwargs["type"] = IntTuple()
@@ -59,8 +53,7 @@ def _option(declared: Setting, *, sweep: bool) -> Callable[[F], F]:
         kwargs["type"] = declared.type
     if info.metavar:
         kwargs["metavar"] = info.metavar
-    kwargs = {k: v for k, v in kwargs.items() if v is not None or k == "default"}
-    return click.option(*flags, declared.name, **kwargs)
+    return click.option(declared.flag, declared.name, **kwargs)
 
 
 def setting_options(cls: type, names: Iterable[str], *, sweep: bool = False) -> Callable[[F], F]:

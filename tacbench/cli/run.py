@@ -40,15 +40,18 @@ _RUN_SETTINGS = set(settings_of(RunSettings))
 )
 @click.option(
     "--q",
+    "qs",
     type=float,
-    default=None,
-    help="Entropic index q.  [default: the paper's best q for the task]",
+    multiple=True,
+    help="Entropic index q; repeatable (--q 0.5 --q 1 --q 1.5): every q x alpha x seed trains "
+    "as a member of one process.  [default: the paper's best q for the task]",
 )
 @click.option(
     "--alpha",
+    "alphas",
     type=float,
-    default=None,
-    help="Entropy coefficient.  [default: the paper's: 0.2, Humanoid 0.05]",
+    multiple=True,
+    help="Entropy coefficient; repeatable, like --q.  [default: the paper's: 0.2, Humanoid 0.05]",
 )
 @click.option(
     "--seed",
@@ -76,8 +79,8 @@ def run(
     env: str,
     algo: str,
     hp: tuple[str, ...],
-    q: float | None,
-    alpha: float | None,
+    qs: tuple[float, ...],
+    alphas: tuple[float, ...],
     seeds: tuple[int, ...],
     out: Path,
     resume: bool,
@@ -102,15 +105,20 @@ def run(
                 "--hp sets a baseline's hyperparameters; TAC's have their own flags."
             )
         configs, notes = trainers.make_configs(
-            algo, env_id, envs.paper_task(env_id), seeds, settings, q=q, alpha=alpha
+            algo, env_id, envs.paper_task(env_id), seeds, settings, qs=qs, alphas=alphas
         )
     else:
-        given = {
-            name: value
-            for name, value in {"q": q, "alpha": alpha, **settings}.items()
+        if len(qs) > 1 or len(alphas) > 1:
+            raise TacbenchError(
+                f"--q and --alpha are repeatable for TAC only; {algo} trains one value per command."
+            )
+        given = {name: v[0] for name, v in (("q", qs), ("alpha", alphas)) if v}
+        given.update(
+            (name, value)
+            for name, value in settings.items()
             if name not in _RUN_SETTINGS
             and ctx.get_parameter_source(name) == click.core.ParameterSource.COMMANDLINE
-        }
+        )
         run_settings = {k: v for k, v in settings.items() if k in _RUN_SETTINGS}
         configs, notes = trainers.make_configs(
             algo,

@@ -16,6 +16,7 @@ from tacbench import trainers
 from tacbench.cli.common import command_line
 from tacbench.cli.options import cli_settings, setting_options
 from tacbench.config import RunConfig
+from tacbench.sweep import GROUPS
 from tacbench.sweep.presets import PRESETS as SWEEP_PRESETS
 
 _OVERRIDES = cli_settings(RunConfig, sweep=True)
@@ -57,7 +58,21 @@ _OVERRIDES = cli_settings(RunConfig, sweep=True)
     help="Ray: run directories and checkpoints on each node.  [default: $TMPDIR/tacbench-sweep]",
 )
 @click.option("--shared-fs", is_flag=True, help="Ray: --out is the same path on every node.")
-@click.option("--group-seeds", is_flag=True, help="TAC runs differing in seed share a process.")
+@click.option(
+    "--group",
+    type=click.Choice(GROUPS),
+    default="task",
+    show_default=True,
+    help="task: TAC runs of one task that differ only in q, alpha or seed train as members of "
+    "one unit (process or Ray task); seeds: only runs that differ in seed; none: one run each.",
+)
+@click.option(
+    "--members",
+    type=int,
+    default=None,
+    help="At most this many members per unit.  [default: what this machine's memory holds with "
+    "every worker busy, and small enough that every worker gets a unit; --dry-run shows it]",
+)
 @click.option("--max-retries", type=int, default=2, show_default=True, help="Per failed run.")
 @click.option(
     "--out",
@@ -96,13 +111,14 @@ def sweep(ctx: click.Context, preset: str, **p: Any) -> None:
         gpus_per_run=p["gpus_per_run"],
         scratch=p["scratch"],
         shared_fs=p["shared_fs"],
-        group_seeds=p["group_seeds"],
+        group=p["group"],
+        members=p["members"],
         max_retries=p["max_retries"],
         command=command_line(ctx),
     )
     if p["dry_run"]:
         work, _ = driver.load_plan(grid, p["out"], options, save=False)
-        click.echo(summary.describe_plan(work, options.worker_count(), options.group_seeds))
+        click.echo(summary.describe_plan(work, options.worker_count(), options.group))
         return
     result = driver.run_sweep(grid, p["out"], options)
     click.echo(result.text)

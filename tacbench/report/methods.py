@@ -18,7 +18,7 @@ from matplotlib import colormaps
 from matplotlib.colors import to_hex
 from matplotlib.typing import LineStyleType
 
-from tacbench.report.paper import PAPER_Q_GRID
+from tacbench.config import PAPER_Q_GRID
 
 SAC_LABEL = "SAC (TAC q=1)"
 BEST_Q_LABEL = "TAC (best q)"

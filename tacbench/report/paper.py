@@ -9,9 +9,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-PAPER_Q_GRID: tuple[float, ...] = (0.5, 0.7, 1.0, 1.2, 1.5, 1.7, 2.0, 3.0, 5.0)
-"""The entropic indices of the paper's sweep (section "Effect of Entropic Index")."""
-
 PAPER_TASK_ORDER: tuple[str, ...] = (
     "HalfCheetah",
     "Ant",

@@ -10,3 +10,6 @@ without loading torch or Gymnasium.
 - :mod:`~tacbench.sweep.state`, :mod:`~tacbench.sweep.summary`, :mod:`~tacbench.sweep.cost`,
   :mod:`~tacbench.sweep.progress`: failure history and lock, texts, cost estimate, display.
 """
+
+# --group: what the TAC members of one unit may differ in (here: the CLI imports it at start-up)
+GROUPS = ("task", "seeds", "none")

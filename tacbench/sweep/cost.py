@@ -1,4 +1,5 @@
-"""How long the steps left will take: seconds per environment step for each (algo, env).
+"""How long the steps left will take (seconds per environment step for each (algo, env)), and
+how much memory a unit of TAC members needs.
 
 Measured, where possible, from run directories already under ``--out``: a run's ``eval.csv``
 ``wall_s`` (training, evaluation and checkpoints, summed over sessions) over its second half of
@@ -10,6 +11,7 @@ yet, the defaults below are used, and the plan says so.
 from __future__ import annotations
 
 import csv
+import math
 import statistics
 from collections import defaultdict
 from collections.abc import Iterable
@@ -160,3 +162,41 @@ def measure(out: Path, pairs: Iterable[tuple[str, str]]) -> dict[tuple[str, str]
         (s0, t0), (s1, t1) = marks["first"], marks["last"]
         result[(algo, env)] = (t1 - t0) / (s1 - s0)
     return result
+
+
+# A TAC member's memory besides its replay buffer: its share of the networks, gradients and Adam
+# moments and its training and evaluation environments (measured for 10 Humanoid members: the
+# agent 188 MB after construction, the 10 training and 100 evaluation envs 132 MB resident;
+# docs/performance.md, "Memory"), rounded up.
+MEMBER_OVERHEAD_BYTES = 40 << 20
+# the buffer's row ring commits about 1 + 1/L rows per step for episodes of mean length L;
+# L = 20 is short for the paper's tasks (Humanoid's early episodes), so the estimate is generous
+_ROWS_PER_STEP = 1.0 + 1.0 / 20
+MEMORY_SHARE = 0.75  # of this machine's memory, split between the workers, for replay buffers
+
+
+def member_bytes(obs_dim: int, act_dim: int, transitions: int) -> int:
+    """Memory of one TAC member with a replay buffer of ``transitions`` transitions: two int64
+    row indices, the action, reward and terminal flag (float32) per transition, and the float32
+    observation rows (tacbench/tac/buffer.py), plus :data:`MEMBER_OVERHEAD_BYTES`."""
+    per_step = 16 + 4 * act_dim + 8 + 4 * obs_dim * _ROWS_PER_STEP
+    return int(per_step * transitions) + MEMBER_OVERHEAD_BYTES
+
+
+def members_per_unit(
+    group_size: int,
+    bytes_per_member: int,
+    *,
+    workers: int,
+    groups: int,
+    memory: int,
+    limit: int | None = None,
+) -> int:
+    """How many of a group's ``group_size`` runs one unit trains: at most ``limit`` (--members),
+    no more than fit this machine's memory when every worker holds a unit (``MEMORY_SHARE`` of
+    ``memory`` split between ``workers``), and split so that ``groups`` groups give every worker
+    a unit."""
+    fits = max(1, int(MEMORY_SHARE * memory / workers) // bytes_per_member)
+    units_for_workers = max(1, math.ceil(workers / max(1, groups)))
+    spread = math.ceil(group_size / units_for_workers)
+    return max(1, min(fits, spread, limit or group_size))

@@ -12,16 +12,18 @@ last checkpoints).
 
 from __future__ import annotations
 
+import functools
 import os
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
 
-from tacbench import runs
+from tacbench import envs, hardware, runs
 from tacbench.errors import TacbenchError
 from tacbench.interrupts import stop_signals
-from tacbench.sweep import executors, plan, state, summary
+from tacbench.sweep import GROUPS, cost, executors, plan, state, summary
 from tacbench.sweep.presets import Preset
 from tacbench.sweep.progress import SweepProgress
 
@@ -37,7 +39,8 @@ class Options:
     gpus_per_run: float = 0.0
     scratch: Path | None = None
     shared_fs: bool = False
-    group_seeds: bool = False
+    group: str = "task"  # TAC runs of one task differing in q, alpha, seed share a unit
+    members: int | None = None  # at most this many per unit; None: what memory and workers allow
     max_retries: int = 2
     command: str = ""
 
@@ -46,6 +49,10 @@ class Options:
             raise TacbenchError(f"--executor must be local or ray (got {self.executor!r}).")
         if self.workers is not None and self.workers < 1:
             raise TacbenchError(f"--workers must be at least 1 (got {self.workers}).")
+        if self.group not in GROUPS:
+            raise TacbenchError(f"--group must be one of {', '.join(GROUPS)}.")
+        if self.members is not None and self.members < 1:
+            raise TacbenchError(f"--members must be at least 1 (got {self.members}).")
         if self.max_retries < 0:
             raise TacbenchError(f"--max-retries must be 0 or more (got {self.max_retries}).")
         if self.cpus_per_run <= 0 or self.gpus_per_run < 0:
@@ -110,9 +117,36 @@ def load_plan(
         statuses,
         history.failure_counts(),
         max_retries=options.max_retries,
-        group_seeds=options.group_seeds,
+        group=options.group,
+        unit_size=unit_size(options),
     )
     return built, history
+
+
+def unit_size(options: Options) -> plan.UnitSize:
+    """How many runs of a group one unit trains (:func:`cost.members_per_unit`): at most
+    ``--members``, what fits this machine's memory with every worker busy, and few enough that
+    every worker gets a unit."""
+    bytes_per_member = functools.cache(_member_bytes)
+
+    def size(group: Sequence[plan.Run], n_groups: int) -> int:
+        config = group[0].config
+        transitions = min(getattr(config, "buffer_size", config.total_steps), config.total_steps)
+        return cost.members_per_unit(
+            len(group),
+            bytes_per_member(config.env, transitions),
+            workers=options.worker_count(),
+            groups=n_groups,
+            memory=hardware.memory_bytes(),
+            limit=options.members,
+        )
+
+    return size
+
+
+def _member_bytes(env: str, transitions: int) -> int:
+    info = envs.env_info(env)
+    return cost.member_bytes(info.obs_dim, info.act_dim, transitions)
 
 
 def run_sweep(
@@ -167,6 +201,7 @@ class _Driver:
             len(work.runs), sum(self.total.values()), self._done(), stream
         )
         self.stopping = self.forced = False
+        self.unit_runs: dict[str, list[str]] = {}  # the runs of each submitted unit, by its key
 
     def _done(self) -> int:
         return sum(self.total[k] if k in self.ended else s for k, s in self.step.items())
@@ -186,23 +221,18 @@ class _Driver:
                     if self.executor.running() >= self.executor.capacity():
                         break
                     unit = self.queue.popleft()
+                    self.unit_runs[unit.key] = [r.key for r in unit.runs]
                     self.executor.submit(unit, self.history.node(unit.runs[0].key))
                 for finished in self.executor.wait(timeout=1.0):
                     self._handle(finished)
                 for key, step in self.executor.steps().items():
-                    for run_key in self._run_keys(key):
+                    for run_key in self.unit_runs.get(key, ()):
                         self.step[run_key] = max(self.step[run_key], step)
                 self.progress.update(len(self.ended), self._done())
         finally:
             self.executor.close(force=self.forced)
             self.progress.close()
         return self.stopping or bool(self.queue)
-
-    def _run_keys(self, unit_key: str) -> list[str]:
-        if unit_key in self.step:
-            return [unit_key]
-        parent, seeds = unit_key.rsplit("/seeds", 1)
-        return [f"{parent}/seed{s}" for s in seeds.split(",") if f"{parent}/seed{s}" in self.step]
 
     def _handle(self, finished: executors.Finished) -> None:
         """Read each run's status after its unit ended; record failures, queue retries."""

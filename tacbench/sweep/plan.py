@@ -9,8 +9,10 @@ directory holding another config stops the sweep before anything runs.
 
 from __future__ import annotations
 
+import hashlib
 import json
-from collections.abc import Mapping, Sequence
+import math
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
@@ -69,20 +71,27 @@ class PlannedRun:
 
 @dataclass(frozen=True)
 class Unit:
-    """The work of one process (local) or task (Ray): one run, or TAC members (``--group-seeds``:
-    runs equal but for the seed, resuming from the same step). ``retry`` lists the keys of
-    failed runs to reset to "running" before training, so they continue from their checkpoint."""
+    """The work of one process (local) or task (Ray): one run, or TAC members (``--group``: runs
+    equal but for the seed, or for q, alpha and the seed, resuming from the same step).
+    ``retry`` lists the keys of failed runs to reset to "running" before training, so they
+    continue from their checkpoint."""
 
     runs: tuple[Run, ...]
     retry: tuple[str, ...] = ()
 
     @property
     def key(self) -> str:
-        """The run's key, or ``<variant dir>/seeds<a>,<b>,...`` for members."""
+        """The run's key; for members of one variant ``<variant dir>/seeds<a>,<b>,...``, for
+        members of several ``runs/<algo>/<env>/members<n>-<digest of their keys>``."""
         if len(self.runs) == 1:
             return self.runs[0].key
-        parent = self.runs[0].key.rsplit("/", 1)[0]
-        return f"{parent}/seeds{','.join(str(r.config.seed) for r in self.runs)}"
+        parents = {r.key.rsplit("/", 1)[0] for r in self.runs}
+        if len(parents) == 1:
+            seeds = ",".join(str(r.config.seed) for r in self.runs)
+            return f"{parents.pop()}/seeds{seeds}"
+        digest = hashlib.sha1("\n".join(r.key for r in self.runs).encode()).hexdigest()[:8]
+        c = self.runs[0].config
+        return f"runs/{c.algo}/{c.env}/members{len(self.runs)}-{digest}"
 
     @property
     def algo(self) -> str:
@@ -122,9 +131,14 @@ def build_runs(preset: Preset, *, device: str = "cpu", threads: int = 1) -> list
             env_id = SUITE[task]
             configs = [
                 config
-                for q in entry.q_values(task) or (None,)
                 for config in trainers.make_configs(
-                    entry.algo, env_id, task, entry.seeds, settings, q=q, hp=entry.hp
+                    entry.algo,
+                    env_id,
+                    task,
+                    entry.seeds,
+                    settings,
+                    qs=entry.q_values(task),
+                    hp=entry.hp,
                 )[0]
             ]
             for config in configs:
@@ -163,6 +177,11 @@ def read_status(out: Path, run: Run) -> Status:
     return Status("partial", step)
 
 
+UnitSize = Callable[[Sequence["Run"], int], int]  # a group's runs, how many groups -> unit size
+# what the members of a "task" and a "seeds" unit may differ in (runs equal in everything else)
+_MEMBER_FIELDS = {"task": ("q", "alpha", "seed"), "seeds": ("seed",)}
+
+
 def make_plan(
     preset: Preset,
     out: Path,
@@ -171,7 +190,8 @@ def make_plan(
     failures: Mapping[str, int],
     *,
     max_retries: int,
-    group_seeds: bool,
+    group: str,
+    unit_size: UnitSize,
 ) -> SweepPlan:
     """Each run's action and the units to train, from its status (:func:`read_status`) and its
     number of recorded failures: a run that failed more than ``max_retries`` times is given up
@@ -187,12 +207,15 @@ def make_plan(
         else:
             action = "retry" if status.state == "failed" else "train"
         planned.append(PlannedRun(run, status, n_failed, action))
-    return SweepPlan(preset, out, planned, make_units(planned, group_seeds))
+    return SweepPlan(preset, out, planned, make_units(planned, group, unit_size))
 
 
-def make_units(planned: Sequence[PlannedRun], group_seeds: bool) -> list[Unit]:
-    """One unit per run to train; with ``group_seeds`` TAC runs equal but for the seed and at the
-    same resume step become members of one unit. Failed runs are retried alone."""
+def make_units(planned: Sequence[PlannedRun], group: str, unit_size: UnitSize) -> list[Unit]:
+    """One unit per run to train, or (``group`` "seeds" or "task") TAC runs equal but for the
+    seed, or for q, alpha and the seed, at the same resume step, as members of units of at most
+    ``unit_size(runs of the group, number of groups)`` runs (a larger group is split into units of
+    near-equal size). Failed runs are retried alone; the episode schedule trains one member per
+    process."""
     units: list[Unit | tuple[str, int]] = []  # a tuple marks where a group goes
     groups: dict[tuple[str, int], list[Run]] = {}
     for p in planned:
@@ -201,8 +224,13 @@ def make_units(planned: Sequence[PlannedRun], group_seeds: bool) -> list[Unit]:
             units.append(Unit((p.run,), retry=(p.run.key,)))
         elif p.action != "train":
             continue
-        elif group_seeds and isinstance(config, RunConfig) and config.update_schedule == "step":
-            shared = {k: v for k, v in config.to_dict().items() if k != "seed"}
+        elif (
+            group in _MEMBER_FIELDS
+            and isinstance(config, RunConfig)
+            and (config.update_schedule == "step")
+        ):
+            ignored = _MEMBER_FIELDS[group]
+            shared = {k: v for k, v in config.to_dict().items() if k not in ignored}
             key = (json.dumps(shared, sort_keys=True), p.status.step)
             if key not in groups:
                 groups[key] = []
@@ -210,4 +238,13 @@ def make_units(planned: Sequence[PlannedRun], group_seeds: bool) -> list[Unit]:
             groups[key].append(p.run)
         else:
             units.append(Unit((p.run,)))
-    return [Unit(tuple(groups[u])) if isinstance(u, tuple) else u for u in units]
+    made: list[Unit] = []
+    for u in units:
+        if isinstance(u, Unit):
+            made.append(u)
+            continue
+        grouped = groups[u]
+        n_units = math.ceil(len(grouped) / unit_size(grouped, len(groups)))
+        size = math.ceil(len(grouped) / n_units)
+        made += [Unit(tuple(grouped[i : i + size])) for i in range(0, len(grouped), size)]
+    return made

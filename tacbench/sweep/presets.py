@@ -30,7 +30,7 @@ from tacbench.errors import TacbenchError
 from tacbench.settings import settings_of
 
 PAPER_TASKS = ("HalfCheetah", "Ant", "Hopper", "Swimmer", "Pusher", "Humanoid")  # line 767
-PAPER_Q_GRID = (0.5, 0.7, 1.0, 1.2, 1.5, 1.7, 2.0, 3.0, 5.0)  # section 7.1, line 797
+PAPER_Q_GRID = config.PAPER_Q_GRID  # section 7.1, line 797
 PAPER_BASELINES = ("ddpg", "td3", "ppo", "trpo")  # section 7, lines 773-784 (SAC is TAC q=1)
 
 # smoke: ours (issue 5), the budgets of the trainers' own smoke tests, halved: 1,000 steps,

@@ -8,7 +8,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from tacbench import runs
+from tacbench import envs, runs
 from tacbench.progress import duration
 from tacbench.sweep import cost, state
 from tacbench.sweep.plan import PlannedRun, SweepPlan
@@ -25,8 +25,16 @@ def counts(plan: SweepPlan) -> dict[str, int]:
     }
 
 
-def describe_plan(plan: SweepPlan, workers: int, group_seeds: bool) -> str:
-    """The dry-run report: counts by state, the units, steps left and the cost estimate."""
+GROUPING = {
+    "task": "TAC runs of a task that differ only in q, alpha or seed train as members of one unit",
+    "seeds": "TAC runs that differ only in seed train as members of one unit",
+    "none": "one run per unit",
+}
+
+
+def describe_plan(plan: SweepPlan, workers: int, group: str) -> str:
+    """The dry-run report: counts by state, the units with their members and memory, steps left
+    and the cost estimate."""
     c = counts(plan)
     total = sum(p.run.total_steps for p in plan.runs)
     left = plan.steps_left()
@@ -35,8 +43,9 @@ def describe_plan(plan: SweepPlan, workers: int, group_seeds: bool) -> str:
         f"{c['runs']} runs: {c['complete']} complete, {c['partial']} partial, {c['failed']} "
         f"failed ({c['to_retry']} to retry, {c['given_up']} given up after too many "
         f"failures), {c['new']} not started",
-        f"{len(plan.units)} units to train (one process or Ray task each"
-        f"{'; TAC seeds grouped as members' if group_seeds else ''})",
+        f"{len(plan.units)} units to train (one process or Ray task each; --group {group}: "
+        f"{GROUPING[group]})",
+        *_units(plan),
         f"environment steps left: {left:,} of {total:,}",
         "",
         f"{'algo':<8} {'env':<15} {'runs':>5} {'done':>5} {'part':>5} {'fail':>5} {'new':>5} "
@@ -71,6 +80,35 @@ def describe_plan(plan: SweepPlan, workers: int, group_seeds: bool) -> str:
             "(tacbench/sweep/cost.py); runs under --out with two evaluations replace it."
         )
     return "\n".join(lines)
+
+
+def _units(plan: SweepPlan) -> list[str]:
+    """One line per (algo, env): its units, their members and the memory each needs."""
+    by_task: dict[tuple[str, str], list[int]] = defaultdict(list)
+    memory: dict[tuple[str, str], int] = {}
+    for unit in plan.units:
+        config = unit.runs[0].config
+        key = (config.algo, config.env)
+        by_task[key].append(len(unit.runs))
+        if config.algo == "tac":
+            info = envs.env_info(config.env)
+            transitions = min(getattr(config, "buffer_size", 0), config.total_steps)
+            per_member = cost.member_bytes(info.obs_dim, info.act_dim, transitions)
+            memory[key] = max(memory.get(key, 0), per_member * len(unit.runs))
+    lines = []
+    for (algo, env), sizes in by_task.items():
+        members = f"{min(sizes)}" if min(sizes) == max(sizes) else f"{min(sizes)}-{max(sizes)}"
+        need = memory.get((algo, env))
+        lines.append(
+            f"  {algo} {env}: {len(sizes)} unit{'s' if len(sizes) != 1 else ''} of {members} "
+            f"member{'s' if max(sizes) != 1 else ''}"
+            + (
+                f", up to {need / (1 << 30):.1f} GiB each (replay buffers and networks)"
+                if need
+                else ""
+            )
+        )
+    return lines
 
 
 def summarize(plan: SweepPlan, sweep_state: state.SweepState, **fields: Any) -> dict[str, Any]:

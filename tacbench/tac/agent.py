@@ -51,7 +51,7 @@ class TacAgent:
         self._update = TacUpdate(
             self.params,
             settings,
-            compile=config.compile,
+            compile=config.compile == "on",
             learning_rate=config.learning_rate,
             tau=config.tau,
         )

@@ -37,6 +37,27 @@ def resolve_device(name: str) -> str:
     return name
 
 
+MEMBER_FIELDS = ("q", "alpha", "seed")  # what the members of one group may differ in
+
+
+def check_members(configs: Sequence[RunConfig]) -> None:
+    """The members of one group share every setting but q, alpha and the seed, and no two are
+    the same run; else a TacbenchError names what differs."""
+    if not configs:
+        raise TacbenchError("give at least one member to train.")
+    first = configs[0].to_dict()
+    for config in configs[1:]:
+        differing = runs.differing_fields(first, config.to_dict(), MEMBER_FIELDS)
+        if differing:
+            raise TacbenchError(
+                "the members of one process may differ only in q, alpha and the seed; these "
+                f"differ: {'; '.join(differing)}. Train them in separate commands."
+            )
+    identities = [(c.q, c.alpha, c.seed) for c in configs]
+    if len(set(identities)) != len(identities):
+        raise TacbenchError("two members are the same run (same q, alpha and seed).")
+
+
 def train(
     configs: Sequence[RunConfig],
     out: Path,
@@ -47,19 +68,14 @@ def train(
     command: str = "",
     stop: StopCheck | None = None,
 ) -> list[Outcome]:
-    """Train the members ``configs`` (equal but for the seed) into their run directories.
+    """Train the members ``configs`` (equal but for q, alpha and the seed) into their run
+    directories, as one group.
 
     ``stop`` is polled before every step with the step count; when it (or Ctrl-C / SIGTERM)
     says stop, every member is checkpointed and left "running", to be continued with
     ``resume=True``. Complete and failed runs are skipped unless ``force``.
     """
-    shared = [{k: v for k, v in c.to_dict().items() if k != "seed"} for c in configs]
-    if (
-        not configs
-        or len({c.seed for c in configs}) != len(configs)
-        or shared.count(shared[0]) != len(shared)
-    ):
-        raise TacbenchError("members must share every setting but the seed, and differ in seed.")
+    check_members(configs)
     envs.env_info(configs[0].env)  # an unusable task fails before any directory is touched
     outcomes, active = plan_runs(configs, out, resume=resume, force=force)
     if active:

@@ -28,7 +28,8 @@ LOSS_COLUMNS = ("q", "updates", *METRICS)
 
 
 class GroupTrainer:
-    """The loop state of one group of members (one config each, equal but for the seed)."""
+    """The loop state of one group of members (one config each, equal but for q, alpha and the
+    seed)."""
 
     def __init__(
         self, configs: list[RunConfig], directories: list[Path], command: str, quiet: bool
@@ -60,8 +61,7 @@ class GroupTrainer:
         self.chunk_added, self.chunk_rows = 0, np.zeros(k, dtype=np.int64)
         self._coefficients: tuple[tuple[float, ...], Coefficients] | None = None
         self._resume_or_start(directories)
-        seeds = ",".join(map(str, self.seeds))
-        label = f"TAC {config.env} q={config.q:g} seed{'s' if k > 1 else ''} {seeds}"
+        label = f"TAC {config.env} {_members_label(configs)}"
         self.progress = Progress(label, config.total_steps, self.step, config.eval_every, quiet)
         self._t0 = time.perf_counter()
 
@@ -118,7 +118,7 @@ class GroupTrainer:
             q=config.q,
             alpha=config.alpha,
             total_steps=config.total_steps,
-            members=self.seeds,
+            members=[{"q": c.q, "alpha": c.alpha, "seed": c.seed} for c in self.configs],
         )
 
     # --- the loop ---------------------------------------------------------------------------
@@ -313,3 +313,18 @@ class GroupTrainer:
             self.writers[k].status("running", self.step)
         if self.step > self.chunk_added:  # the next chunk starts where this one ended
             self.chunk_added, self.chunk_rows = self.step, self.buffer.n_rows.copy()
+
+
+def _members_label(configs: list[RunConfig]) -> str:
+    """``q=1.5 seeds 0,10`` or, for a mixed group, ``q=0.5,1,1.5 alpha=0.2 seeds 0,10``."""
+    parts = []
+    for name, values in (
+        ("q", dict.fromkeys(c.q for c in configs)),
+        ("alpha", dict.fromkeys(c.alpha for c in configs)),
+    ):
+        if name == "q" or len(values) > 1:
+            parts.append(f"{name}={','.join(f'{v:g}' for v in values)}")
+    seeds = list(dict.fromkeys(c.seed for c in configs))
+    parts.append(f"seed{'s' if len(seeds) > 1 else ''} {','.join(map(str, seeds))}")
+    n = len(configs)
+    return " ".join(parts) + (f" ({n} members)" if n > len(seeds) else "")

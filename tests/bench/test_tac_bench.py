@@ -37,7 +37,7 @@ def one_thread() -> Iterator[None]:
 
 
 def _agent(k: int, compile: bool = False) -> TacAgent:
-    config = RunConfig(env=ENV, q=1.5, alpha=0.2, compile=compile)
+    config = RunConfig(env=ENV, q=1.5, alpha=0.2, compile="on" if compile else "off")
     return TacAgent(OBS, ACT, config, list(range(0, 10 * k, 10)), torch.device("cpu"))
 
 
