@@ -101,7 +101,7 @@ def test_actions_are_bounded_and_deterministic_action_is_tanh_mu() -> None:
     assert np.all(np.abs(action) <= 1.0)
     det = agent.act_deterministic(obs[:, None])
     obs_tensor = torch.as_tensor(obs[:, None], dtype=torch.float32)
-    mu, _ = policy_head(mlp(agent.params.networks.policy, obs_tensor), ACT, -20.0, 2.0)
+    mu, _ = policy_head(mlp(agent.chunks[0].params.networks.policy, obs_tensor), ACT, -20.0, 2.0)
     np.testing.assert_allclose(det, torch.tanh(mu).numpy())
 
 

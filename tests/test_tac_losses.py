@@ -37,7 +37,7 @@ class Nets:
             OBS, ACT, HIDDEN, gens, twin_q_targets=twin_q, device=torch.device("cpu")
         )
         self.theta = self.params.data.clone().requires_grad_()
-        self.views: Networks = self.params.views(self.theta)
+        self.views: Networks = self.params.layout.networks(self.theta)
         self.target: Layers = self.params.target_networks
 
     def critic(self, i: int, obs: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
@@ -272,7 +272,7 @@ def test_members_with_different_q_and_alpha_get_the_losses_they_would_get_apart(
 def _networks_reached(nets: Nets, loss: torch.Tensor) -> dict[str, bool]:
     """Which networks' weights the gradient of ``loss`` reaches."""
     (grad,) = torch.autograd.grad(loss, nets.theta, retain_graph=True)
-    views, k = nets.params.views(grad), nets.k
+    views, k = nets.params.layout.networks(grad), nets.k
     return {
         "policy": any(bool(w.any()) for w in views.policy.weights),
         "q1": any(bool(w[:k].any()) for w in views.critics.weights),

@@ -15,6 +15,7 @@ import torch
 from torch.optim.adam import adam
 
 from tacbench.config import RunConfig
+from tacbench.tac import agent as agent_module
 from tacbench.tac import update as update_module
 from tacbench.tac.agent import TacAgent
 from tacbench.tac.maths import (
@@ -40,8 +41,9 @@ def _agent(hidden: tuple[int, ...] = (16,), **overrides: Any) -> TacAgent:
     config = RunConfig(env="Hopper-v4", q=1.5, alpha=0.2, hidden_sizes=hidden, **settings)
     agent = TacAgent(OBS, ACT, config, SEEDS, CPU)
     with torch.no_grad():  # a wide spread of log_std, so the ln_q floor and cap both matter
-        agent.params.networks.policy.weights[-1].mul_(4.0)
-        agent.params.target_networks.biases[-1].add_(0.3)  # the target differs from its source
+        params = agent.chunks[0].params
+        params.networks.policy.weights[-1].mul_(4.0)
+        params.target_networks.biases[-1].add_(0.3)  # the target differs from its source
     return agent
 
 
@@ -114,7 +116,9 @@ def test_the_comparison_covers_the_floor_and_the_cap() -> None:
     agent = _agent()
     batch, eps = _batch()
     with torch.no_grad():
-        mu, log_std = policy_head(mlp(agent.params.networks.policy, batch.obs), ACT, -20.0, 2.0)
+        mu, log_std = policy_head(
+            mlp(agent.chunks[0].params.networks.policy, batch.obs), ACT, -20.0, 2.0
+        )
         _, log_prob_dims = squashed_gaussian(mu, log_std, log_std.exp(), eps)
     assert (log_prob_dims < LOG_DENSITY_FLOOR).float().mean() > 0.005
     assert (log_prob_dims > 4 * math.log(10)).float().mean() > 0.01
@@ -158,7 +162,7 @@ def test_flat_adam_step_is_bit_identical_to_torch_fused_adam() -> None:
 def test_act_is_the_policy_networks_computation_exactly() -> None:
     agent = _agent()
     obs = np.random.default_rng(0).normal(size=(len(SEEDS), 7, OBS))
-    policy = agent.params.networks.policy
+    policy = agent.chunks[0].params.networks.policy
 
     def head(x: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
         return policy_head(mlp(policy, torch.as_tensor(x, dtype=torch.float32)), ACT, -20.0, 2.0)
@@ -228,3 +232,36 @@ def test_compiled_twin_q_update_equals_the_eager_one_across_q(lnq: str) -> None:
     eps_next = torch.randn(len(SEEDS), 64, ACT, generator=torch.Generator().manual_seed(9))
     for q in (1.0, 1.0001, 1.5, 2.0, 2.1, 3.0, 5.0, 1.2):
         _compare(compiled, plain, _c(q), 1e-5, eps_next)
+
+
+def test_members_in_chunks_start_alike_and_get_the_gradients_of_one_stack(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A CPU agent holds more than CPU_MEMBERS_PER_CHUNK members in chunks of near-equal size
+    (12 members: two of 6); their initial weights are exactly those of one stack, their losses
+    and gradients those of one stack to float32 rounding."""
+    config = RunConfig(env="Hopper-v4", q=1.5, alpha=0.2, hidden_sizes=(16,), compile="off")
+    seeds = list(range(12))
+    chunked = TacAgent(OBS, ACT, config, seeds, CPU)
+    assert [c.members for c in chunked.chunks] == [slice(0, 6), slice(6, 12)]
+    monkeypatch.setattr(agent_module, "CPU_MEMBERS_PER_CHUNK", 12)
+    whole = TacAgent(OBS, ACT, config, seeds, CPU)
+    assert len(whole.chunks) == 1
+    for k in seeds:
+        for name, value in whole.member_state(k)["params"].items():
+            assert torch.equal(chunked.member_state(k)["params"][name], value), (k, name)
+    g = torch.Generator().manual_seed(3)
+    batch = Batch(
+        torch.randn(12, 32, OBS, generator=g),
+        torch.rand(12, 32, ACT, generator=g) * 2 - 1,
+        torch.randn(12, 32, generator=g),
+        torch.randn(12, 32, OBS, generator=g),
+        torch.zeros(12, 32),
+    )
+    eps = torch.randn(12, 32, ACT, generator=g)
+    c = coefficients([1.0, 1.5, 3.0] * 4, [0.2] * 12, CPU)
+    expected, expected_grads = whole.gradients(batch, eps, c)
+    metrics, grads = chunked.gradients(batch, eps, c)
+    _close(metrics, expected, 2e-6, "metrics")
+    for name, grad in expected_grads.items():
+        _close(grads[name], grad, 2e-6, name)

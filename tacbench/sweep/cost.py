@@ -124,12 +124,15 @@ def _default(algo: str, env: str) -> float:
     return statistics.fmean(pool)
 
 
-def measure(out: Path, pairs: Iterable[tuple[str, str]]) -> dict[tuple[str, str], float]:
-    """CPU seconds per step of each (algo, env) as :data:`DEFAULT_SECONDS_PER_STEP` was measured:
-    3,000 steps, learning from step 1,000, 4 evaluation episodes every 1,000 steps, one thread,
-    each run trained afresh into ``out``; the CPU time from step 1,000 to the last is divided by
-    the steps. TAC runs at q = 1.5 (q hardly changes the cost). Takes about 10 minutes for the
-    paper's 30 pairs on one core."""
+def measure(
+    out: Path, pairs: Iterable[tuple[str, str]], *, members: int = 1, compile: str = "off"
+) -> dict[tuple[str, str], float]:
+    """CPU seconds per member-step of each (algo, env) as :data:`DEFAULT_SECONDS_PER_STEP` was
+    measured: 3,000 steps, learning from step 1,000, 4 evaluation episodes every 1,000 steps,
+    one thread, each run trained afresh into ``out``; the CPU time from step 1,000 to the last
+    (after the first update, so a compilation is not counted) is divided by the steps and the
+    members. TAC runs at q = 1.5 (q hardly changes the cost), ``members`` seeds as members of one
+    process, ``compile`` as ``--compile``. About 10 minutes for the paper's 30 pairs at K = 1."""
     import time
 
     import torch
@@ -144,23 +147,25 @@ def measure(out: Path, pairs: Iterable[tuple[str, str]]) -> dict[tuple[str, str]
         marks: dict[str, tuple[int, float]] = {}
 
         def stop(step: int, marks: dict[str, tuple[int, float]] = marks) -> bool:
-            if step >= 1000:
+            if step > 1000:
                 marks.setdefault("first", (step, time.process_time()))
                 marks["last"] = (step, time.process_time())
             return False
 
         warm_up = {"learning_starts": 1000}
+        tac = {**warm_up, "compile": compile} if algo == "tac" else {}
         configs, _ = trainers.make_configs(
             algo,
             env,
             paper_task(env),
-            [0],
-            {**settings, **warm_up} if algo == "tac" else settings,
+            list(range(members)) if algo == "tac" else [0],
+            {**settings, **tac},
+            qs=[1.5] if algo == "tac" else (),
             tac_settings_given=warm_up if algo in ("ddpg", "td3", "sac-sb3") else {},
         )
         trainers.train(configs, out, quiet=True, force=True, stop=stop)
         (s0, t0), (s1, t1) = marks["first"], marks["last"]
-        result[(algo, env)] = (t1 - t0) / (s1 - s0)
+        result[(algo, env)] = (t1 - t0) / (s1 - s0) / len(configs)
     return result
 
 

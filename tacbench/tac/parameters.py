@@ -14,7 +14,7 @@ V, layer by layer; the target starts as a copy), so they do not depend on the ot
 
 from __future__ import annotations
 
-import itertools
+import math
 from collections.abc import Iterator, Mapping, Sequence
 from typing import Any, NamedTuple
 
@@ -34,25 +34,43 @@ class Networks(NamedTuple):
     v: Layers
 
 
-class FlatLayout:
-    """Where each block of a flat buffer starts and what shape it has."""
+class FlatLayout(NamedTuple):
+    """The shapes of the blocks of a flat buffer, in order, and of TAC's networks in it: policy
+    blocks, then the critic pair's, then V's (``n_layers`` weight-and-bias pairs each), or for a
+    target buffer one network. A tuple of ints, so ``torch.compile`` guards it by value and
+    every buffer of the same layout shares one compiled graph."""
 
-    def __init__(self, shapes: Sequence[tuple[int, ...]]) -> None:
-        self.shapes = [tuple(shape) for shape in shapes]
-        sizes = [int(torch.Size(shape).numel()) for shape in self.shapes]
-        self.offsets = [0, *itertools.accumulate(sizes)]
+    shapes: tuple[tuple[int, ...], ...]
+    n_layers: int
 
     @property
     def size(self) -> int:
         """The number of floats in the buffer."""
-        return self.offsets[-1]
+        return sum(math.prod(shape) for shape in self.shapes)
 
     def views(self, flat: torch.Tensor) -> list[torch.Tensor]:
         """Each block as a view of ``flat``."""
-        return [
-            flat[start:stop].view(shape)
-            for start, stop, shape in zip(self.offsets, self.offsets[1:], self.shapes, strict=False)
-        ]
+        blocks, start = [], 0
+        for shape in self.shapes:
+            stop = start + math.prod(shape)
+            blocks.append(flat[start:stop].view(shape))
+            start = stop
+        return blocks
+
+    def offset(self, block: int) -> int:
+        """Where block ``block`` starts."""
+        return sum(math.prod(shape) for shape in self.shapes[:block])
+
+    def networks(self, flat: torch.Tensor) -> Networks:
+        """Policy, critic pair and V views of a flat tensor of this layout (the parameters, a
+        gradient, or the tensor that autograd differentiates)."""
+        blocks = self.views(flat)
+        n = 2 * self.n_layers
+        return Networks(_layers(blocks[:n]), _layers(blocks[n : 2 * n]), _layers(blocks[2 * n :]))
+
+    def layers(self, flat: torch.Tensor) -> Layers:
+        """A one-network buffer (a target) as layers."""
+        return _layers(self.views(flat))
 
 
 def _pack(
@@ -65,7 +83,7 @@ def _pack(
         for i in range(len(group[0].weights)):
             blocks.append(torch.cat([layers.weights[i] for layers in group]))
             blocks.append(torch.cat([layers.biases[i] for layers in group]))
-    layout = FlatLayout([block.shape for block in blocks])
+    layout = FlatLayout(tuple(tuple(block.shape) for block in blocks), len(group[0].weights))
     data = torch.empty(layout.size, device=device)
     for view, block in zip(layout.views(data), blocks, strict=True):
         view.copy_(block)
@@ -104,18 +122,11 @@ class TacParameters:
         self.target_layout, self.target = _pack([[q1, q2]] if twin_q_targets else [[v]], device)
         n = 2 * self.n_layers
         self._target_source = slice(
-            self.layout.offsets[n if twin_q_targets else 2 * n],
-            self.layout.offsets[2 * n if twin_q_targets else 3 * n],
+            self.layout.offset(n if twin_q_targets else 2 * n),
+            self.layout.offset(2 * n if twin_q_targets else 3 * n),
         )
-        self.networks = self.views(self.data)
-        self.target_networks = _layers(self.target_layout.views(self.target))
-
-    def views(self, flat: torch.Tensor) -> Networks:
-        """Policy, critic pair and V views of a flat tensor of ``data``'s layout (``data``
-        itself, a gradient, or the tensor that autograd differentiates)."""
-        blocks = self.layout.views(flat)
-        n = 2 * self.n_layers
-        return Networks(_layers(blocks[:n]), _layers(blocks[n : 2 * n]), _layers(blocks[2 * n :]))
+        self.networks = self.layout.networks(self.data)
+        self.target_networks = self.target_layout.layers(self.target)
 
     def adam_step(self, lr: float) -> None:
         """One Adam step on every parameter from ``grad``: PyTorch's fused kernel with
@@ -151,7 +162,7 @@ class TacParameters:
     ) -> Iterator[tuple[str, torch.Tensor]]:
         """``(name, (K, ...) tensor)`` for every parameter of ``flat`` (and of the target)."""
         k = self.n_members
-        nets = self.views(flat)
+        nets = self.layout.networks(flat)
         named = [
             ("policy", nets.policy),
             ("q1", nets.critics.members(slice(0, k))),
@@ -159,7 +170,7 @@ class TacParameters:
             ("v", nets.v),
         ]
         if target is not None:
-            layers = _layers(self.target_layout.views(target))
+            layers = self.target_layout.layers(target)
             if self.twin_q_targets:
                 named += [
                     ("q1_target", layers.members(slice(0, k))),

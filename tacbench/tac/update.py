@@ -20,15 +20,14 @@ slower (docs/performance.md, "One source for the maths").
 from __future__ import annotations
 
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import torch
 
 from tacbench.tac.losses import LossSettings, tac_losses
 from tacbench.tac.maths import Batch, Coefficients
-from tacbench.tac.networks import Layers
-from tacbench.tac.parameters import TacParameters
+from tacbench.tac.parameters import FlatLayout, TacParameters
 
 CPU_COMPILE_OPTIONS: dict[str, str | int | bool | Callable[..., Any]] = {
     # the C++ wrapper: 7% off the K = 1 update (HalfCheetah, Intel Xeon, in-process A/B)
@@ -47,13 +46,14 @@ CPU_COMPILE_OPTIONS: dict[str, str | int | bool | Callable[..., Any]] = {
     "alignment_asserts": False,
 }
 
-Gradients = Callable[..., torch.Tensor]
+Gradient = Callable[..., tuple[torch.Tensor, torch.Tensor]]  # -> (gradient, metrics)
 
 
 def total_loss(
     theta: torch.Tensor,
-    params: TacParameters,
-    target: Layers,
+    target: torch.Tensor,
+    layout: FlatLayout,
+    target_layout: FlatLayout,
     batch: Batch,
     eps: torch.Tensor,
     alive: torch.Tensor,
@@ -61,71 +61,48 @@ def total_loss(
     s: LossSettings,
     eps_next: torch.Tensor | None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """The sum of the live members' four losses at parameters ``theta`` (``params.data``'s
-    layout), which autograd differentiates, and the detached metrics ``(K, len(METRICS))``.
-    Members never mix, so each member's gradient is its own losses'."""
-    losses = tac_losses(params.views(theta), target, batch, eps, c, s, eps_next)
+    """The sum of the live members' four losses at parameters ``theta`` (flat, of ``layout``;
+    the target networks' ``target`` of ``target_layout``), which autograd differentiates, and
+    the detached metrics ``(K, len(METRICS))``. Members never mix, so each member's gradient is
+    its own losses'."""
+    nets, target_net = layout.networks(theta), target_layout.layers(target)
+    losses = tac_losses(nets, target_net, batch, eps, c, s, eps_next)
     per_member = torch.stack([losses.q1, losses.q2, losses.v, losses.pi], dim=-1)
     total = torch.where(alive, per_member.sum(dim=-1), 0.0).sum()
     return total, torch.cat([per_member.detach(), losses.diagnostics], dim=-1)
 
 
-def eager_gradients(
-    params: TacParameters,
-    batch: Batch,
-    eps: torch.Tensor,
-    alive: torch.Tensor,
-    c: Coefficients,
-    s: LossSettings,
-    eps_next: torch.Tensor | None = None,
-) -> torch.Tensor:
-    """:func:`total_loss`'s gradient by ``torch.autograd.grad``, written into ``params.grad``;
-    returns the metrics."""
+def eager_gradient(theta: torch.Tensor, *args: Any) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`total_loss`'s gradient with respect to ``theta`` by ``torch.autograd.grad``, and
+    the metrics."""
     with torch.enable_grad():
-        theta = params.data.detach().requires_grad_()
-        total, metrics = total_loss(
-            theta, params, params.target_networks, batch, eps, alive, c, s, eps_next
-        )
-        (grad,) = torch.autograd.grad(total, theta)
-    params.grad.copy_(grad)
-    return metrics
+        leaf = theta.detach().requires_grad_()
+        total, metrics = total_loss(leaf, *args)
+        (grad,) = torch.autograd.grad(total, leaf)
+    return grad, metrics
 
 
-_traceable_gradient = torch.func.grad(total_loss, has_aux=True)
+traceable_gradient: Gradient = torch.func.grad(total_loss, has_aux=True)
+""":func:`eager_gradient` by ``torch.func.grad``, which ``torch.compile`` can trace."""
 
 
-def traceable_gradients(
-    params: TacParameters,
-    batch: Batch,
-    eps: torch.Tensor,
-    alive: torch.Tensor,
-    c: Coefficients,
-    s: LossSettings,
-    eps_next: torch.Tensor | None = None,
-) -> torch.Tensor:
-    """:func:`eager_gradients` by ``torch.func.grad``, which ``torch.compile`` can trace."""
-    grad, metrics = _traceable_gradient(
-        params.data, params, params.target_networks, batch, eps, alive, c, s, eps_next
-    )
-    params.grad.copy_(grad)
-    return metrics
-
-
-def _compiled(params: TacParameters) -> Gradients:
-    """:func:`traceable_gradients` compiled for the parameters' device on first use, or, where
-    compilation fails, :func:`eager_gradients` (with one warning)."""
-    if params.data.device.type == "cuda":
-        for tensor in (params.data, params.grad, params.target):
+def compiled_gradient(device: torch.device, static: Sequence[torch.Tensor] = ()) -> Gradient:
+    """:data:`traceable_gradient` compiled for ``device`` on first use, or, where compilation
+    fails, :func:`eager_gradient` (with one warning). One compiled graph serves every call with
+    the same shapes and layouts, whatever the parameter tensors. On a GPU the ``static``
+    tensors are marked as static addresses, which CUDA graphs need."""
+    if device.type == "cuda":
+        for tensor in static:
             torch._dynamo.mark_static_address(tensor)
-        current = [torch.compile(traceable_gradients, mode="reduce-overhead")]
+        current = [torch.compile(traceable_gradient, mode="reduce-overhead")]
     else:
-        current = [torch.compile(traceable_gradients, options=CPU_COMPILE_OPTIONS)]
+        current = [torch.compile(traceable_gradient, options=CPU_COMPILE_OPTIONS)]
 
-    def gradients(*args: Any) -> torch.Tensor:
+    def gradient(*args: Any) -> tuple[torch.Tensor, torch.Tensor]:
         try:
             return current[0](*args)
         except Exception as err:  # compilation failed: the same gradient, uncompiled
-            if current[0] is eager_gradients:
+            if current[0] is eager_gradient:
                 raise
             warnings.warn(
                 f"torch.compile of TAC's update failed ({type(err).__name__}: {err}); "
@@ -133,27 +110,26 @@ def _compiled(params: TacParameters) -> Gradients:
                 RuntimeWarning,
                 stacklevel=2,
             )
-            current[0] = eager_gradients
-            return eager_gradients(*args)
+            current[0] = eager_gradient
+            return eager_gradient(*args)
 
-    return gradients
+    return gradient
 
 
 class TacUpdate:
-    """The gradient (optionally compiled), one Adam step, the target average."""
+    """One update of a set of members: the gradient, one Adam step, the target average."""
 
     def __init__(
         self,
         params: TacParameters,
         settings: LossSettings,
+        gradient: Gradient,
         *,
-        compile: bool,
         learning_rate: float,
         tau: float,
     ) -> None:
-        self.params, self.settings = params, settings
+        self.params, self.settings, self.gradient = params, settings, gradient
         self.learning_rate, self.tau = learning_rate, tau
-        self._gradients: Gradients = _compiled(params) if compile else eager_gradients
 
     def gradients(
         self,
@@ -165,8 +141,14 @@ class TacUpdate:
     ) -> torch.Tensor:
         """The metrics ``(K, len(METRICS))`` of one minibatch, the gradient of every trained
         parameter written into ``params.grad``; no weight changes."""
+        p = self.params
         with torch.no_grad():
-            return self._gradients(self.params, batch, eps, alive, c, self.settings, eps_next)
+            grad, metrics = self.gradient(
+                p.data, p.target, p.layout, p.target_layout, batch, eps, alive, c, self.settings,
+                eps_next,
+            )  # fmt: skip
+            p.grad.copy_(grad)
+        return metrics
 
     def __call__(
         self,
