@@ -138,7 +138,8 @@ def test_a_q_by_seed_grid_is_split_into_near_equal_units_of_at_most_members(
     monkeypatch.setattr(hardware, "memory_bytes", lambda: 64 << 30)  # 90 Hopper members fit
     grid = narrow(get_preset("paper-q-grid"), Narrowing(tasks=("Hopper",)))
     assert len(plan.build_runs(grid)) == 90
-    cases = [(1, None, [90]), (2, None, [45, 45]), (1, 40, [30] * 3), (1, 7, [7] * 12 + [6])]
+    cases = [(1, None, [90]), (2, None, [45, 45]), (1, 40, [30] * 3)]
+    cases += [(1, 7, [7] * 12 + [6]), (1, 8, [8] * 6 + [7] * 6)]  # sizes differ by at most one
     for workers, members, sizes in cases:  # with 2 workers, each gets a unit
         options = driver.Options(group="task", members=members, workers=workers)
         work = driver.load_plan(grid, tmp_path, options, save=False)[0]

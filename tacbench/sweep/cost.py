@@ -20,20 +20,22 @@ from pathlib import Path
 
 from tacbench import runs
 
-# CPU seconds per environment step with the paper's settings, one torch thread, K = 1: the CPU
-# time (time.process_time, not inflated by other jobs) from step 1,000 to 3,000 of one run per
-# pair, learning from step 1,000, 4 evaluation episodes every 1,000 steps (the paper's ratio, 10
+# CPU seconds per member-step with the paper's settings, one torch thread, measured with
+# :func:`measure`: learning from step 1,000, CPU time (time.process_time, not inflated by other
+# jobs) from step 1,001 to 3,000, 4 evaluation episodes every 1,000 steps (the paper's ratio, 10
 # per 5,000; early episodes are short on Hopper, Ant and Humanoid, so later evaluations cost
-# more). Measured with :func:`measure` on the development machine (2 shared x86-64 cores, torch
-# 2.13 CPU, 2026-11-22). TD3's table uses a (400, 300) network, DDPG's and TAC's one layer of 300.
+# more). TAC: as the paper's grid trains by default since issue 17, compiled, in units of as
+# many members as tacbench sweep --dry-run plans on the development machine (2 cores, 23 GiB:
+# 45 members, Ant 30, Humanoid 5), AMD EPYC class, torch 2.13 CPU, 2026-12-02. The baselines: one
+# run per process (K = 1), 2026-11-22. TD3's table uses a (400, 300) network, DDPG's one of 300.
 DEFAULT_SECONDS_PER_STEP: dict[tuple[str, str], float] = {
-    # tac
-    ("tac", "HalfCheetah-v4"): 1.63e-3,
-    ("tac", "Ant-v4"): 2.70e-3,
-    ("tac", "Hopper-v4"): 1.95e-3,
-    ("tac", "Swimmer-v4"): 2.03e-3,
-    ("tac", "Pusher-v5"): 1.80e-3,
-    ("tac", "Humanoid-v4"): 7.41e-3,
+    # tac, grouped and compiled (members per unit in the comment)
+    ("tac", "HalfCheetah-v4"): 0.62e-3,  # 45
+    ("tac", "Ant-v4"): 1.29e-3,  # 30
+    ("tac", "Hopper-v4"): 0.55e-3,  # 45
+    ("tac", "Swimmer-v4"): 0.57e-3,  # 45
+    ("tac", "Pusher-v5"): 0.70e-3,  # 45
+    ("tac", "Humanoid-v4"): 6.12e-3,  # 5
     # ddpg
     ("ddpg", "HalfCheetah-v4"): 4.19e-3,
     ("ddpg", "Ant-v4"): 6.27e-3,
@@ -170,10 +172,9 @@ def measure(
 
 
 # A TAC member's memory besides its replay buffer: its share of the networks, gradients and Adam
-# moments and its training and evaluation environments (measured for 10 Humanoid members: the
-# agent 188 MB after construction, the 10 training and 100 evaluation envs 132 MB resident;
-# docs/performance.md, "Memory"), rounded up.
-MEMBER_OVERHEAD_BYTES = 40 << 20
+# moments and its training and 10 evaluation environments: 12.4 MiB measured for 90 HalfCheetah
+# members (resident memory after construction, 2026-12-02), rounded up for larger models
+MEMBER_OVERHEAD_BYTES = 20 << 20
 # the buffer's row ring commits about 1 + 1/L rows per step for episodes of mean length L;
 # L = 20 is short for the paper's tasks (Humanoid's early episodes), so the estimate is generous
 _ROWS_PER_STEP = 1.0 + 1.0 / 20

@@ -245,6 +245,10 @@ def make_units(planned: Sequence[PlannedRun], group: str, unit_size: UnitSize) -
             continue
         grouped = groups[u]
         n_units = math.ceil(len(grouped) / unit_size(grouped, len(groups)))
-        size = math.ceil(len(grouped) / n_units)
-        made += [Unit(tuple(grouped[i : i + size])) for i in range(0, len(grouped), size)]
+        base, extra = divmod(len(grouped), n_units)  # sizes differ by at most one
+        start = 0
+        for i in range(n_units):
+            stop = start + base + (i < extra)
+            made.append(Unit(tuple(grouped[start:stop])))
+            start = stop
     return made

@@ -316,15 +316,16 @@ class GroupTrainer:
 
 
 def _members_label(configs: list[RunConfig]) -> str:
-    """``q=1.5 seeds 0,10`` or, for a mixed group, ``q=0.5,1,1.5 alpha=0.2 seeds 0,10``."""
-    parts = []
-    for name, values in (
-        ("q", dict.fromkeys(c.q for c in configs)),
-        ("alpha", dict.fromkeys(c.alpha for c in configs)),
-    ):
-        if name == "q" or len(values) > 1:
-            parts.append(f"{name}={','.join(f'{v:g}' for v in values)}")
+    """``q=1.5 seeds 0,10`` or, for a mixed group, ``q=0.5,1,1.5 alpha=0.2,0.1 seeds 0,10 (12
+    members)``; a long list shows its ends (``seeds 0,1,...,44``)."""
+
+    def listed(values: list[float]) -> str:
+        shown = [f"{v:g}" for v in values]
+        return ",".join(shown if len(shown) <= 6 else [*shown[:2], "...", shown[-1]])
+
+    qs = list(dict.fromkeys(c.q for c in configs))
+    alphas = list(dict.fromkeys(c.alpha for c in configs))
     seeds = list(dict.fromkeys(c.seed for c in configs))
-    parts.append(f"seed{'s' if len(seeds) > 1 else ''} {','.join(map(str, seeds))}")
-    n = len(configs)
-    return " ".join(parts) + (f" ({n} members)" if n > len(seeds) else "")
+    parts = [f"q={listed(qs)}"] + ([f"alpha={listed(alphas)}"] if len(alphas) > 1 else [])
+    parts.append(f"seed{'s' if len(seeds) > 1 else ''} {listed([float(s) for s in seeds])}")
+    return " ".join(parts) + (f" ({len(configs)} members)" if len(configs) > 1 else "")
