@@ -17,7 +17,7 @@ import torch
 from pytest_benchmark.fixture import BenchmarkFixture
 
 from tacbench import envs
-from tacbench.config import RunConfig
+from tacbench.config import PAPER_Q_GRID, PAPER_SEEDS, RunConfig
 from tacbench.hardware import configure_process
 from tacbench.tac import METRICS, ReplayBuffer, TacAgent, coefficients
 
@@ -107,3 +107,20 @@ def test_evaluation_round(benchmark: BenchmarkFixture) -> None:
             env.close()
     assert (lengths == info.max_episode_steps).all()
     assert np.isfinite(returns).all()
+
+
+def test_q_grid_update(benchmark: BenchmarkFixture) -> None:
+    """One compiled update of the paper's q grid of one task as one process: 9 q x 10 seeds,
+    90 members in chunks of 10 (docs/performance.md, "Grid members")."""
+    qs = [q for q in PAPER_Q_GRID for _ in PAPER_SEEDS]
+    k = len(qs)
+    agent = _agent(k, compile=True)
+    buffer, rngs = _buffer(k)
+    batch = buffer.sample(rngs, BATCH)
+    c = coefficients(qs, [0.2] * k, torch.device("cpu"))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # torch.compile's notes while compiling
+        for _ in range(3):
+            agent.update(batch, c)
+    metrics = benchmark(agent.update, batch, c)
+    assert metrics.shape == (k, len(METRICS)) and torch.isfinite(metrics).all()
