@@ -23,6 +23,7 @@ from torch import nn
 from baselines import hyperparams
 from baselines.config import BaselineConfig
 from tacbench import envs
+from tacbench.seeding import run_streams
 
 ALGORITHMS: dict[str, type[BaseAlgorithm]] = {
     "ddpg": DDPG,
@@ -170,11 +171,19 @@ def model_arguments(config: BaselineConfig, act_dim: int) -> dict[str, Any]:
         kwargs["buffer_size"] = min(kwargs["buffer_size"], config.total_steps)
         if config.algo != "sac-sb3":
             kwargs["action_noise"] = _action_noise(config, act_dim)
-    return {**kwargs, "policy_kwargs": policy, "seed": config.seed, "device": config.device}
+    seed = run_streams(config.seed).torch_seed % 2**32  # SB3 seeds NumPy's legacy generator too
+    return {**kwargs, "policy_kwargs": policy, "seed": seed, "device": config.device}
 
 
 def build_model(config: BaselineConfig, venv: VecEnv) -> BaseAlgorithm:
-    """A fresh SB3 model for ``config`` on ``venv``, seeded with the run's seed."""
+    """A fresh SB3 model for ``config`` on ``venv``, with the run's independent random streams
+    (:func:`tacbench.seeding.run_streams`): SB3 seeds its global generators, its action space
+    (the off-policy warm-up's random actions) and the env's resets from one number, so the
+    action space and the env get their own streams afterwards."""
     space = venv.action_space
     assert isinstance(space, gym.spaces.Box)
-    return ALGORITHMS[config.algo]("MlpPolicy", venv, **model_arguments(config, space.shape[0]))
+    model = ALGORITHMS[config.algo]("MlpPolicy", venv, **model_arguments(config, space.shape[0]))
+    streams = run_streams(config.seed)
+    model.action_space.seed(int(streams.numpy.generate_state(1, dtype=np.uint32)[0]))
+    venv.seed(streams.env_seed)
+    return model

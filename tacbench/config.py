@@ -61,6 +61,28 @@ CRITIC_TARGETS = ("v", "twin-q")
 Q_SCHEDULES = ("constant", "linear")
 DEVICES = ("cpu", "cuda")
 COMPILE_CHOICES = ("auto", "on", "off")
+PROFILES = ("paper", "reference")
+TIME_LIMITS = ("not-terminal", "terminal-below-1000")
+ACTION_SCALES = ("unit", "bound")
+ON_OFF = ("on", "off")
+# --profile: the settings where the authors' code (REFERENCE.md; docs/tac.md, "Profiles") did
+# otherwise than the paper's table; each is also a setting of its own, for ablations
+PROFILE_VALUES: dict[str, dict[str, Any]] = {
+    "paper": {
+        "update_schedule": "step",  # issue 3: one update per step
+        "warmup_updates": "off",  # the paper's table: no updates before learning starts
+        "hidden_sizes": (300,),  # paper, Hyperparameter Settings table
+        "time_limits": "not-terminal",  # a time-limit end is never terminal (SB3, CleanRL)
+        "action_scale": "unit",  # the critics and the buffer see actions in [-1, 1]
+    },
+    "reference": {
+        "update_schedule": "episode",  # tac.py main loop: bursts at episode ends (Algorithm 1)
+        "warmup_updates": "on",  # tac.py: updates from the first episode end, during warm-up
+        "hidden_sizes": (400, 300),  # core.py's default, never overridden by the run scripts
+        "time_limits": "terminal-below-1000",  # tac.py: d = False only if ep_len == 1000
+        "action_scale": "bound",  # core.py: tanh output times action_space.high[0]
+    },
+}
 # --compile auto compiles runs with at least this many learning steps: compiling TAC's update
 # took 18-23 s with a cold cache and saved 2.8 ms per step at K = 1 (5.8 ms at K = 10), so it
 # pays after about 8,000 steps; 20,000 leaves a margin (docs/performance.md, AMD EPYC class)
@@ -132,6 +154,15 @@ class RunConfig(RunSettings):
     q: float
     alpha: float
     algo: str = "tac"
+    profile: str = setting(
+        "paper",
+        "paper: the paper's table; reference: everything the authors' code did otherwise "
+        "(updates during warm-up, episode bursts, 400x300 networks, Pusher's time limit "
+        "terminal, actions scaled by the bound; docs/tac.md, Profiles). Each is its own setting.",
+        source="issue 21",
+        choices=PROFILES,
+        variant={"reference": "ref"},
+    )
     lnq: str = setting(
         "per-dim",
         "per-dim: sum of per-dimension ln_q (what produced the paper's curves); joint: ln_q of "
@@ -149,11 +180,41 @@ class RunConfig(RunSettings):
         variant={"twin-q": "twinq"},
     )
     update_schedule: str = setting(
-        "step",
-        "step: one update per env step; episode: paper Algorithm 1 (one --seed only).",
-        source="issue 3",
+        None,
+        "step: one update per env step; episode: at each episode end, one update per step of "
+        "that episode (paper Algorithm 1; each member at its own episode ends).",
+        source="paper: step (issue 3); reference: episode (the authors' code)",
         choices=UPDATE_SCHEDULES,
-        variant={"episode": "episode"},
+        variant={"episode": "episode", "step": "step"},
+        profile=True,
+    )
+    warmup_updates: str = setting(
+        None,
+        "on: updates start at each member's first episode end, during the random warm-up, as "
+        "the authors' code did; off: at --learning-starts.",
+        source="paper: off (its table); reference: on (tac.py's main loop)",
+        choices=ON_OFF,
+        variant={"on": "wu", "off": "nowu"},
+        profile=True,
+    )
+    time_limits: str = setting(
+        None,
+        "not-terminal: a time-limit end bootstraps; terminal-below-1000: only an episode of "
+        "1,000 steps does (the authors' code: Pusher's 100-step limit is stored as terminal).",
+        source="paper: not-terminal; reference: terminal-below-1000 (tac.py)",
+        choices=TIME_LIMITS,
+        variant={"terminal-below-1000": "tl1000", "not-terminal": "tlnever"},
+        profile=True,
+    )
+    action_scale: str = setting(
+        None,
+        "unit: the critics and the replay buffer see actions in [-1, 1]; bound: scaled by the "
+        "action bound first (the authors' code; Humanoid's 0.4, Pusher's 2). The policy's "
+        "density is that of the unscaled action either way.",
+        source="paper: unit; reference: bound (core.py)",
+        choices=ACTION_SCALES,
+        variant={"bound": "abound", "unit": "aunit"},
+        profile=True,
     )
     q_schedule: str = setting(
         "constant",
@@ -181,11 +242,13 @@ class RunConfig(RunSettings):
         variant="ls",
     )
     hidden_sizes: tuple[int, ...] = setting(
-        (300,),
+        None,
         "Hidden layer widths of every network, comma-separated (400,300).",
-        source="paper, Hyperparameter Settings table: 1 hidden layer of 300 ReLU units",
+        source="paper: 300 (Hyperparameter Settings table: 1 hidden layer of 300 ReLU units); "
+        "reference: 400,300 (core.py's default)",
         variant="h",
         metavar="W1,W2,...",
+        profile=True,
     )
     learning_rate: float = setting(
         1e-3, "Adam's learning rate.", source="paper, Hyperparameter Settings table", variant="lr"
@@ -230,6 +293,10 @@ class RunConfig(RunSettings):
         from tacbench.tsallis import check_alpha, check_q  # imports torch: not at CLI start-up
 
         super().__post_init__()
+        _check_choice(self, "profile", self.profile, PROFILES)
+        for name, value in PROFILE_VALUES[self.profile].items():  # unset: the profile's value
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, value)
         object.__setattr__(self, "q", check_q(self.q))
         object.__setattr__(self, "alpha", check_alpha(self.alpha))
         object.__setattr__(self, "hidden_sizes", tuple(int(h) for h in self.hidden_sizes))
@@ -238,6 +305,9 @@ class RunConfig(RunSettings):
             ("lnq", LNQ_MODES),
             ("critic_target", CRITIC_TARGETS),
             ("q_schedule", Q_SCHEDULES),
+            ("warmup_updates", ON_OFF),
+            ("time_limits", TIME_LIMITS),
+            ("action_scale", ACTION_SCALES),
         ):
             _check_choice(self, name, getattr(self, name), choices)
         _check_choice(self, "compile", self.compile, COMPILE_CHOICES)
@@ -261,6 +331,12 @@ class RunConfig(RunSettings):
             )
 
     @property
+    def per_member_updates(self) -> bool:
+        """Whether members update at their own times (the episode schedule, or updates during
+        warm-up from each member's first episode end), not all at every step."""
+        return self.update_schedule == "episode" or self.warmup_updates == "on"
+
+    @property
     def learning_steps(self) -> int:
         """Environment steps after the random warm-up."""
         return max(0, self.total_steps - self.learning_starts)
@@ -275,12 +351,14 @@ class RunConfig(RunSettings):
 
     @property
     def variant(self) -> str:
-        """The run directory's variant: ``q1.5-a0.2`` plus a suffix for each non-default choice
-        that changes training (``-joint``, ``-episode``, ``-qlinear``, ``-ls100000``, ...)."""
+        """The run directory's variant: ``q1.5-a0.2`` plus ``-ref`` for the reference profile and
+        a suffix for each choice that changes training and differs from its default or its
+        profile's value (``-joint``, ``-episode``, ``-qlinear``, ``-ls100000``, ...)."""
         name = f"q{self.q:g}-a{self.alpha:g}"
         for key, declared in settings_of(RunConfig).items():
             part, value = declared.info.variant, getattr(self, key)
-            if part is None or value == declared.default:
+            default = PROFILE_VALUES[self.profile].get(key, declared.default)
+            if part is None or value == default:
                 continue
             if isinstance(part, Mapping):
                 name += f"-{part[value]}"
@@ -394,11 +472,6 @@ def make_run_configs(
         for alpha in alphas or (paper_alpha,)
         for seed in seeds
     ]
-    if configs[0].update_schedule == "episode" and len(configs) > 1:
-        raise TacbenchError(
-            "--update-schedule episode updates at each member's own episode ends, so the members "
-            "cannot run in lockstep: train one --seed per process (or use --update-schedule step)."
-        )
     for q in sorted({c.q for c in configs if c.q >= 2}):
         cap = 10 ** (8 / (q - 1))
         notes.append(

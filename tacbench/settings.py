@@ -28,7 +28,8 @@ class SettingInfo:
     (``{"joint": "joint"}`` -> ``-joint``); None: never (the field cannot change what is
     learned, or has its own path component). ``neutral``: the field cannot change any number a
     run writes, so a resumed run may differ in it. ``cli``: offered by ``tacbench run`` (and
-    ``sweep``, unless ``sweep`` is False).
+    ``sweep``, unless ``sweep`` is False). ``profile``: the default, None, stands for the value
+    that the config's profile sets.
     """
 
     help: str
@@ -40,6 +41,7 @@ class SettingInfo:
     cli: bool = True
     sweep: bool = True
     metavar: str | None = None
+    profile: bool = False  # the default (None) is the value of the config's --profile
 
 
 def setting(
@@ -54,6 +56,7 @@ def setting(
     cli: bool = True,
     sweep: bool = True,
     metavar: str | None = None,
+    profile: bool = False,
 ) -> Any:
     """A dataclass field with a default and its :class:`SettingInfo` (see there)."""
     info = SettingInfo(help, source, flag, tuple(choices), variant, neutral, cli, sweep, metavar)

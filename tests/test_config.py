@@ -117,13 +117,41 @@ def test_invalid_values_are_refused_with_what_to_do(
         RunConfig(**{"env": "Hopper-v4", "q": 1.5, "alpha": 0.2, field: value})  # type: ignore[arg-type]
 
 
-def test_members_must_have_distinct_seeds_and_episode_schedule_needs_one() -> None:
+def test_members_must_have_distinct_seeds_and_the_episode_schedule_takes_several() -> None:
     with pytest.raises(TacbenchError, match="must differ"):
         make_run_configs("Hopper-v4", "Hopper", [0, 0])
-    with pytest.raises(TacbenchError, match="one --seed per process"):
-        make_run_configs("Hopper-v4", "Hopper", [0, 10], update_schedule="episode")
-    configs, _ = make_run_configs("Hopper-v4", "Hopper", [0], update_schedule="episode")
-    assert configs[0].update_schedule == "episode"
+    configs, _ = make_run_configs("Hopper-v4", "Hopper", [0, 10], update_schedule="episode")
+    assert [c.update_schedule for c in configs] == ["episode", "episode"]
+    assert all(c.per_member_updates for c in configs)
+
+
+def test_the_reference_profile_sets_what_the_authors_code_did_and_each_item_can_change() -> None:
+    paper = RunConfig(env="Pusher-v5", q=1.2, alpha=0.2)
+    reference = RunConfig(env="Pusher-v5", q=1.2, alpha=0.2, profile="reference")
+    assert (paper.update_schedule, paper.warmup_updates, paper.hidden_sizes) == (
+        "step",
+        "off",
+        (300,),
+    )
+    assert (paper.time_limits, paper.action_scale) == ("not-terminal", "unit")
+    assert (reference.update_schedule, reference.warmup_updates, reference.hidden_sizes) == (
+        "episode",
+        "on",
+        (400, 300),
+    )
+    assert (reference.time_limits, reference.action_scale) == ("terminal-below-1000", "bound")
+    assert reference.variant == "q1.2-a0.2-ref"
+    ablation = RunConfig(
+        env="Pusher-v5", q=1.2, alpha=0.2, profile="reference", hidden_sizes=(300,)
+    )
+    assert ablation.variant == "q1.2-a0.2-ref-h300"
+    one_item = RunConfig(env="Pusher-v5", q=1.2, alpha=0.2, warmup_updates="on")
+    assert one_item.variant == "q1.2-a0.2-wu" and one_item.per_member_updates
+    assert RunConfig.from_dict(reference.to_dict()) == reference
+    with pytest.raises(TacbenchError, match="--profile must be one of paper, reference"):
+        RunConfig(env="Pusher-v5", q=1.2, alpha=0.2, profile="authors")
+    with pytest.raises(TacbenchError, match="--time-limits must be one of"):
+        RunConfig(env="Pusher-v5", q=1.2, alpha=0.2, time_limits="always")
 
 
 @pytest.mark.parametrize(

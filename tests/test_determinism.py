@@ -10,6 +10,8 @@ import numpy as np
 import pytest
 import torch
 
+from tacbench.envs import make_env
+from tacbench.seeding import run_streams
 from tests.helpers import LEARNERS, assert_same_results, results_of, tiny_configs, train
 
 pytestmark = pytest.mark.smoke
@@ -50,3 +52,26 @@ def test_members_start_exactly_as_they_would_alone(tmp_path: Path) -> None:
     assert not torch.equal(
         other["agent"]["params"]["q1.weights.0"], b["agent"]["params"]["q1.weights.0"]
     )
+
+
+def test_a_runs_random_streams_are_independent_children_of_its_seed(tmp_path: Path) -> None:
+    """The warm-up actions, the initial state and the weights come from three children of
+    SeedSequence(seed), not from the seed itself (which made the first warm-up actions the very
+    numbers the initial state was drawn from)."""
+    streams = run_streams(7)
+    again = run_streams(7)
+    assert (again.torch_seed, again.env_seed) == (streams.torch_seed, streams.env_seed)
+    assert (again.numpy.generate_state(2) == streams.numpy.generate_state(2)).all()
+    assert streams.env_seed != run_streams(8).env_seed
+    assert len({streams.torch_seed, streams.env_seed, 7}) == 3
+    (outcome,) = train(tmp_path, tiny_configs("tac", seeds=[7], total_steps=500, eval_every=0))
+    with np.load(
+        outcome.directory / "checkpoint" / "replay" / "000000000000-000000000500.npz"
+    ) as r:
+        first_action, first_obs = r["action"][0], r["rows"][0]
+    expected = np.random.default_rng(streams.numpy).uniform(-1.0, 1.0, 3).astype(np.float32)
+    np.testing.assert_array_equal(first_action, expected)
+    env = make_env("Hopper-v4")
+    np.testing.assert_array_equal(first_obs, env.reset(seed=streams.env_seed)[0].astype(np.float32))
+    assert not np.array_equal(first_obs, env.reset(seed=7)[0].astype(np.float32))
+    env.close()

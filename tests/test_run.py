@@ -216,3 +216,43 @@ def test_members_that_differ_in_more_than_q_alpha_and_seed_are_refused(tmp_path:
     with pytest.raises(TacbenchError, match="the same run"):
         _train(tmp_path, b, b)  # type: ignore[arg-type]
     assert not (tmp_path / "runs").exists()
+
+
+def test_the_reference_profile_trains_as_the_authors_code_did(tmp_path: Path) -> None:
+    """Two members with (400, 300) networks, updates from each one's first episode end during
+    the random warm-up, in bursts at episode ends."""
+    args = ["run", "--env", "Hopper-v4", "--profile", "reference", "--seed", "0", "--seed", "1"]
+    args += ["--steps", "1100", "--eval-every", "0", "--log-every", "550", "--quiet"]
+    result = CliRunner().invoke(cli, [*args, "--out", str(tmp_path)])
+    assert result.exit_code == 0, result.output
+    for seed in (0, 1):
+        run = tmp_path / "runs" / "tac" / "Hopper-v4" / "q2-a0.2-ref" / f"seed{seed}"
+        config = json.loads((run / "config.json").read_text())["config"]
+        assert config["hidden_sizes"] == [400, 300] and config["profile"] == "reference"
+        losses = pd.read_csv(run / "losses.csv")
+        episodes = pd.read_csv(run / "train.csv")
+        # every step of every finished episode earned one update, all before learning_starts
+        assert losses["updates"].sum() == episodes["length"].sum() > 1000
+        assert episodes["step"].max() < config["learning_starts"]
+        state = torch.load(run / "checkpoint" / "state.pt", weights_only=True)
+        assert state["agent"]["params"]["q1.weights.1"].shape == (400, 300)
+
+
+def test_the_reference_profile_stores_pushers_time_limit_as_terminal_and_scaled_actions(
+    tmp_path: Path,
+) -> None:
+    (config,) = tiny_configs("tac", "Pusher-v5", q=1.2, profile="reference", hidden_sizes=(16,))
+    (outcome,) = _train(tmp_path, config)  # type: ignore[arg-type]
+    assert outcome.state == "complete"
+    chunk = sorted((outcome.directory / "checkpoint" / "replay").glob("*.npz"))[0]
+    with np.load(chunk) as replay:
+        terminated, action = replay["terminated"], replay["action"]
+    assert (
+        terminated.reshape(-1, 100)[:, -1].all() and not terminated.reshape(-1, 100)[:, :-1].any()
+    )
+    assert np.abs(action).max() > 1.0 and np.abs(action).max() <= 2.0  # times Pusher's bound 2
+    (paper,) = tiny_configs("tac", "Pusher-v5", q=1.2, hidden_sizes=(16,))
+    (outcome,) = _train(tmp_path / "paper", paper)  # type: ignore[arg-type]
+    chunk = sorted((outcome.directory / "checkpoint" / "replay").glob("*.npz"))[0]
+    with np.load(chunk) as replay:
+        assert not replay["terminated"].any() and np.abs(replay["action"]).max() <= 1.0

@@ -181,3 +181,27 @@ def test_twin_q_member_state_round_trip_continues_identically() -> None:
     for k in range(2):
         for name, value in _params(agent, k).items():
             assert torch.equal(value, _params(restored, k)[name]), name
+
+
+def test_a_member_without_an_update_is_bit_identical_after_the_groups_update() -> None:
+    """The episode schedule: only the members whose episode ended update; the others' weights,
+    Adam state, targets and generators are exactly as before."""
+    agent = _agent([3, 4, 5], update_schedule="episode")
+    batch = _batch(3)
+    agent.update(batch, _c(3))  # everyone once, so the moments are not zero
+    before = [agent.member_state(k) for k in range(3)]
+    agent.update(_batch(3, seed=1), _c(3), members=[True, False, True])
+    after = [agent.member_state(k) for k in range(3)]
+    assert torch.equal(after[1]["generator"], before[1]["generator"])
+    for part in ("exp_avg", "exp_avg_sq", "step"):
+        same = after[1]["adam"][part], before[1]["adam"][part]
+        if part == "step":
+            assert torch.equal(*same)
+        else:
+            assert all(torch.equal(v, same[1][n]) for n, v in same[0].items()), part
+    assert all(torch.equal(v, before[1]["params"][n]) for n, v in after[1]["params"].items())
+    for k in (0, 2):  # the members that updated moved, their step counts are 2
+        assert not torch.equal(
+            after[k]["params"]["q1.weights.0"], before[k]["params"]["q1.weights.0"]
+        )
+        assert after[k]["adam"]["step"].item() == 2.0

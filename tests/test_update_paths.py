@@ -125,9 +125,45 @@ def test_the_comparison_covers_the_floor_and_the_cap() -> None:
     assert (log_prob_dims.sum(-1) > 4 * math.log(10)).float().mean() > 0.01
 
 
-def _parameters() -> TacParameters:
+def _parameters(per_member_steps: bool = False) -> TacParameters:
     gens = [torch.Generator().manual_seed(s) for s in (0, 1)]
-    return TacParameters(OBS, ACT, (4,), gens, twin_q_targets=False, device=CPU)
+    return TacParameters(
+        OBS, ACT, (4,), gens, twin_q_targets=False, device=CPU, per_member_steps=per_member_steps
+    )
+
+
+def test_per_member_adam_steps_update_only_the_active_members_each_by_its_own_count() -> None:
+    """The episode schedule's Adam: member 0 makes three steps while member 1 makes one (the
+    last); each ends where torch.optim.Adam ends after that many steps on its gradients, and
+    member 1, weights, moments, step count and target, is bit-identical across the steps it
+    skips."""
+    flat, g = _parameters(per_member_steps=True), torch.Generator().manual_seed(2)
+    params = [
+        torch.nn.Parameter(flat.layout.networks(flat.data).policy.weights[0][k].clone())
+        for k in (0, 1)
+    ]
+    optimizers = [torch.optim.Adam([p], lr=1e-3) for p in params]
+    for step, active in enumerate(([True, False], [True, False], [True, True])):
+        grad = torch.randn(flat.data.shape, generator=g)
+        flat.grad.copy_(grad)
+        before = flat.member_state(1)
+        flat.adam_step(1e-3, np.array(active))
+        flat.update_target(0.005, np.array(active))
+        after = flat.member_state(1)
+        if not active[1]:
+            for part in ("params", "exp_avg", "exp_avg_sq"):
+                values = before["params"] if part == "params" else before["adam"][part]
+                now = after["params"] if part == "params" else after["adam"][part]
+                assert all(torch.equal(now[n], v) for n, v in values.items()), (step, part)
+            assert torch.equal(after["adam"]["step"], before["adam"]["step"])
+        for k, (param, optimizer) in enumerate(zip(params, optimizers, strict=True)):
+            if active[k]:
+                param.grad = flat.layout.networks(grad).policy.weights[0][k].clone()
+                optimizer.step()
+    assert flat.steps.tolist() == [3.0, 1.0]
+    weights = flat.networks.policy.weights[0]
+    for k in (0, 1):
+        torch.testing.assert_close(weights[k], params[k].detach(), rtol=1e-6, atol=1e-7)
 
 
 def test_flat_adam_step_equals_torch_adam() -> None:
@@ -141,7 +177,7 @@ def test_flat_adam_step_equals_torch_adam() -> None:
         optimizer.step()
         flat.adam_step(1e-3)
     torch.testing.assert_close(flat.data, param.detach(), rtol=1e-6, atol=1e-7)
-    torch.testing.assert_close(flat.step, torch.tensor(3.0))
+    torch.testing.assert_close(flat.steps, torch.tensor([3.0, 3.0]))
 
 
 def test_flat_adam_step_is_bit_identical_to_torch_fused_adam() -> None:
@@ -156,7 +192,7 @@ def test_flat_adam_step_is_bit_identical_to_torch_fused_adam() -> None:
              weight_decay=0.0, eps=1e-8, maximize=False)  # fmt: skip
         flat.adam_step(1e-3)
     assert torch.equal(flat.data, data) and torch.equal(flat.exp_avg_sq, v)
-    assert torch.equal(flat.step, step)
+    assert torch.equal(flat.steps[0], step)
 
 
 def test_act_is_the_policy_networks_computation_exactly() -> None:

@@ -40,14 +40,15 @@ def _shown(value: Any) -> str:
 
 def _option(declared: Setting, *, sweep: bool) -> Callable[[F], F]:
     info = declared.info
-    default_text = "the preset's" if sweep else f"{_shown(declared.default)}; {info.source}"
+    default = "the profile's" if info.profile else _shown(declared.default)
+    default_text = "the preset's" if sweep else f"{default}; {info.source}"
     kwargs: dict[str, Any] = {
         "help": f"{info.help}  [default: {default_text}]",
         "default": None if sweep else declared.default,
     }
     if info.choices:
         kwargs["type"] = click.Choice(info.choices)
-    elif declared.type == tuple[int, ...]:
+    elif declared.type in (tuple[int, ...], tuple[int, ...] | None):
         kwargs["type"] = IntTuple()
     else:
         kwargs["type"] = declared.type

@@ -56,12 +56,14 @@ class TacAgent:
         config: RunConfig,
         seeds: Sequence[int],
         device: torch.device,
+        action_scale: float = 1.0,
     ) -> None:
         self.config = config
         self.device = device
         self.act_dim = act_dim
         self.generators = [torch.Generator().manual_seed(int(seed)) for seed in seeds]
-        settings = LossSettings(config.gamma, config.lnq, config.log_std_min, config.log_std_max)
+        c = config
+        settings = LossSettings(c.gamma, c.lnq, c.log_std_min, c.log_std_max, action_scale)
         k = len(seeds)
         most = k if device.type == "cuda" else CPU_MEMBERS_PER_CHUNK
         size = math.ceil(k / math.ceil(k / most))  # near-equal chunks: 45 members are 5 x 9
@@ -74,6 +76,7 @@ class TacAgent:
                 self.generators[members],
                 twin_q_targets=config.critic_target == "twin-q",
                 device=device,
+                per_member_steps=config.per_member_updates,
             )
             for members in chunks
         ]
@@ -88,9 +91,15 @@ class TacAgent:
         ]
         self.alive = torch.ones(k, dtype=torch.bool, device=device)
 
-    def _noise(self, *shape: int) -> torch.Tensor:
-        """Standard normal ``(K, *shape)``, member k's slice from member k's generator."""
-        draws = [torch.randn(*shape, generator=g) for g in self.generators]
+    def _noise(self, *shape: int, members: Sequence[bool] | None = None) -> torch.Tensor:
+        """Standard normal ``(K, *shape)``, member k's slice from member k's generator; zeros,
+        drawn from no generator, for members that ``members`` leaves out."""
+        draws = [
+            torch.randn(*shape, generator=g)
+            if members is None or members[k]
+            else torch.zeros(shape)
+            for k, g in enumerate(self.generators)
+        ]
         return torch.stack(draws).to(self.device, non_blocking=True)
 
     def _tensor(self, array: npt.ArrayLike) -> torch.Tensor:
@@ -125,23 +134,33 @@ class TacAgent:
         """Evaluation actions ``tanh(mu)`` in [-1, 1]: ``(K, n, obs_dim) -> (K, n, act_dim)``."""
         return torch.tanh(self._policy(obs)[0]).cpu().numpy()
 
-    def draw_noise(self, batch_size: int) -> tuple[torch.Tensor, torch.Tensor | None]:
+    def draw_noise(
+        self, batch_size: int, members: Sequence[bool] | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor | None]:
         """One update's reparameterisation noise ``(K, B, A)`` and, with twin-q, the noise of
-        a' ~ pi(.|s') drawn after it."""
-        eps = self._noise(batch_size, self.act_dim)
+        a' ~ pi(.|s') drawn after it, for ``members`` (all if None)."""
+        eps = self._noise(batch_size, self.act_dim, members=members)
         twin_q = self.config.critic_target == "twin-q"
-        return eps, self._noise(batch_size, self.act_dim) if twin_q else None
+        return eps, self._noise(batch_size, self.act_dim, members=members) if twin_q else None
 
-    def update(self, batch: Mapping[str, npt.ArrayLike], c: Coefficients) -> torch.Tensor:
+    def update(
+        self,
+        batch: Mapping[str, npt.ArrayLike],
+        c: Coefficients,
+        members: Sequence[bool] | None = None,
+    ) -> torch.Tensor:
         """One gradient step for every live member on its own minibatch ``(K, B, ...)``, with
-        each member's q and alpha from ``c``.
+        each member's q and alpha from ``c``; with ``members`` (the episode schedule, updates
+        during warm-up) only for those, the others' weights, Adam state, targets and generators
+        left exactly as they are (their rows of ``batch`` are ignored).
 
         Returns the detached metrics ``(K, len(METRICS))``. A member marked dead (``alive``
         False) contributes nothing to the step of the others.
         """
         tensors = Batch(*(self._tensor(batch[name]) for name in Batch._fields))
-        eps, eps_next = self.draw_noise(tensors.action.shape[1])
-        return self._each_chunk("__call__", tensors, eps, c, eps_next)
+        eps, eps_next = self.draw_noise(tensors.action.shape[1], members)
+        active = None if members is None else np.asarray(members, dtype=bool)
+        return self._each_chunk("__call__", tensors, eps, c, eps_next, active)
 
     def gradients(
         self, batch: Batch, eps: torch.Tensor, c: Coefficients, eps_next: torch.Tensor | None = None
@@ -149,7 +168,7 @@ class TacAgent:
         """The metrics of :meth:`update` and the gradient of every trained parameter (named as
         in :meth:`member_state`) for one minibatch and noise, compiled if this agent's
         update is, without changing any weight. For comparing the paths."""
-        metrics = self._each_chunk("gradients", batch, eps, c, eps_next)
+        metrics = self._each_chunk("gradients", batch, eps, c, eps_next, None)
         named = [chunk.params.named_gradients() for chunk in self.chunks]
         return metrics, {name: torch.cat([g[name] for g in named]) for name in named[0]}
 
@@ -160,20 +179,17 @@ class TacAgent:
         eps: torch.Tensor,
         c: Coefficients,
         eps_next: torch.Tensor | None,
+        active: npt.NDArray[np.bool_] | None,
     ) -> torch.Tensor:
         """``TacUpdate.<method>`` on each chunk's members; their metrics, in member order."""
         metrics = []
         for chunk in self.chunks:
             m = chunk.members
-            metrics.append(
-                getattr(chunk.update, method)(
-                    Batch(*(t[m] for t in batch)),
-                    eps[m],
-                    self.alive[m],
-                    Coefficients(*(t[m] for t in c)),
-                    _chunked(eps_next, m),
-                )
-            )
+            args = [Batch(*(t[m] for t in batch)), eps[m], self.alive[m]]
+            args += [Coefficients(*(t[m] for t in c)), _chunked(eps_next, m)]
+            if active is not None:
+                args.append(active[m])
+            metrics.append(getattr(chunk.update, method)(*args))
         return torch.cat(metrics)
 
     def _chunk_of(self, k: int) -> tuple[_Chunk, int]:

@@ -108,12 +108,25 @@ class ReplayBuffer:
         self.current_row = next_absolute
         self.n_added += 1
 
-    def sample(self, rngs: Sequence[np.random.Generator], batch_size: int) -> dict[str, Any]:
+    def sample(
+        self,
+        rngs: Sequence[np.random.Generator],
+        batch_size: int,
+        members: Sequence[bool] | None = None,
+    ) -> dict[str, Any]:
         """``batch_size`` transitions per member, uniformly with replacement, member k's indices
-        drawn from ``rngs[k]``. Arrays shaped ``(K, B, ...)`` (views of two gathered arrays):
-        obs, action, reward, next_obs, terminated."""
+        drawn from ``rngs[k]``; for members that ``members`` leaves out nothing is drawn (their
+        rows repeat the first transition). Arrays shaped ``(K, B, ...)`` (views of two gathered
+        arrays): obs, action, reward, next_obs, terminated."""
         n_members, capacity, width = self.transitions.shape
-        index = np.stack([rng.integers(0, self.size, batch_size) for rng in rngs])
+        index = np.stack(
+            [
+                rng.integers(0, self.size, batch_size)
+                if members is None or members[k]
+                else np.zeros(batch_size, dtype=np.int64)
+                for k, rng in enumerate(rngs)
+            ]
+        )
         index += self._first_transition
         transitions = np.take(self.transitions.reshape(n_members * capacity, width), index, 0)
         rows = np.take(self.row_index.reshape(n_members * capacity, 2), index, 0)

@@ -28,6 +28,7 @@ class LossSettings(NamedTuple):
     lnq: str  # "per-dim" or "joint" (maths.lnq_of_policy)
     log_std_min: float
     log_std_max: float
+    action_scale: float = 1.0  # the critics see the policy's actions times this (buffer alike)
 
 
 class TacLosses(NamedTuple):
@@ -62,6 +63,10 @@ def tac_losses(
 ) -> TacLosses:
     """TAC's Q, V and policy losses on one minibatch (SAC v1 with ``log`` replaced by ``ln_q``).
 
+    The buffer's actions are in the critics' units: the policy's [-1, 1], or with
+    ``s.action_scale`` (the reference profile) times the action bound, as the policy's actions
+    are before they reach a critic; densities are always those of the unscaled action.
+
     ``eps`` ``(K, B, A)`` is the standard normal noise of the reparameterised action. ``target``
     is the target V (K members) or, given ``eps_next`` (``critic_target`` twin-q, SAC v2's target
     of Haarnoja et al. 2018b), the target critic pair (2K), which then replaces the target V in
@@ -86,6 +91,7 @@ def tac_losses(
             next_action, next_log_prob_dims, _ = _policy_sample(
                 nets.policy, batch.next_obs, eps_next, s
             )
+            next_action = next_action * s.action_scale
             pairs = torch.cat([batch.next_obs, next_action], dim=-1).repeat(2, 1, 1)
             q_next = mlp(target, pairs).view(2, k, -1)
             lnq_next = lnq_of_policy(next_log_prob_dims, c, s.lnq)
@@ -97,7 +103,7 @@ def tac_losses(
 
     # eqn:pol_obj  J_phi = E[ alpha ln_q pi(a~|s) - Q(s, a~) ], with Q = Q1 (reference code),
     # its weights frozen: the gradient reaches a~, not Q1
-    new_pairs = torch.cat([batch.obs, new_action], dim=-1)
+    new_pairs = torch.cat([batch.obs, new_action * s.action_scale], dim=-1)
     q1_pi = mlp(nets.critics.members(slice(0, k)), new_pairs, frozen=True).squeeze(-1)
     loss_pi = (alpha * lnq_pi - q1_pi).mean(dim=-1)
 

@@ -32,7 +32,7 @@ METRICS = LOSSES + DIAGNOSTICS  # the columns of an update's metrics, (K, len(ME
 
 
 class Batch(NamedTuple):
-    """A member-batched minibatch; actions are in the policy's [-1, 1] units."""
+    """A member-batched minibatch; actions are in the critics' units (losses.LossSettings)."""
 
     obs: torch.Tensor  # (K, B, obs_dim)
     action: torch.Tensor  # (K, B, A)

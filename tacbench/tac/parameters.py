@@ -18,6 +18,8 @@ import math
 from collections.abc import Iterator, Mapping, Sequence
 from typing import Any, NamedTuple
 
+import numpy as np
+import numpy.typing as npt
 import torch
 
 from tacbench.tac.networks import Layers, init_layers
@@ -107,6 +109,7 @@ class TacParameters:
         *,
         twin_q_targets: bool,
         device: torch.device,
+        per_member_steps: bool = False,
     ) -> None:
         self.n_members = len(generators)
         policy = init_layers([obs_dim, *hidden_sizes, 2 * act_dim], generators)
@@ -117,7 +120,10 @@ class TacParameters:
         self.grad = torch.zeros_like(self.data)
         self.exp_avg = torch.zeros_like(self.data)
         self.exp_avg_sq = torch.zeros_like(self.data)
-        self.step = torch.zeros((), dtype=torch.float32, device=device)
+        self.steps = torch.zeros(self.n_members, dtype=torch.float32, device=device)  # Adam's
+        self._host_steps = np.zeros(self.n_members, dtype=np.int64)  # the same, on the host
+        # members update at their own times (the episode schedule, updates during warm-up)
+        self.per_member_steps = per_member_steps
         self.twin_q_targets = twin_q_targets
         self.target_layout, self.target = _pack([[q1, q2]] if twin_q_targets else [[v]], device)
         n = 2 * self.n_layers
@@ -127,20 +133,40 @@ class TacParameters:
         )
         self.networks = self.layout.networks(self.data)
         self.target_networks = self.target_layout.layers(self.target)
+        # the member of each row of each block: 0..K-1, and twice over for the critic pair
+        members = torch.arange(self.n_members, device=device)
+        self._rows = [members.repeat(shape[0] // self.n_members) for shape in self.layout.shapes]
+        self._target_rows = [
+            members.repeat(shape[0] // self.n_members) for shape in self.target_layout.shapes
+        ]
 
-    def adam_step(self, lr: float) -> None:
-        """One Adam step on every parameter from ``grad``: PyTorch's fused kernel with
-        ``torch.optim.Adam``'s defaults (betas 0.9, 0.999, eps 1e-8, no weight decay), called
-        directly: ``torch.optim.adam(..., fused=True)`` regroups its tensor lists at every call,
-        a tenth of a one-member update's time."""
-        self.step += 1
+    def adam_step(self, lr: float, active: npt.NDArray[np.bool_] | None = None) -> None:
+        """One Adam step from ``grad`` with ``torch.optim.Adam``'s defaults (betas 0.9, 0.999,
+        eps 1e-8, no weight decay) for every member, or, with ``per_member_steps``, only for
+        the members where ``active`` is True (the others, their moments and step counts are left
+        exactly as they are).
+
+        When every member steps and all have made the same number of steps: PyTorch's fused
+        kernel on the whole buffer, called directly (``torch.optim.adam(..., fused=True)``
+        regroups its tensor lists at every call, a tenth of a one-member update's time).
+        Otherwise each member's own step count sets its bias correction
+        (:meth:`_masked_adam_step`); the choice depends on the step counts only, so a resumed
+        run makes it as the uninterrupted one did."""
+        if active is not None and not self.per_member_steps:
+            raise ValueError("an update of some members needs per_member_steps")
+        everyone = active is None or bool(active.all())
+        if not everyone or self._host_steps.min() != self._host_steps.max():
+            self._masked_adam_step(lr, active)
+            return
+        self.steps += 1
+        self._host_steps += 1
         torch._fused_adam_(
             [self.data],
             [self.grad],
             [self.exp_avg],
             [self.exp_avg_sq],
             [],
-            [self.step],
+            [self.steps[0]],
             amsgrad=False,
             lr=lr,
             beta1=ADAM_BETAS[0],
@@ -150,10 +176,43 @@ class TacParameters:
             maximize=False,
         )
 
-    def update_target(self, tau: float) -> None:
+    def _masked_adam_step(self, lr: float, members: npt.NDArray[np.bool_] | None) -> None:
+        """Adam, block by block, for the ``members`` (all if None), each with its own step
+        count; the same update as ``torch.optim.Adam``'s (to float32 rounding)."""
+        on_host = np.ones(self.n_members, dtype=bool) if members is None else members
+        self._host_steps += on_host
+        active = torch.as_tensor(on_host, device=self.steps.device)
+        self.steps += active
+        beta1, beta2 = ADAM_BETAS
+        views = [
+            self.layout.views(t) for t in (self.data, self.grad, self.exp_avg, self.exp_avg_sq)
+        ]
+        for rows, p, g, m, v in zip(self._rows, *views, strict=True):
+            shape = (-1,) + (1,) * (p.dim() - 1)
+            on = active[rows].view(shape)
+            step = self.steps[rows].clamp(min=1).view(shape)
+            m.copy_(torch.where(on, m.lerp(g, 1 - beta1), m))
+            v.copy_(torch.where(on, v * beta2 + (1 - beta2) * g * g, v))
+            denom = v.sqrt() / (1 - beta2**step).sqrt() + ADAM_EPS
+            p.copy_(torch.where(on, p - lr / (1 - beta1**step) * m / denom, p))
+
+    def update_target(self, tau: float, members: npt.NDArray[np.bool_] | None = None) -> None:
         """Polyak average of the target networks: ``target <- (1 - tau) target + tau source``
-        (paper appendix: the target V; twin-q: the target critics, SAC v2)."""
-        self.target.lerp_(self.data[self._target_source], tau)
+        (paper appendix: the target V; twin-q: the target critics, SAC v2), for every member or
+        only the ``active`` ones."""
+        source = self.data[self._target_source]
+        if members is None or members.all():
+            self.target.lerp_(source, tau)
+            return
+        active = torch.as_tensor(members, device=self.target.device)
+        for rows, target, block in zip(
+            self._target_rows,
+            self.target_layout.views(self.target),
+            self.target_layout.views(source),
+            strict=True,
+        ):
+            weight = (tau * active[rows]).view((-1,) + (1,) * (target.dim() - 1))
+            target.lerp_(block, weight.to(target.dtype))
 
     # --- per-member state (checkpoints hold one member each) ----------------------------------
 
@@ -196,17 +255,14 @@ class TacParameters:
         return {
             "params": member(self.data, self.target),
             "adam": {
-                "step": self.step.cpu().clone(),
+                "step": self.steps[k].cpu().clone(),
                 "exp_avg": member(self.exp_avg, None),
                 "exp_avg_sq": member(self.exp_avg_sq, None),
             },
         }
 
     def load_member_states(self, states: Sequence[Mapping[str, Any]]) -> None:
-        """Load one :meth:`member_state` per member (their Adam step counts must agree)."""
-        steps = [s["adam"]["step"] for s in states]
-        if any(not torch.equal(step, steps[0]) for step in steps):
-            raise ValueError("members have different Adam step counts")
+        """Load one :meth:`member_state` per member."""
         with torch.no_grad():
             for flat, target, key in (
                 (self.data, self.target, None),
@@ -216,4 +272,6 @@ class TacParameters:
                 values = [s["params"] if key is None else s["adam"][key] for s in states]
                 for name, tensor in self._named(flat, target):
                     tensor.copy_(torch.stack([v[name] for v in values]))
-            self.step.copy_(steps[0])
+            steps = torch.stack([s["adam"]["step"].reshape(()) for s in states])
+            self.steps.copy_(steps)
+        self._host_steps[:] = steps.cpu().numpy()

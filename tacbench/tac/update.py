@@ -23,6 +23,8 @@ import warnings
 from collections.abc import Callable, Sequence
 from typing import Any
 
+import numpy as np
+import numpy.typing as npt
 import torch
 
 from tacbench.tac.losses import LossSettings, tac_losses
@@ -140,7 +142,8 @@ class TacUpdate:
         eps_next: torch.Tensor | None = None,
     ) -> torch.Tensor:
         """The metrics ``(K, len(METRICS))`` of one minibatch, the gradient of every trained
-        parameter written into ``params.grad``; no weight changes."""
+        parameter written into ``params.grad`` (zero for members not ``alive``); no weight
+        changes."""
         p = self.params
         with torch.no_grad():
             grad, metrics = self.gradient(
@@ -157,10 +160,13 @@ class TacUpdate:
         alive: torch.Tensor,
         c: Coefficients,
         eps_next: torch.Tensor | None = None,
+        active: npt.NDArray[np.bool_] | None = None,
     ) -> torch.Tensor:
-        """One update of every member: :meth:`gradients`, Adam, the target average."""
-        metrics = self.gradients(batch, eps, alive, c, eps_next)
+        """One update of every member, or of the ``active`` ones only (the others are left
+        exactly as they are): :meth:`gradients`, Adam, the target average."""
+        trained = alive if active is None else alive & torch.as_tensor(active, device=alive.device)
+        metrics = self.gradients(batch, eps, trained, c, eps_next)
         with torch.no_grad():
-            self.params.adam_step(self.learning_rate)
-            self.params.update_target(self.tau)
+            self.params.adam_step(self.learning_rate, active)
+            self.params.update_target(self.tau, active)
         return metrics

@@ -21,8 +21,10 @@ from tacbench.errors import TacbenchError
 from tacbench.interrupts import StopCheck
 from tacbench.progress import Progress
 from tacbench.runs import Outcome
+from tacbench.seeding import run_streams
 from tacbench.tac import METRICS, Coefficients, ReplayBuffer, TacAgent, coefficients
 from tacbench.training.checkpoint import load_replay, read_state, write_checkpoint
+from tacbench.training.schedule import rounds, updates_due
 
 LOSS_COLUMNS = ("q", "updates", *METRICS)
 
@@ -40,9 +42,20 @@ class GroupTrainer:
         self.command = command
         self.info = envs.env_info(config.env)
         k, obs_dim, act_dim = len(configs), self.info.obs_dim, self.info.act_dim
-        self.agent = TacAgent(obs_dim, act_dim, config, self.seeds, torch.device(config.device))
+        streams = [run_streams(seed) for seed in self.seeds]
+        self.env_seeds = [s.env_seed for s in streams]
+        # reference profile: the critics and the buffer see actions times the action bound
+        self.action_scale = self.info.high[0] if config.action_scale == "bound" else 1.0
+        self.agent = TacAgent(
+            obs_dim,
+            act_dim,
+            config,
+            [s.torch_seed for s in streams],
+            torch.device(config.device),
+            self.action_scale,
+        )
         self.buffer = ReplayBuffer(k, obs_dim, act_dim, min(config.buffer_size, config.total_steps))
-        self.rngs = [np.random.default_rng(seed) for seed in self.seeds]
+        self.rngs = [np.random.default_rng(s.numpy) for s in streams]
         self.envs = [envs.make_env(config.env) for _ in range(k)]
         self.eval_envs = [
             [envs.make_env(config.env) for _ in range(config.eval_episodes)]
@@ -54,7 +67,8 @@ class GroupTrainer:
         self.episode_return = np.zeros(k)
         self.episode_length = np.zeros(k, dtype=np.int64)
         self.loss_sum = torch.zeros(k, len(METRICS), device=self.agent.device)
-        self.loss_count = 0
+        self.loss_count = np.zeros(k, dtype=np.int64)  # updates since the last losses row
+        self.updates_started = np.zeros(k, dtype=bool)  # training.schedule
         self.alive = list(range(k))  # live members, kept on the host (no device sync to read)
         self.wall_offset = 0.0
         self.finished_length = np.zeros(k, dtype=np.int64)  # length of episodes just ended
@@ -84,7 +98,7 @@ class GroupTrainer:
         full = [s for s in states if s is not None]
         if len(full) < len(states):
             for k, env in enumerate(self.envs):
-                self.obs[k] = env.reset(seed=self.seeds[k])[0]
+                self.obs[k] = env.reset(seed=self.env_seeds[k])[0]
             self.buffer.start_episodes(range(len(self.envs)), self.obs)
             return
         self.step = self.chunk_added = full[0]["step"]
@@ -95,16 +109,17 @@ class GroupTrainer:
             load_replay(directory, self.buffer, k, self.step)
             self.rngs[k].bit_generator.state = state["rng"]
             self.obs[k] = state["obs"].numpy()
-            self.envs[k].reset(seed=self.seeds[k])
+            self.envs[k].reset(seed=self.env_seeds[k])
             if state["env"] is not None:
                 envs.set_env_state(self.envs[k], state["env"])
                 self.episode_return[k] = state["episode_return"]
                 self.episode_length[k] = state["episode_length"]
             else:  # no exact env state (not MuJoCo): continue with a fresh episode
-                self.obs[k] = self.envs[k].reset(seed=self.seeds[k] + self.step)[0]
+                self.obs[k] = self.envs[k].reset(seed=self.env_seeds[k] + self.step)[0]
                 self.buffer.start_episodes([k], self.obs[k : k + 1])
             self.loss_sum[k] = state["loss_sum"].to(self.loss_sum.device)
-        self.loss_count = full[0]["loss_count"]
+            self.loss_count[k] = state["loss_count"]
+            self.updates_started[k] = state["updates_started"]
         self.wall_offset = full[0]["wall_s"]
 
     def _metadata(self, config: RunConfig) -> dict[str, Any]:
@@ -190,7 +205,10 @@ class GroupTrainer:
         for k in self.alive:
             obs, r, term, trunc, _ = self.envs[k].step(env_actions[k])
             next_obs[k], reward[k], terminated[k], done[k] = obs, r, term, term or trunc
-        self.buffer.add(actions, reward, terminated, next_obs)  # a time-limit end is not terminal
+        if self.config.time_limits == "terminal-below-1000":  # the authors' code (docs/tac.md)
+            terminated = done & (self.episode_length + 1 != 1000)
+        scaled = actions if self.action_scale == 1.0 else actions * self.action_scale
+        self.buffer.add(scaled, reward, terminated, next_obs)
         self.step += 1
         self.episode_return += reward
         self.episode_length += 1
@@ -216,35 +234,44 @@ class GroupTrainer:
         return self._coefficients[1]
 
     def _learn(self, done: np.ndarray) -> list[Outcome]:
-        """Gradient updates due after this step; log losses; retire members whose losses blew up."""
+        """Gradient updates due after this step (training.schedule); log losses; retire members
+        whose losses blew up."""
         config, outcomes = self.config, []
-        if self.step >= config.learning_starts:
-            if config.update_schedule == "step":
-                n_updates = 1
-            else:  # paper Algorithm 1: at an episode end, one update per step of that episode
-                n_updates = int(self.finished_length[0]) if done[0] else 0
+        due = updates_due(config, self.step, done, self.finished_length, self.updates_started)
+        due[[k for k in range(len(due)) if k not in self.alive]] = 0
+        if due.any():
             c = self.coefficients_at(self.step)
-            for _ in range(n_updates):
-                metrics = self.agent.update(self.buffer.sample(self.rngs, config.batch_size), c)
-                self.loss_sum += metrics
-                self.loss_count += 1
+            for members in rounds(due):
+                subset = members.tolist() if config.per_member_updates else None
+                sample = self.buffer.sample(self.rngs, config.batch_size, subset)
+                metrics = self.agent.update(sample, c, subset)
+                if subset is None:
+                    self.loss_sum += metrics
+                else:
+                    active = torch.as_tensor(members, device=metrics.device)[:, None]
+                    self.loss_sum += torch.where(active, metrics, 0.0)
+                self.loss_count += members
                 finite = torch.isfinite(metrics)
                 if bool(finite.all()):  # the common case, in one reduction
                     continue
-                bad = self.agent.alive & ~finite.all(dim=-1)
+                active = torch.as_tensor(members, device=self.agent.alive.device)
+                bad = self.agent.alive & active & ~finite.all(dim=-1)
                 if bad.any():
                     outcomes += self._fail(bad, metrics)
                     if not self.alive:
                         break
-        if self.loss_count and (
-            self.step % config.log_every == 0 or self.step == config.total_steps
-        ):
-            mean = (self.loss_sum / self.loss_count).cpu().tolist()
-            for k in self.alive:
-                q = self.configs[k].q_at(self.step)
-                self.writers[k].losses_row(self.step, [q, self.loss_count, *mean[k]])
-            self.loss_sum.zero_()
-            self.loss_count = 0
+        if self.step % config.log_every == 0 or self.step == config.total_steps:
+            logged = [k for k in self.alive if self.loss_count[k]]
+            if logged:
+                mean = (
+                    self.loss_sum / torch.as_tensor(self.loss_count).clamp(min=1)[:, None]
+                ).cpu()
+                for k in logged:
+                    q = self.configs[k].q_at(self.step)
+                    row = [q, int(self.loss_count[k]), *mean[k].tolist()]
+                    self.writers[k].losses_row(self.step, row)
+                    self.loss_sum[k] = 0.0
+                    self.loss_count[k] = 0
         return outcomes
 
     def _fail(self, bad: torch.Tensor, metrics: torch.Tensor) -> list[Outcome]:
@@ -305,7 +332,8 @@ class GroupTrainer:
                 "episode_return": float(self.episode_return[k]),
                 "episode_length": int(self.episode_length[k]),
                 "loss_sum": self.loss_sum[k].cpu().clone(),
-                "loss_count": self.loss_count,
+                "loss_count": int(self.loss_count[k]),
+                "updates_started": bool(self.updates_started[k]),
                 "wall_s": self.wall_s,
             }
             since = (self.chunk_added, int(self.chunk_rows[k]))
