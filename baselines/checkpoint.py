@@ -1,21 +1,24 @@
-"""A baseline's ``checkpoint/``: everything its exact continuation depends on.
+"""A baseline's ``checkpoint/``: generations (:mod:`tacbench.checkpoints`) of everything its
+exact continuation depends on.
 
 - ``model-<step>.zip``: ``model.save`` (weights, optimiser states, counters, last observation,
   action-noise state, learning-rate schedule).
 - ``replay/<from>-<to>.npz`` (off-policy): the replay transitions added since the previous
   checkpoint, so a checkpoint writes only what is new (SB3's ``save_replay_buffer`` would pickle
   the whole preallocated buffer each time). Loading the chunks in order rebuilds the buffer.
-- ``state.pt``: the step, which model file belongs to it, the global random generators SB3 draws
-  from (torch, NumPy, Python) and the action space's, the environment's exact state
+- ``state-<step>.pt``: the step, which model file belongs to it, the global random generators
+  SB3 draws from (torch, NumPy, Python) and the action space's, the environment's exact state
   (:func:`tacbench.envs.get_env_state`), the episode in progress, the ``VecNormalize``
   statistics, the partial losses window and the wall-clock time.
 
-``state.pt`` is written last and atomically, so a crash mid-checkpoint leaves the previous
-checkpoint usable; files of a later, unfinished checkpoint are removed on resume.
+Each file is written durably; the generation's manifest (sizes and checksums) is written
+last, so a crash mid-checkpoint leaves the previous generation usable, and a damaged file is
+found on resume, which then continues from the previous generation.
 """
 
 from __future__ import annotations
 
+import io
 import random
 from pathlib import Path
 from typing import Any
@@ -30,9 +33,9 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecNormalize
 from baselines import algos
 from baselines.callbacks import LossLogger
 from baselines.config import BaselineConfig
-from tacbench import envs
+from tacbench import checkpoints, envs
+from tacbench.seeding import run_streams
 
-STATE_FILE = "state.pt"
 REPLAY_FIELDS = ("observations", "next_observations", "actions", "rewards", "dones", "timeouts")
 
 
@@ -112,29 +115,30 @@ def save(
     venv: VecEnv,
     losses: LossLogger,
     wall_s: float,
-) -> None:
-    """Write the checkpoint at ``step``; ``since`` is the previous checkpoint's step (0 if none)."""
+    chunks: list[Path],
+) -> list[Path]:
+    """Write the checkpoint generation at ``step`` (``since``: the previous checkpoint's step, 0
+    if none; ``chunks``: the replay chunks the previous generation lists) and return the
+    chunks this one lists."""
     buffer = _replay_buffer(model)
+    listed = []
     if buffer is not None:
         replay = directory / "replay"
         replay.mkdir(exist_ok=True)
+        listed = [c for c in chunks if _chunk_end(c) >= step - buffer.buffer_size]
         if step > since:
             start = max(since, step - buffer.buffer_size)
             positions = np.arange(start, step) % buffer.buffer_size
-            tmp = replay / f"{since:012d}-{step:012d}.npz.tmp"
-            with tmp.open("wb") as handle:
-                np.savez(
-                    handle,
-                    start=start,
-                    **{name: getattr(buffer, name)[positions] for name in REPLAY_FIELDS},
-                )
-            tmp.replace(replay / f"{since:012d}-{step:012d}.npz")
-    model_file = f"model-{step:012d}.zip"
-    model.save(directory / model_file)
+            fields = {name: getattr(buffer, name)[positions] for name in REPLAY_FIELDS}
+            chunk = replay / f"{since:012d}-{step:012d}.npz"
+            checkpoints.write_durably(chunk, lambda handle: np.savez(handle, start=start, **fields))
+            listed.append(chunk)
+    model_file = directory / f"model-{step:012d}.zip"
+    checkpoints.write_durably(model_file, lambda handle: model.save(handle))  # type: ignore[arg-type]
     recorder = algos.recorder(dummy)
     state = {
         "step": step,
-        "model": model_file,
+        "model": model_file.name,
         "rng": _rng_state(model),
         "env": envs.get_env_state(dummy.envs[0]),
         "episode": [recorder.episode_return, recorder.episode_length],
@@ -142,37 +146,42 @@ def save(
         "losses": losses.state(),
         "wall_s": wall_s,
     }
-    tmp_state = directory / (STATE_FILE + ".tmp")
-    torch.save(state, tmp_state)
-    tmp_state.replace(directory / STATE_FILE)
-    for old in directory.glob("model-*.zip"):
-        if old.name != model_file:
-            old.unlink()
-    if buffer is not None:
-        for old in (directory / "replay").glob("*.npz"):
-            if _chunk_end(old) < step - buffer.buffer_size:  # every transition overwritten
-                old.unlink()
+    data = io.BytesIO()
+    torch.save(state, data)
+    state_file = directory / f"state-{step:012d}.pt"
+    checkpoints.write_durably(state_file, lambda handle: handle.write(data.getbuffer()))
+    checkpoints.commit(directory, step, [state_file, model_file, *listed])
+    return listed
 
 
-def load_state(directory: Path) -> dict[str, Any] | None:
-    """The checkpoint's ``state.pt`` under ``directory``, or None if there is none."""
-    path = directory / STATE_FILE
-    return torch.load(path, weights_only=True) if path.exists() else None
+def load(directory: Path) -> tuple[dict[str, Any] | None, list[Path], list[str]]:
+    """The state of the newest intact checkpoint generation under ``directory``, the replay
+    chunks it lists and notes on damaged generations passed over; ``(None, [], [])`` without
+    a checkpoint. A TacbenchError when there are checkpoints but none is intact."""
+    step, notes = checkpoints.choose([directory])
+    if step is None:
+        return None, [], []
+    checkpoints.discard_after(directory, step)
+    state = torch.load(directory / f"state-{step:012d}.pt", weights_only=True)
+    files = checkpoints.files_of(directory, step)
+    return state, sorted(p for p in files if p.parent.name == "replay"), notes
 
 
 def restore(
     config: BaselineConfig,
     directory: Path,
     state: dict[str, Any],
+    chunks: list[Path],
     dummy: DummyVecEnv,
     venv: VecEnv,
     losses: LossLogger,
 ) -> BaseAlgorithm:
-    """The model, its replay buffer, the environment and the generators as they were at the
-    checkpoint ``state`` (from :func:`load_state`)."""
+    """The model, its replay buffer (from the generation's ``chunks``), the environment and the
+    generators as they were at the checkpoint ``state`` (from :func:`load`)."""
     step = int(state["step"])
     env = dummy.envs[0]
-    env.reset(seed=config.seed)
+    env_seed = run_streams(config.seed).env_seed
+    env.reset(seed=env_seed)
     _set_normalizer_state(venv, state["normalize"])
     model = algos.ALGORITHMS[config.algo].load(
         directory / state["model"], env=venv, device=config.device, force_reset=False
@@ -182,17 +191,14 @@ def restore(
         recorder = algos.recorder(dummy)
         recorder.episode_return, recorder.episode_length = state["episode"]
     else:  # no exact env state (not MuJoCo): continue with a fresh episode, as TAC does
-        venv.seed(config.seed + step)
+        venv.seed(env_seed + step)
         obs = venv.reset()
         assert isinstance(obs, np.ndarray)
         model._last_obs = obs
         model._last_episode_starts = np.ones((1,), dtype=bool)
     buffer = _replay_buffer(model)
     if buffer is not None:
-        for chunk in sorted((directory / "replay").glob("*.npz")):
-            if _chunk_end(chunk) > step:
-                chunk.unlink()  # written after the checkpoint we resume from
-                continue
+        for chunk in chunks:
             with np.load(chunk) as data:
                 start, count = int(data["start"]), len(data["rewards"])
                 positions = np.arange(start, start + count) % buffer.buffer_size

@@ -21,6 +21,7 @@ from baselines import algos, checkpoint, hyperparams
 from baselines.callbacks import Diverged, Interrupted, LossLogger, RunCallback
 from baselines.config import BaselineConfig
 from tacbench import envs, runs
+from tacbench.checkpoints import disk_errors
 from tacbench.errors import TacbenchError
 from tacbench.hardware import configure_process
 from tacbench.interrupts import StopCheck, stop_signals
@@ -63,13 +64,15 @@ def train(
     ``stop`` is polled at every boundary (each step off-policy, each rollout for PPO/TRPO); when
     it, Ctrl-C or SIGTERM says stop, the run is checkpointed and left "running" for
     ``resume=True``, and later seeds are not started. Complete and failed runs are skipped
-    unless ``force``.
+    unless ``force``. A full disk or an unwritable folder raises
+    :class:`tacbench.checkpoints.DiskError`; what was written up to the last checkpoint stays
+    resumable.
     """
     if not configs or len({c.seed for c in configs}) != len(configs):
         raise TacbenchError("give each baseline run a different seed.")
     envs.env_info(configs[0].env)  # an unusable task fails before any directory is touched
-    outcomes, active = plan_runs(configs, out, resume=resume, force=force)
-    with stop_signals() as received:
+    with disk_errors("the run's files"), stop_signals() as received:
+        outcomes, active = plan_runs(configs, out, resume=resume, force=force)
         for config, directory in active:
             configure_process(config.threads)
             run = _Run(config, directory, command, quiet)
@@ -98,7 +101,9 @@ class _Run:
             envs.make_env(config.env)
             for _ in range(config.eval_episodes if config.eval_every else 0)
         ]
-        state = checkpoint.load_state(self.writer.checkpoint_dir)
+        state, self.chunks, notes = checkpoint.load(self.writer.checkpoint_dir)
+        if state is not None and notes:
+            self.writer.note = f"resumed from step {state['step']}: " + "; ".join(notes)
         if state is None:
             self.writer.open(metadata(config, command), None)
             self.model = algos.build_model(config, self.venv)
@@ -106,13 +111,21 @@ class _Run:
         else:
             self.writer.open(None, int(state["step"]))
             self.model = checkpoint.restore(
-                config, self.writer.checkpoint_dir, state, self.dummy, self.venv, self.losses
+                config,
+                self.writer.checkpoint_dir,
+                state,
+                self.chunks,
+                self.dummy,
+                self.venv,
+                self.losses,
             )
             self.step, self.wall_offset = int(state["step"]), float(state["wall_s"])
         self.model.set_logger(self.losses)
         self.checkpoint_step = self.step
         label = f"{algos.DISPLAY_NAMES[config.algo]} {config.env} seed {config.seed}"
         self.progress = Progress(label, config.total_steps, self.step, config.eval_every, quiet)
+        for note in notes:
+            self.progress.message(f"{note}; resuming from step {self.step}")
         self._t0 = time.perf_counter()
 
     def wall_s(self) -> float:
@@ -141,7 +154,7 @@ class _Run:
 
     def save(self, step: int) -> None:
         """Checkpoint at ``step`` (a boundary) and record it in status.json."""
-        checkpoint.save(
+        self.chunks = checkpoint.save(
             self.writer.checkpoint_dir,
             step,
             self.checkpoint_step,
@@ -150,6 +163,7 @@ class _Run:
             self.venv,
             self.losses,
             self.wall_s(),
+            self.chunks,
         )
         self.checkpoint_step = step
         self.writer.status("running", step)

@@ -1,14 +1,15 @@
 """The run directory: layout, atomic JSON, row-by-row CSVs, status, resume planning, progress.
 
-Shared by every trainer (TAC here, the baselines later), so nothing here knows about torch or
+Shared by every trainer (TAC and the baselines), so nothing here knows about torch or
 TAC. The layout (ARCHITECTURE.md, "The run directory")::
 
     <out>/runs/<algo>/<env>/<variant>/seed<k>/
       config.json  status.json  eval.csv  train.csv  losses.csv  checkpoint/
 
-JSON files are written to a temporary name and renamed. CSV rows are appended and flushed one
-at a time; reopening a run for resume first cuts every CSV back to the checkpoint's step, so
-no row is ever duplicated. docs/results-schema.md describes every file, column and field.
+JSON files are written durably (a temporary name, synced, renamed:
+:func:`tacbench.checkpoints.write_durably`). CSV rows are appended and flushed one at a time;
+reopening a run for resume first cuts every CSV back to the checkpoint's step, so no row is
+ever duplicated and none is missing. docs/results-schema.md describes every file, column and field.
 """
 
 from __future__ import annotations
@@ -17,16 +18,19 @@ import csv
 import importlib.metadata
 import json
 import math
+import os
 import platform
 import shutil
 import socket
 import subprocess
+import tempfile
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import IO, Any, Literal, Protocol, TypeVar
 
+from tacbench.checkpoints import write_durably
 from tacbench.config import RESULT_NEUTRAL_FIELDS
 from tacbench.errors import TacbenchError
 
@@ -48,9 +52,23 @@ def now_iso() -> str:
 
 def atomic_write_json(path: Path, data: Mapping[str, Any]) -> None:
     """Write ``data`` as JSON so that a reader sees the old file or the new one, never half."""
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(data, indent=2, sort_keys=False) + "\n")
-    tmp.replace(path)
+    payload = (json.dumps(data, indent=2, sort_keys=False) + "\n").encode()
+    write_durably(path, lambda handle: handle.write(payload))
+
+
+def ensure_writable(folder: Path) -> None:
+    """Create ``folder`` (with its parents) and check that a file can be written in it, before
+    anything is trained; else a TacbenchError that says what to do."""
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=folder):
+            pass
+    except OSError as err:
+        reason = os.strerror(err.errno).lower() if err.errno else str(err)
+        raise TacbenchError(
+            f"cannot create or write the output folder {folder} ({reason}); "
+            "choose one you can write with --out."
+        ) from None
 
 
 def read_json(path: Path) -> dict[str, Any]:
@@ -195,16 +213,19 @@ class CsvLog:
                 f"{self.path} has columns {lines[0]!r}, expected {header!r}; use --force."
             )
         kept = [row for row in rows if int(float(row.split(",", 1)[0])) <= keep_until]
-        tmp = self.path.with_name(self.path.name + ".tmp")
-        tmp.write_text("\n".join([header, *kept]) + "\n")
-        tmp.replace(self.path)
+        payload = ("\n".join([header, *kept]) + "\n").encode()
+        write_durably(self.path, lambda handle: handle.write(payload))
 
     def write(self, row: Sequence[Any]) -> None:
         """Append one row (same order as the columns) and flush it to the OS."""
         if len(row) != len(self.columns):
             raise ValueError(f"{self.path.name}: {len(row)} values for {len(self.columns)} columns")
-        self._writer.writerow(row)
-        self._handle.flush()
+        try:
+            self._writer.writerow(row)
+            self._handle.flush()
+        except OSError as err:  # a full disk: name the file (a torn row is cut on resume)
+            err.filename = err.filename or str(self.path)
+            raise
 
     def close(self) -> None:
         """Close the file."""
@@ -217,6 +238,7 @@ class RunWriter:
     def __init__(self, directory: Path, loss_columns: Sequence[str]) -> None:
         self.directory = Path(directory)
         self.loss_columns = ("step", *loss_columns)
+        self.note = ""  # the reason status.json gives when no other is: how the run resumed
         self._logs: dict[str, CsvLog] = {}
 
     @property
@@ -258,10 +280,10 @@ class RunWriter:
         self._logs["losses"].write([step, *values])
 
     def status(self, state: State, step: int, reason: str = "") -> None:
-        """Replace status.json."""
+        """Replace status.json (``reason``, or else :attr:`note`)."""
         atomic_write_json(
             self.directory / "status.json",
-            {"state": state, "step": step, "reason": reason, "updated": now_iso()},
+            {"state": state, "step": step, "reason": reason or self.note, "updated": now_iso()},
         )
 
     def close(self) -> None:
@@ -309,6 +331,7 @@ def plan_runs(
     resume, skip or refuse with a clear error) before anything is trained. Returns the skipped
     runs' outcomes and the runs to train with their directories; a directory that starts afresh
     (``force``, or nothing worth resuming in it) is emptied here."""
+    ensure_writable(Path(out))
     skipped, active = [], []
     for config in configs:
         directory = run_directory(out, config.algo, config.env, config.variant, config.seed)

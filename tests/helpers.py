@@ -11,6 +11,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import torch
+
 from tacbench import trainers
 from tacbench.envs import paper_task
 from tacbench.regress.manifest import without_wall_clock
@@ -116,3 +118,11 @@ def run_cli(args: Sequence[str]) -> subprocess.CompletedProcess[str]:
     """Run ``tacbench ARGS`` in a child process to the end."""
     command = [sys.executable, "-m", "tacbench", *args]
     return subprocess.run(command, capture_output=True, text=True, check=False)
+
+
+def checkpoint_state(run: Path) -> dict[str, Any]:
+    """The state (``state-<step>.pt``) of run directory ``run``'s newest checkpoint."""
+    folder = run / "checkpoint"
+    step = max(int(p.stem.split("-")[1]) for p in folder.glob("manifest-*.json"))
+    state: dict[str, Any] = torch.load(folder / f"state-{step:012d}.pt", weights_only=True)
+    return state

@@ -11,12 +11,11 @@ from typing import Any
 
 import pandas as pd
 import pytest
-import torch
 from click.testing import CliRunner
 
 from baselines import callbacks
 from tacbench.cli import cli
-from tests.helpers import tiny_configs, train
+from tests.helpers import checkpoint_state, tiny_configs, train
 
 pytestmark = pytest.mark.smoke
 
@@ -40,7 +39,7 @@ def test_non_finite_loss_marks_the_run_failed_and_keeps_the_checkpoint(
     assert (outcome.state, status["state"], status["step"]) == ("failed", "failed", 1200)
     assert status["reason"].startswith("non-finite critic_loss at step 1200")
     assert "last checkpoint is kept" in status["reason"]
-    assert torch.load(outcome.directory / "checkpoint" / "state.pt")["step"] == 1000
+    assert checkpoint_state(outcome.directory)["step"] == 1000
     (again,) = train(tmp_path, configs, resume=True)
     assert again.state == "skipped" and "failed at step 1200" in again.message
 

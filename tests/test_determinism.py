@@ -12,7 +12,14 @@ import torch
 
 from tacbench.envs import make_env
 from tacbench.seeding import run_streams
-from tests.helpers import LEARNERS, assert_same_results, results_of, tiny_configs, train
+from tests.helpers import (
+    LEARNERS,
+    assert_same_results,
+    checkpoint_state,
+    results_of,
+    tiny_configs,
+    train,
+)
 
 pytestmark = pytest.mark.smoke
 
@@ -35,8 +42,8 @@ def test_members_start_exactly_as_they_would_alone(tmp_path: Path) -> None:
     assert [o.state for o in grouped] == ["complete", "complete"]
     for name in ("eval.csv", "train.csv"):
         assert results_of(member)[name] == results_of(alone.directory)[name]
-    a = torch.load(member / "checkpoint" / "state.pt", weights_only=True)
-    b = torch.load(alone.directory / "checkpoint" / "state.pt", weights_only=True)
+    a = checkpoint_state(member)
+    b = checkpoint_state(alone.directory)
     for name, value in b["agent"]["params"].items():
         assert torch.equal(a["agent"]["params"][name], value), name
     chunks = sorted(p.name for p in (alone.directory / "checkpoint" / "replay").iterdir())
@@ -48,7 +55,7 @@ def test_members_start_exactly_as_they_would_alone(tmp_path: Path) -> None:
         ):
             for key in y.files:
                 np.testing.assert_array_equal(x[key], y[key], err_msg=key)
-    other = torch.load(grouped[0].directory / "checkpoint" / "state.pt", weights_only=True)
+    other = checkpoint_state(grouped[0].directory)
     assert not torch.equal(
         other["agent"]["params"]["q1.weights.0"], b["agent"]["params"]["q1.weights.0"]
     )

@@ -11,10 +11,17 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
-import torch
 
 from baselines import OFF_POLICY
-from tests.helpers import LEARNERS, assert_same_results, interrupt_cli, run_cli, tiny_configs, train
+from tests.helpers import (
+    LEARNERS,
+    assert_same_results,
+    checkpoint_state,
+    interrupt_cli,
+    run_cli,
+    tiny_configs,
+    train,
+)
 
 pytestmark = pytest.mark.smoke
 
@@ -116,7 +123,7 @@ def test_ctrl_c_checkpoints_and_resume_completes(
     status = json.loads((run / "status.json").read_text())
     assert status["state"] == "running" and status["step"] < 2000
     assert status["step"] % rollout == 0  # PPO stops at the end of its rollout
-    assert torch.load(run / "checkpoint" / "state.pt")["step"] == status["step"]
+    assert checkpoint_state(run)["step"] == status["step"]
     resumed = run_cli([*args, "--resume"])
     assert resumed.returncode == 0, resumed.stdout + resumed.stderr
     assert pd.read_csv(run / "eval.csv")["step"].tolist() == [500, 1000, 1500, 2000]

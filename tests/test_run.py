@@ -13,7 +13,6 @@ from typing import Any
 import numpy as np
 import pandas as pd
 import pytest
-import torch
 from click.testing import CliRunner
 
 from tacbench.cli import cli
@@ -21,7 +20,7 @@ from tacbench.config import PAPER_ALPHA, PAPER_BEST_Q, RunConfig
 from tacbench.envs import SUITE
 from tacbench.errors import TacbenchError
 from tacbench.runs import Outcome
-from tests.helpers import tiny_configs, train
+from tests.helpers import checkpoint_state, tiny_configs, train
 
 pytestmark = pytest.mark.smoke
 
@@ -67,7 +66,7 @@ def test_non_finite_loss_marks_the_run_failed_and_keeps_the_last_checkpoint(tmp_
     assert (outcome.state, status["state"], status["step"]) == ("failed", "failed", 1000)
     assert status["reason"].startswith("non-finite loss_v")
     assert "--lnq per-dim" in status["reason"]
-    checkpoint = torch.load(outcome.directory / "checkpoint" / "state.pt", weights_only=True)
+    checkpoint = checkpoint_state(outcome.directory)
     assert checkpoint["step"] == 500
     assert pd.read_csv(outcome.directory / "eval.csv")["step"].tolist() == [500]
     (again,) = _train(tmp_path, _config("Humanoid-v4", q=1.2, alpha=0.05, lnq="joint"), resume=True)
@@ -234,7 +233,7 @@ def test_the_reference_profile_trains_as_the_authors_code_did(tmp_path: Path) ->
         # every step of every finished episode earned one update, all before learning_starts
         assert losses["updates"].sum() == episodes["length"].sum() > 1000
         assert episodes["step"].max() < config["learning_starts"]
-        state = torch.load(run / "checkpoint" / "state.pt", weights_only=True)
+        state = checkpoint_state(run)
         assert state["agent"]["params"]["q1.weights.1"].shape == (400, 300)
 
 

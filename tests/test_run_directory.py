@@ -74,11 +74,24 @@ def test_every_learner_writes_the_documented_run_directory(
 
     losses = pd.read_csv(run / "losses.csv")
     checkpoint = run / "checkpoint"
-    state = torch.load(checkpoint / "state.pt", weights_only=True)
+    # two generations are kept, each recorded by its manifest; the newest lists its files
+    previous = 1024 if config.algo in ("ppo", "trpo") else 1000  # PPO, TRPO: at rollout ends
+    manifests = sorted(p.name for p in checkpoint.glob("manifest-*.json"))
+    assert manifests == [f"manifest-{previous:012d}.json", "manifest-000000001500.json"]
+    listed = json.loads((checkpoint / manifests[-1]).read_text())["files"]
+    state = torch.load(checkpoint / "state-000000001500.pt", weights_only=True)
     assert state["step"] == 1500
     replay = sorted(p.name for p in (checkpoint / "replay").glob("*.npz"))
     chunks = ["000000000000-000000000500.npz", "000000000500-000000001000.npz"]
     chunks.append("000000001000-000000001500.npz")
+    states = sorted(p.name for p in checkpoint.glob("state-*.pt"))
+    assert states == [f"state-{previous:012d}.pt", "state-000000001500.pt"]
+    assert not list(checkpoint.rglob("*.tmp"))
+
+    def assert_listed(*names: str) -> None:
+        sizes = {name: entry["size"] for name, entry in listed.items()}
+        assert sizes == {name: (checkpoint / name).stat().st_size for name in names}
+
     if config.algo == "tac":
         assert (metadata["q"], metadata["alpha"]) == (1.5, 0.2)
         assert metadata["members"] == [{"q": 1.5, "alpha": 0.2, "seed": 0}]
@@ -87,6 +100,7 @@ def test_every_learner_writes_the_documented_run_directory(
         assert losses["updates"].tolist() == [1, 250, 250]
         assert np.isfinite(losses.drop(columns="step")).all().all()
         assert replay == chunks
+        assert_listed("state-000000001500.pt", *(f"replay/{chunk}" for chunk in chunks))
         return
     assert metadata["q"] is None
     assert metadata["alpha"] == (0.2 if config.algo == "sac-sb3" else None)
@@ -95,12 +109,18 @@ def test_every_learner_writes_the_documented_run_directory(
         k: v for k, v in config.hyperparams.items() if table[k] != v
     }
     assert list(losses.columns) == ["step", *algos.loss_columns(config)]
-    assert sorted(p.name for p in checkpoint.glob("*.zip")) == ["model-000000001500.zip"]
+    models = sorted(p.name for p in checkpoint.glob("*.zip"))
+    assert models == [f"model-{previous:012d}.zip", "model-000000001500.zip"]
     if config.algo in OFF_POLICY:  # SB3 updates from step 1001: 250 updates per 250-step window
         assert losses["step"].tolist() == [1250, 1500]
         assert losses["n_updates"].tolist() == [250, 500]
         assert np.isfinite(losses["critic_loss"]).all() and np.isfinite(losses["actor_loss"]).all()
         assert replay == chunks
+        assert_listed(
+            "state-000000001500.pt",
+            "model-000000001500.zip",
+            *(f"replay/{chunk}" for chunk in chunks),
+        )
         with np.load(checkpoint / "replay" / replay[0]) as chunk:
             assert chunk["observations"].dtype == np.float32
             assert len(chunk["rewards"]) == 500
@@ -108,4 +128,5 @@ def test_every_learner_writes_the_documented_run_directory(
         assert losses["step"].tolist() == [512, 1024]
         assert np.isfinite(losses["value_loss"]).all()
         assert replay == []
+        assert_listed("state-000000001500.pt", "model-000000001500.zip")
         assert (state["normalize"] is not None) == config.hyperparams["normalize"]

@@ -95,7 +95,8 @@ def test_incremental_chunks_rebuild_the_buffer_exactly(tmp_path: Path, capacity:
         _fill_more(original, 13)
         for k in range(2):
             path = tmp_path / f"m{k}-{part}.npz"
-            original.save_chunk(k, path, since_added, int(since_rows[k]))
+            with path.open("wb") as handle:
+                original.save_chunk(k, handle, since_added, int(since_rows[k]))
             chunks[k].append(path)
         since_added, since_rows = original.n_added, original.n_rows.copy()
 
@@ -128,9 +129,11 @@ def _fill_more(buffer: ReplayBuffer, steps: int) -> None:
 def test_chunks_store_only_what_was_added(tmp_path: Path) -> None:
     buffer = ReplayBuffer(1, 3, 2, capacity=1000)
     _fill(buffer, 100, episode_lengths=[1000])
-    buffer.save_chunk(0, tmp_path / "a.npz", 0, 0)
+    with (tmp_path / "a.npz").open("wb") as handle:
+        buffer.save_chunk(0, handle, 0, 0)
     _fill_more(buffer, 20)
-    buffer.save_chunk(0, tmp_path / "b.npz", 100, 101)
+    with (tmp_path / "b.npz").open("wb") as handle:
+        buffer.save_chunk(0, handle, 100, 101)
     with np.load(tmp_path / "b.npz") as chunk:
         assert len(chunk["reward"]) == 20
         assert len(chunk["rows"]) == buffer.n_rows[0] - 101

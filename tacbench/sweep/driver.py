@@ -7,7 +7,9 @@ are retried until they have failed ``max_retries + 1`` times).
 
 Ctrl-C or SIGTERM: the first asks every running unit to checkpoint and return (and starts no
 new one), then the summary is written; a second one stops the workers at once (they keep their
-last checkpoints).
+last checkpoints). A unit that finds the disk full stops the sweep the same way (its runs are
+not counted as failed) and the sweep ends with a clear error; any other error of a unit is
+recorded against its runs, which are retried.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from pathlib import Path
 from typing import IO, Any
 
 from tacbench import envs, hardware, runs
+from tacbench.checkpoints import DiskError, disk_errors
 from tacbench.errors import TacbenchError
 from tacbench.interrupts import stop_signals
 from tacbench.sweep import GROUPS, cost, executors, plan, state, summary
@@ -152,13 +155,22 @@ def _member_bytes(env: str, transitions: int) -> int:
 def run_sweep(
     preset: Preset, out: Path, options: Options, stream: IO[str] | None = None
 ) -> SweepResult:
-    """Train every run of ``preset`` into ``out`` that is not complete; see the module doc."""
-    with state.Lock(out):
+    """Train every run of ``preset`` into ``out`` that is not complete; see the module doc.
+    A full disk stops the sweep (every unit checkpoints and returns) with a DiskError."""
+    runs.ensure_writable(out)
+    with disk_errors("the sweep's files"), state.Lock(out):
         work, history = load_plan(preset, out, options)
         executor = _executor(out, options)
         driver = _Driver(work, history, executor, options, stream)
         with stop_signals(second_interrupts=False) as received:
             interrupted = driver.run(received)
+        if driver.disk_full:
+            raise DiskError(
+                f"the sweep stopped: {driver.disk_full} could not write its files because the "
+                f"disk under {out} is full; free some space, then rerun the same command (every "
+                "run resumes from its last checkpoint).",
+                full=True,
+            )
         final, history = load_plan(preset, out, options)
         result = summary.summarize(final, history, command=options.command, interrupted=interrupted)
         text = summary.summary_text(result, options.command)
@@ -201,6 +213,7 @@ class _Driver:
             len(work.runs), sum(self.total.values()), self._done(), stream
         )
         self.stopping = self.forced = False
+        self.disk_full = ""  # the unit that found the disk full: the sweep stops
         self.unit_runs: dict[str, list[str]] = {}  # the runs of each submitted unit, by its key
 
     def _done(self) -> int:
@@ -240,6 +253,13 @@ class _Driver:
         if result is not None and result.node:
             self.history.set_node([r.key for r in finished.unit.runs], result.node)
         error = finished.died or (result.error if result else "")
+        if result is not None and result.disk_full:  # not the run's fault: stop, keep no failure
+            self.disk_full = self.disk_full or finished.unit.key
+            if not self.stopping:
+                self.stopping = True
+                self.progress.message(f"the disk is full ({error}); stopping every run")
+                self.executor.request_stop()
+            return
         again: list[plan.Run] = []
         retry: list[plan.Run] = []
         for run in finished.unit.runs:

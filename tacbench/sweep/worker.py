@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from tacbench import runs, trainers
+from tacbench.checkpoints import FULL_ERRNOS, DiskError
 from tacbench.errors import TacbenchError
 from tacbench.sweep.plan import Unit
 
@@ -61,6 +62,7 @@ class JobResult:
     log_tail: str = ""
     node: str = ""
     host: str = ""
+    disk_full: bool = False  # the error was a full disk: the driver stops the whole sweep
 
 
 class StopHook:
@@ -90,7 +92,11 @@ def execute(job: Job, report: Report, every_s: float = 1.0) -> JobResult:
     except Exception as err:
         traceback.print_exc()
         message = str(err).strip().splitlines()
-        return JobResult(error=f"{type(err).__name__}: {message[0] if message else ''}", host=host)
+        return JobResult(
+            error=f"{type(err).__name__}: {message[0] if message else ''}",
+            host=host,
+            disk_full=isinstance(err, DiskError) and err.full,
+        )
     return JobResult(tuple(outcomes), host=host)
 
 
@@ -105,9 +111,9 @@ def _train(job: Job, stop: StopHook) -> list[Outcome]:
     try:
         return call(configs)
     except TacbenchError as err:
-        if len(configs) == 1:
+        if len(configs) == 1 or isinstance(err, DiskError):
             raise
-        # members whose checkpoints differ in step (a crash between two members' checkpoints)
+        # members with no checkpoint step in common (one has none, or only damaged ones)
         print(f"training the members one at a time: {err}", file=sys.stderr, flush=True)
     outcomes: list[Outcome] = []
     for config in configs:
@@ -174,8 +180,11 @@ def local_main(job: Job, conn: Connection, step: Any, stop_event: Event, parent_
         step.value = at
         return stop_event.is_set() or os.getppid() != parent_pid
 
-    with output_to(job.log, job.unit.key):
-        result = execute(job, report)
+    try:
+        with output_to(job.log, job.unit.key):
+            result = execute(job, report)
+    except OSError as err:
+        result = _log_failed(job, err)
     conn.send(result)
     conn.close()
 
@@ -187,8 +196,12 @@ def ray_main(job: Job, board: Any) -> JobResult:
 
     limit_threads(job.threads)
     key = job.unit.key
-    with output_to(job.log, key) as start:
-        result = execute(job, lambda at: bool(ray.get(board.report.remote(key, at))), 2.0)
+    start = 0
+    try:
+        with output_to(job.log, key) as start:
+            result = execute(job, lambda at: bool(ray.get(board.report.remote(key, at))), 2.0)
+    except OSError as err:
+        result = _log_failed(job, err)
     files = {run.key: small_files(job.root / run.key) for run in job.unit.runs}
     with job.log.open("rb") as handle:
         handle.seek(max(start, job.log.stat().st_size - LOG_TAIL_BYTES))
@@ -198,6 +211,15 @@ def ray_main(job: Job, board: Any) -> JobResult:
         files=files if job.return_files else {},
         log_tail=tail if job.return_files else "",
         node=ray.get_runtime_context().get_node_id(),
+    )
+
+
+def _log_failed(job: Job, err: OSError) -> JobResult:
+    """The unit's result when its log could not be written (a full disk: the driver stops)."""
+    return JobResult(
+        error=f"cannot write the log {job.log}: {os.strerror(err.errno or 0).lower()}",
+        host=socket.gethostname(),
+        disk_full=err.errno in FULL_ERRNOS,
     )
 
 

@@ -29,7 +29,7 @@ import platform
 import sys
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import numpy as np
 import numpy.typing as npt
@@ -155,27 +155,24 @@ class ReplayBuffer:
         self.n_rows[member] = counters["n_rows"]
         self.current_row[member] = counters["current_row"]
 
-    def save_chunk(self, member: int, path: Path, since_added: int, since_rows: int) -> None:
+    def save_chunk(self, member: int, handle: IO[bytes], since_added: int, since_rows: int) -> None:
         """Write member ``member``'s transitions added since ``since_added`` and its rows added
-        since ``since_rows`` (only those still in the buffer) to ``path`` (``.npz``)."""
+        since ``since_rows`` (only those still in the buffer) to ``handle`` (``.npz``)."""
         t0 = max(since_added, self.n_added - self.capacity)
         r0 = max(since_rows, int(self.n_rows[member]) - self.row_capacity)
         positions = np.arange(t0, self.n_added) % self.capacity
         row_positions = np.arange(r0, self.n_rows[member]) % self.row_capacity
-        tmp = path.with_name(path.name + ".tmp")
-        with tmp.open("wb") as handle:
-            np.savez(
-                handle,
-                t0=t0,
-                r0=r0,
-                rows=self.rows[member, row_positions],
-                obs_row=self.obs_row[member, positions],
-                next_row=self.next_row[member, positions],
-                action=self.action[member, positions],
-                reward=self.reward[member, positions],
-                terminated=self.terminated[member, positions],
-            )
-        tmp.replace(path)
+        np.savez(
+            handle,
+            t0=t0,
+            r0=r0,
+            rows=self.rows[member, row_positions],
+            obs_row=self.obs_row[member, positions],
+            next_row=self.next_row[member, positions],
+            action=self.action[member, positions],
+            reward=self.reward[member, positions],
+            terminated=self.terminated[member, positions],
+        )
 
     def load_chunk(self, member: int, path: Path) -> None:
         """Write a chunk from :meth:`save_chunk` back into member ``member``'s storage."""

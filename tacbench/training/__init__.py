@@ -16,6 +16,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from tacbench import envs, runs
+from tacbench.checkpoints import disk_errors
 from tacbench.config import RunConfig
 from tacbench.errors import TacbenchError
 from tacbench.hardware import configure_process
@@ -73,18 +74,21 @@ def train(
 
     ``stop`` is polled before every step with the step count; when it (or Ctrl-C / SIGTERM)
     says stop, every member is checkpointed and left "running", to be continued with
-    ``resume=True``. Complete and failed runs are skipped unless ``force``.
+    ``resume=True``. Complete and failed runs are skipped unless ``force``. A full disk or an
+    unwritable folder raises :class:`tacbench.checkpoints.DiskError`; what was written up to
+    the last checkpoint stays resumable.
     """
     check_members(configs)
     envs.env_info(configs[0].env)  # an unusable task fails before any directory is touched
-    outcomes, active = plan_runs(configs, out, resume=resume, force=force)
-    if active:
-        configure_process(active[0][0].threads)
-        trainer = GroupTrainer([c for c, _ in active], [d for _, d in active], command, quiet)
-        with stop_signals() as received:
-            outcomes += trainer.run(
-                lambda step: bool(received) or (stop is not None and stop(step))
-            )
+    with disk_errors("the run's files"):
+        outcomes, active = plan_runs(configs, out, resume=resume, force=force)
+        if active:
+            configure_process(active[0][0].threads)
+            trainer = GroupTrainer([c for c, _ in active], [d for _, d in active], command, quiet)
+            with stop_signals() as received:
+                outcomes += trainer.run(
+                    lambda step: bool(received) or (stop is not None and stop(step))
+                )
     return sorted(outcomes, key=lambda o: o.seed)
 
 

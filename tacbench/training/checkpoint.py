@@ -1,31 +1,33 @@
-"""A TAC member's checkpoint on disk: ``checkpoint/state.pt`` and ``checkpoint/replay/*.npz``.
+"""A TAC member's checkpoint on disk: generations of ``checkpoint/state-<step>.pt`` and
+``checkpoint/replay/*.npz``, each recorded by a manifest (:mod:`tacbench.checkpoints`).
 
-``state.pt`` holds everything the member's continuation depends on but its replay buffer: the
-agent's weights, Adam state and generator, the env's exact state, the episode in progress, the
-open ``losses.csv`` window and the counters (the trainer composes it, :mod:`loop`). The replay
-buffer is written incrementally: each checkpoint adds one ``replay/<t0>-<t1>.npz`` with what
-the member added since the previous one (:meth:`ReplayBuffer.save_chunk`), and chunks whose
-transitions have all been overwritten are deleted. Files are written to a temporary name and
-renamed.
+``state-<step>.pt`` holds everything the member's continuation depends on but its replay
+buffer: the agent's weights, Adam state and generator, the env's exact state, the episode in
+progress, the open ``losses.csv`` window and the counters (the trainer composes it,
+:mod:`loop`). The replay buffer is written incrementally: each checkpoint adds one
+``replay/<t0>-<t1>.npz`` with what the member added since the previous one
+(:meth:`ReplayBuffer.save_chunk`); a generation lists the chunks it needs, and chunks whose
+transitions have all been overwritten leave the list (and, once no kept generation lists them,
+the disk).
 """
 
 from __future__ import annotations
 
+import io
 from pathlib import Path
 from typing import Any
 
 import torch
 
+from tacbench import checkpoints
 from tacbench.tac.buffer import ReplayBuffer
 
-STATE_FILE = "state.pt"
 REPLAY = "replay"
 
 
-def read_state(directory: Path) -> dict[str, Any] | None:
-    """The state saved in run ``directory``'s checkpoint, or None if it has none."""
-    path = directory / "checkpoint" / STATE_FILE
-    return torch.load(path, weights_only=True) if path.exists() else None
+def state_file(checkpoint_dir: Path, step: int) -> Path:
+    """Where the generation at ``step`` keeps the member's state."""
+    return checkpoint_dir / f"state-{step:012d}.pt"
 
 
 def _chunk_end(chunk: Path) -> int:
@@ -33,14 +35,17 @@ def _chunk_end(chunk: Path) -> int:
     return int(chunk.stem.split("-")[1])
 
 
-def load_replay(directory: Path, buffer: ReplayBuffer, member: int, step: int) -> None:
-    """Rebuild member ``member``'s replay buffer from the chunks of run ``directory`` up to
-    ``step``; chunks written after it (a crash after the replay but before the state) go."""
-    for chunk in sorted((directory / "checkpoint" / REPLAY).glob("*.npz")):
-        if _chunk_end(chunk) > step:
-            chunk.unlink()
-        else:
-            buffer.load_chunk(member, chunk)
+def read(checkpoint_dir: Path, step: int) -> tuple[dict[str, Any], list[Path]]:
+    """The member's state at the (intact) generation ``step`` and the replay chunks it lists."""
+    state = torch.load(state_file(checkpoint_dir, step), weights_only=True)
+    chunks = [p for p in checkpoints.files_of(checkpoint_dir, step) if p.parent.name == REPLAY]
+    return state, sorted(chunks)
+
+
+def load_replay(buffer: ReplayBuffer, member: int, chunks: list[Path]) -> None:
+    """Rebuild member ``member``'s replay buffer from a generation's chunks, in order."""
+    for chunk in chunks:
+        buffer.load_chunk(member, chunk)
 
 
 def write_checkpoint(
@@ -49,20 +54,26 @@ def write_checkpoint(
     buffer: ReplayBuffer,
     member: int,
     since: tuple[int, int],
-) -> None:
-    """Write member ``member``'s checkpoint at ``state["step"]``: the replay chunk since
-    ``since`` (transitions, rows added at the previous checkpoint), then ``state.pt``, then drop
-    the chunks the buffer has overwritten since."""
+    chunks: list[Path],
+) -> list[Path]:
+    """Write member ``member``'s generation at ``state["step"]``: the replay chunk since ``since``
+    (transitions, rows added at the previous checkpoint), ``state-<step>.pt``, then the
+    manifest; returns the chunks the generation lists (``chunks``, the previous generation's,
+    plus the new one, less those the buffer has overwritten)."""
     step = state["step"]
     replay = checkpoint_dir / REPLAY
     replay.mkdir(parents=True, exist_ok=True)
     since_added, since_rows = since
+    listed = [c for c in chunks if _chunk_end(c) >= step - buffer.capacity]
     if step > since_added:
         chunk = replay / f"{since_added:012d}-{step:012d}.npz"
-        buffer.save_chunk(member, chunk, since_added, since_rows)
-    tmp = checkpoint_dir / (STATE_FILE + ".tmp")
-    torch.save(state, tmp)
-    tmp.replace(checkpoint_dir / STATE_FILE)
-    for old in replay.glob("*.npz"):  # chunks whose transitions have all been overwritten
-        if _chunk_end(old) < step - buffer.capacity:
-            old.unlink()
+        checkpoints.write_durably(
+            chunk, lambda handle: buffer.save_chunk(member, handle, since_added, since_rows)
+        )
+        listed.append(chunk)
+    data = io.BytesIO()
+    torch.save(state, data)
+    path = state_file(checkpoint_dir, step)
+    checkpoints.write_durably(path, lambda handle: handle.write(data.getbuffer()))
+    checkpoints.commit(checkpoint_dir, step, [path, *listed])
+    return listed

@@ -15,15 +15,14 @@ from typing import Any
 import numpy as np
 import torch
 
-from tacbench import envs, runs
+from tacbench import checkpoints, envs, runs
 from tacbench.config import RunConfig
-from tacbench.errors import TacbenchError
 from tacbench.interrupts import StopCheck
 from tacbench.progress import Progress
 from tacbench.runs import Outcome
 from tacbench.seeding import run_streams
 from tacbench.tac import METRICS, Coefficients, ReplayBuffer, TacAgent, coefficients
-from tacbench.training.checkpoint import load_replay, read_state, write_checkpoint
+from tacbench.training.checkpoint import load_replay, read, write_checkpoint
 from tacbench.training.schedule import rounds, updates_due
 
 LOSS_COLUMNS = ("q", "updates", *METRICS)
@@ -73,40 +72,44 @@ class GroupTrainer:
         self.wall_offset = 0.0
         self.finished_length = np.zeros(k, dtype=np.int64)  # length of episodes just ended
         self.chunk_added, self.chunk_rows = 0, np.zeros(k, dtype=np.int64)
+        self.replay_chunks: list[list[Path]] = [[] for _ in range(k)]  # the last generation's
+        self.resume_notes: list[str] = []
         self._coefficients: tuple[tuple[float, ...], Coefficients] | None = None
         self._resume_or_start(directories)
         label = f"TAC {config.env} {_members_label(configs)}"
         self.progress = Progress(label, config.total_steps, self.step, config.eval_every, quiet)
+        for note in self.resume_notes:
+            self.progress.message(f"{note}; resuming from step {self.step}")
         self._t0 = time.perf_counter()
 
     # --- start and resume ----------------------------------------------------------------
 
     def _resume_or_start(self, directories: list[Path]) -> None:
-        states = [read_state(d) for d in directories]
-        steps = {s["step"] if s else 0 for s in states}
-        if len(steps) > 1:
-            detail = ", ".join(
-                f"seed {c.seed}: {s['step'] if s else 0}"
-                for c, s in zip(self.configs, states, strict=True)
-            )
-            raise TacbenchError(
-                f"these members stopped at different steps ({detail}); "
-                "resume them one --seed at a time."
-            )
-        for writer, config, state in zip(self.writers, self.configs, states, strict=True):
-            writer.open(None if state else self._metadata(config), state["step"] if state else None)
-        full = [s for s in states if s is not None]
-        if len(full) < len(states):
+        """Start afresh, or continue from the newest checkpoint generation that every member can
+        use (:func:`tacbench.checkpoints.choose`: a damaged one is passed over, and said so)."""
+        folders = [d / "checkpoint" for d in directories]
+        step, self.resume_notes = checkpoints.choose(folders)
+        if step is not None:
+            for folder in folders:
+                checkpoints.discard_after(folder, step)
+        for writer, config in zip(self.writers, self.configs, strict=True):
+            if self.resume_notes:
+                writer.note = f"resumed from step {step}: " + "; ".join(self.resume_notes)
+            writer.open(self._metadata(config) if step is None else None, step)
+        if step is None:
             for k, env in enumerate(self.envs):
                 self.obs[k] = env.reset(seed=self.env_seeds[k])[0]
             self.buffer.start_episodes(range(len(self.envs)), self.obs)
             return
-        self.step = self.chunk_added = full[0]["step"]
-        self.agent.load_member_states([s["agent"] for s in full])
-        for k, (state, directory) in enumerate(zip(full, directories, strict=True)):
+        loaded = [read(folder, step) for folder in folders]
+        states = [state for state, _ in loaded]
+        self.replay_chunks = [chunks for _, chunks in loaded]
+        self.step = self.chunk_added = step
+        self.agent.load_member_states([s["agent"] for s in states])
+        for k, state in enumerate(states):
             self.buffer.restore_counters(k, state["buffer"])
             self.chunk_rows[k] = state["buffer"]["n_rows"]  # rows added later go to a new chunk
-            load_replay(directory, self.buffer, k, self.step)
+            load_replay(self.buffer, k, self.replay_chunks[k])
             self.rngs[k].bit_generator.state = state["rng"]
             self.obs[k] = state["obs"].numpy()
             self.envs[k].reset(seed=self.env_seeds[k])
@@ -120,7 +123,7 @@ class GroupTrainer:
             self.loss_sum[k] = state["loss_sum"].to(self.loss_sum.device)
             self.loss_count[k] = state["loss_count"]
             self.updates_started[k] = state["updates_started"]
-        self.wall_offset = full[0]["wall_s"]
+        self.wall_offset = states[0]["wall_s"]
 
     def _metadata(self, config: RunConfig) -> dict[str, Any]:
         return runs.run_metadata(
@@ -320,7 +323,8 @@ class GroupTrainer:
         return float(returns.mean())
 
     def _checkpoint(self) -> None:
-        """Write every live member's checkpoint (new replay chunk, then state.pt), then status."""
+        """Write every live member's checkpoint generation (new replay chunk, state, manifest),
+        then status."""
         for k in self.alive:
             state = {
                 "step": self.step,
@@ -337,7 +341,9 @@ class GroupTrainer:
                 "wall_s": self.wall_s,
             }
             since = (self.chunk_added, int(self.chunk_rows[k]))
-            write_checkpoint(self.writers[k].checkpoint_dir, state, self.buffer, k, since)
+            self.replay_chunks[k] = write_checkpoint(
+                self.writers[k].checkpoint_dir, state, self.buffer, k, since, self.replay_chunks[k]
+            )
             self.writers[k].status("running", self.step)
         if self.step > self.chunk_added:  # the next chunk starts where this one ended
             self.chunk_added, self.chunk_rows = self.step, self.buffer.n_rows.copy()

@@ -1,0 +1,223 @@
+"""Checkpoint generations that survive a crash, a damaged file and a full disk (both trainers).
+
+A checkpoint is a *generation*: the files a run's continuation needs at one step, and
+``manifest-<step>.json``, which lists each file with its size and SHA-256 and is written last,
+so a generation exists only once all its files do. Every file is written to a temporary name,
+flushed and synced to the device, renamed, and its folder synced after the rename
+(:func:`write_durably`). After a generation is committed, all but the newest
+:data:`GENERATIONS` generations are pruned, with every file that no kept generation lists; so
+the previous generation stays until the new one is complete, and one damaged file costs at
+most one checkpoint interval.
+
+On resume, :func:`usable_steps` checks every file of every generation against its manifest;
+the trainer continues from the newest generation that all its members can use
+(:func:`choose` says which, and what was damaged), forgets the generations after it
+(:func:`discard_after`) and cuts the CSVs back to its step.
+
+Test-only: ``TACBENCH_CHECKPOINT_PAUSE=<seconds>`` makes the writer sleep before it renames
+each file and before it writes the manifest, so that a test can kill it in the middle.
+"""
+
+from __future__ import annotations
+
+import errno
+import hashlib
+import json
+import os
+import time
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from contextlib import contextmanager
+from pathlib import Path
+from typing import IO, Any
+
+from tacbench.errors import TacbenchError
+
+GENERATIONS = 2  # kept after each commit: the new one and the previous one
+MANIFEST = "manifest-{step:012d}.json"
+_PAUSE = "TACBENCH_CHECKPOINT_PAUSE"
+_CHUNK = 1 << 20
+# the errors that mean "this folder cannot take what we write": full, over quota, read-only,
+# no permission
+FULL_ERRNOS = {errno.ENOSPC, errno.EDQUOT}
+DISK_ERRNOS = {*FULL_ERRNOS, errno.EROFS, errno.EACCES, errno.EPERM}
+
+
+class DiskError(TacbenchError):
+    """A run's files cannot be written: the disk is full, read-only or not ours."""
+
+    def __init__(self, message: str, *, full: bool) -> None:
+        super().__init__(message)
+        self.full = full
+
+
+def _pause() -> None:
+    seconds = float(os.environ.get(_PAUSE, "0") or 0)
+    if seconds > 0:
+        time.sleep(seconds)
+
+
+def sync_folder(folder: Path) -> None:
+    """Make a rename in ``folder`` durable (POSIX; a no-op where folders cannot be opened)."""
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def write_durably(path: Path, write: Callable[[IO[bytes]], object]) -> None:
+    """Write ``path`` with ``write`` so that after a crash it holds the old or the new content,
+    never a part: a temporary name, flushed and synced, renamed, the folder synced."""
+    tmp = path.with_name(path.name + ".tmp")
+    try:
+        with tmp.open("wb") as handle:
+            write(handle)
+            handle.flush()
+            os.fsync(handle.fileno())
+    except BaseException as err:
+        tmp.unlink(missing_ok=True)  # a full disk keeps no half file
+        if isinstance(err, OSError) and err.filename is None:
+            err.filename = str(path)  # name it in the error: a write() does not
+        raise
+    _pause()
+    tmp.replace(path)
+    sync_folder(path.parent)
+
+
+def digest(path: Path) -> dict[str, Any]:
+    """A file's size and SHA-256, as a manifest records them."""
+    sha = hashlib.sha256()
+    with path.open("rb") as handle:
+        while block := handle.read(_CHUNK):
+            sha.update(block)
+    return {"size": path.stat().st_size, "sha256": sha.hexdigest()}
+
+
+def _manifests(folder: Path) -> dict[int, Path]:
+    found = {}
+    for path in folder.glob("manifest-*.json"):
+        try:
+            found[int(path.stem.split("-")[1])] = path
+        except (IndexError, ValueError):
+            continue
+    return dict(sorted(found.items()))
+
+
+def commit(folder: Path, step: int, files: Iterable[Path]) -> None:
+    """Record the generation at ``step`` (its ``files``, all under ``folder`` and already
+    written durably): its manifest, then the pruning of older generations and unlisted files."""
+    entries = {p.relative_to(folder).as_posix(): digest(p) for p in files}
+    _pause()
+    payload = json.dumps({"step": step, "files": entries}, indent=1).encode()
+    write_durably(folder / MANIFEST.format(step=step), lambda handle: handle.write(payload))
+    manifests = list(_manifests(folder).values())
+    kept = manifests[-GENERATIONS:]
+    for path in manifests[:-GENERATIONS]:  # first, so a crash in between leaves no half one
+        path.unlink()
+    needed = {path.name for path in kept}
+    for path in kept:
+        needed |= set(json.loads(path.read_text())["files"])
+    for path in folder.rglob("*"):  # older generations' files, unlisted ones, temporaries
+        if path.is_file() and path.relative_to(folder).as_posix() not in needed:
+            path.unlink()
+
+
+def problems(folder: Path, step: int) -> list[str]:
+    """What is wrong with the generation at ``step`` (empty: every file is as recorded)."""
+    path = folder / MANIFEST.format(step=step)
+    try:
+        files = json.loads(path.read_text())["files"]
+    except (OSError, ValueError, KeyError) as err:
+        return [f"{path.name}: unreadable ({type(err).__name__})"]
+    found = []
+    for name, recorded in files.items():
+        file = folder / name
+        if not file.is_file():
+            found.append(f"{name}: missing")
+            continue
+        if file.stat().st_size != recorded["size"]:
+            found.append(f"{name}: {file.stat().st_size} bytes, {recorded['size']} recorded")
+        elif digest(file)["sha256"] != recorded["sha256"]:
+            found.append(f"{name}: its checksum does not match the manifest's")
+    return found
+
+
+def usable_steps(folder: Path) -> tuple[list[int], dict[int, list[str]]]:
+    """The steps of the generations under ``folder`` whose files are intact (newest first),
+    and the damaged ones with what is wrong with them."""
+    good, bad = [], {}
+    for step in reversed(_manifests(folder)):
+        found = problems(folder, step)
+        if found:
+            bad[step] = found
+        else:
+            good.append(step)
+    return good, bad
+
+
+def discard_after(folder: Path, step: int) -> None:
+    """Forget the generations after ``step``, which a resume from ``step`` abandons (as it cuts
+    the CSVs back): their manifests go now, their files at the next commit."""
+    for at, path in _manifests(folder).items():
+        if at > step:
+            path.unlink()
+
+
+def files_of(folder: Path, step: int) -> list[Path]:
+    """The files of the (intact) generation at ``step``."""
+    manifest = json.loads((folder / MANIFEST.format(step=step)).read_text())
+    return [folder / name for name in manifest["files"]]
+
+
+def choose(folders: Sequence[Path]) -> tuple[int | None, list[str]]:
+    """The newest step that every member's checkpoint folder has an intact generation of (None:
+    no member has a checkpoint, so training starts afresh), and a note on each damaged
+    generation passed over. A TacbenchError (exit status 2) when a member has checkpoints but
+    none that every member can use; nothing is deleted."""
+    usable, notes, any_checkpoint = [], [], False
+    for folder in folders:
+        if (folder / "state.pt").exists():
+            raise TacbenchError(
+                f"{folder} holds a checkpoint written by an older tacbench (state.pt, no "
+                "manifest), which this version cannot resume; finish it with the tacbench "
+                "that wrote it, or rerun with --force to start again."
+            )
+        good, bad = usable_steps(folder)
+        any_checkpoint |= bool(good or bad)
+        usable.append(set(good))
+        for step, found in bad.items():
+            notes.append(f"{folder}: the checkpoint at step {step} is damaged ({'; '.join(found)})")
+    if not any_checkpoint:
+        return None, []
+    common = set.intersection(*usable) if usable else set()
+    if not common:
+        raise TacbenchError(
+            "no usable checkpoint to resume from: "
+            + ("; ".join(notes) or "the members' checkpoints are at different steps")
+            + ". Nothing was deleted; rerun with --force to start again."
+        )
+    return max(common), notes
+
+
+@contextmanager
+def disk_errors(what: str) -> Iterator[None]:
+    """Turn an OS error that means the folder cannot take our files (full, read-only, not
+    writable) into a :class:`DiskError` that names the file and says what to do."""
+    try:
+        yield
+    except OSError as err:
+        if err.errno not in DISK_ERRNOS:
+            raise
+        full = err.errno in FULL_ERRNOS
+        reason = "the disk is full" if full else os.strerror(err.errno or 0).lower()
+        where = f" ({err.filename})" if err.filename else ""
+        advice = (
+            "free some space, then rerun with --resume: what was written up to the last "
+            "checkpoint is intact"
+            if full
+            else "choose a folder you can write with --out"
+        )
+        raise DiskError(f"cannot write {what}{where}: {reason}; {advice}.", full=full) from None
