@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from matplotlib.axes import Axes
+from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.colors import to_hex
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
@@ -136,3 +137,31 @@ def test_reports_without_a_q_sweep(tmp_path: Path) -> None:
     assert set(report.figures) == {"comparison", "intervals", "intervals_per_task", "profiles"}
     assert report.best_q.empty and report.improvement.empty
     assert list(_lines(_panels(report.figures["comparison"])[0])) == ["DDPG", "TD3"]
+
+
+@pytest.mark.parametrize("tasks", [("HalfCheetah-v4",), (*TASKS, "Swimmer-v4", "Pusher-v5")])
+def test_every_figure_is_whole_with_one_task_and_with_six(
+    tmp_path: Path, tasks: tuple[str, ...]
+) -> None:
+    # the nine q of the paper and all five baselines: the widest legends the report draws
+    root = synthetic_tree(
+        tmp_path,
+        tasks=tasks,
+        qs=(0.5, 0.7, 1.0, 1.2, 1.5, 1.7, 2.0, 3.0, 5.0),
+        baselines=("ddpg", "td3", "ppo", "trpo", "sac-sb3"),
+        seeds=2,
+        n_eval=4,
+    )
+    figures = analyse(ReportOptions(results=root, out=root / "report", reps=100)).figures
+    for name, fig in figures.items():
+        renderer = FigureCanvasAgg(fig).get_renderer()
+        page = fig.bbox
+        drawn = [*fig.legends, *fig.axes, *(ax.get_legend() for ax in fig.axes), fig._suptitle]
+        for artist in (a for a in drawn if a is not None):
+            box = artist.get_tightbbox(renderer) if isinstance(artist, Axes) else None
+            box = box or artist.get_window_extent(renderer)
+            assert box.x0 >= -1 and box.x1 <= page.x1 + 1, f"{name}: {artist} is cut off"
+            assert box.y0 >= -1 and box.y1 <= page.y1 + 1, f"{name}: {artist} is cut off"
+        for legend in fig.legends:  # the shared legend sits below every panel's tick labels
+            top = legend.get_window_extent(renderer).y1
+            assert all(top <= ax.get_tightbbox(renderer).y0 + 1 for ax in fig.axes), name

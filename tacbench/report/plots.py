@@ -19,6 +19,7 @@ import pandas as pd
 import seaborn as sns
 from matplotlib import rc_context
 from matplotlib.axes import Axes
+from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.ticker import EngFormatter, MaxNLocator
@@ -30,6 +31,8 @@ PANEL_WIDTH = 4.3
 PANEL_HEIGHT = 3.2
 MAX_COLUMNS = 3
 MARKERS_PER_LINE = 8
+MAX_LEGEND_COLUMNS = 6
+LEGEND_ROW_HEIGHT = 0.3  # inches per row of the shared legend
 
 
 def _theme() -> dict[RcKeyType, Any]:
@@ -37,10 +40,12 @@ def _theme() -> dict[RcKeyType, Any]:
     return {**sns.axes_style("whitegrid"), **sns.plotting_context("notebook", font_scale=0.9)}
 
 
-def _panels(count: int, height: float = PANEL_HEIGHT) -> tuple[Figure, list[Axes]]:
+def _panels(
+    count: int, height: float = PANEL_HEIGHT, title_height: float = 0.9
+) -> tuple[Figure, list[Axes]]:
     rows = math.ceil(count / MAX_COLUMNS)
     columns = math.ceil(count / rows)
-    fig = Figure(figsize=(PANEL_WIDTH * columns, height * rows + 0.9))
+    fig = Figure(figsize=(PANEL_WIDTH * columns, height * rows + title_height))
     grid = fig.subplots(rows, columns, squeeze=False)
     axes = list(grid.ravel())
     for extra in axes[count:]:
@@ -48,7 +53,9 @@ def _panels(count: int, height: float = PANEL_HEIGHT) -> tuple[Figure, list[Axes
     return fig, axes[:count]
 
 
-def _legend(fig: Figure, methods: Sequence[str], qs: Mapping[str, float]) -> None:
+def _legend(fig: Figure, methods: Sequence[str], qs: Mapping[str, float]) -> int:
+    """The shared legend at the bottom, in as many columns (at most 6) as fit the figure's
+    width, measured with the figure's renderer; returns its number of rows."""
     handles = [
         Line2D(
             [],
@@ -60,13 +67,20 @@ def _legend(fig: Figure, methods: Sequence[str], qs: Mapping[str, float]) -> Non
         )
         for m in methods
     ]
-    fig.legend(
-        handles=handles,
-        loc="lower center",
-        ncol=min(len(handles), 6),
-        frameon=False,
-        bbox_to_anchor=(0.5, 0.0),
-    )
+    renderer = FigureCanvasAgg(fig).get_renderer()
+    columns = min(len(handles), MAX_LEGEND_COLUMNS)
+    while True:
+        legend = fig.legend(
+            handles=handles,
+            loc="lower center",
+            ncol=columns,
+            frameon=False,
+            bbox_to_anchor=(0.5, 0.0),
+        )
+        if columns == 1 or legend.get_window_extent(renderer).width <= 0.98 * fig.bbox.width:
+            return math.ceil(len(handles) / columns)
+        legend.remove()
+        columns -= 1
 
 
 def _title(fig: Figure, title: str) -> None:
@@ -75,9 +89,12 @@ def _title(fig: Figure, title: str) -> None:
 
 
 def _finish(fig: Figure, title: str, legend_rows: int) -> Figure:
+    """Title, and the figure made taller by the bottom legend's rows so the panels keep their
+    size."""
     _title(fig, title)
-    height = fig.get_figheight()
-    fig.tight_layout(rect=(0, min(0.45, 0.32 * legend_rows / height), 1, 1))
+    legend_height = LEGEND_ROW_HEIGHT * legend_rows
+    fig.set_figheight(fig.get_figheight() + legend_height)
+    fig.tight_layout(rect=(0, legend_height / fig.get_figheight(), 1, 1))
     return fig
 
 
@@ -95,7 +112,7 @@ def curve_figure(
     shared at the bottom of the figure; methods without data on a task are simply absent there.
     """
     with rc_context(_theme()):
-        fig, axes = _panels(len(envs))
+        fig, axes = _panels(len(envs), title_height=0.6)  # _finish adds the legend's height
         for ax, env in zip(axes, envs, strict=True):
             task = curves[curves["env"] == env]
             for method in methods:
@@ -125,8 +142,7 @@ def curve_figure(
             ax.set_ylabel(ylabel)
             ax.xaxis.set_major_formatter(EngFormatter(sep=""))
             ax.xaxis.set_major_locator(MaxNLocator(5))
-        _legend(fig, methods, qs)
-        return _finish(fig, title, math.ceil(len(methods) / 6))
+        return _finish(fig, title, _legend(fig, methods, qs))
 
 
 def _interval_rows(
