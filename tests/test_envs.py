@@ -2,6 +2,11 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
+from pathlib import Path
+
+import mujoco
 import numpy as np
 import pytest
 from click.testing import CliRunner
@@ -124,3 +129,29 @@ def test_envs_command_lists_the_suite_with_the_papers_values() -> None:
     assert rows["Humanoid"][1:7] == ["Humanoid-v4", "376", "17", "1000", "0.05", "1.2"]
     assert rows["Pusher"][1:7] == ["Pusher-v5", "23", "7", "100", "0.2", "1.2"]
     assert all(row[7] == "yes" for row in rows.values())
+
+
+def test_mujoco_is_quiet_and_leaves_no_log_file_in_the_working_folder(tmp_path: Path) -> None:
+    # a fresh process: MuJoCo's default handler prints the v4 HalfCheetah model's deprecation
+    # and appends it to ./MUJOCO_LOG.TXT unless make_env routed the warnings
+    code = "from tacbench import envs; envs.make_env('HalfCheetah-v4').reset(seed=0)"
+    done = subprocess.run(
+        [sys.executable, "-W", "error::RuntimeWarning", "-c", code],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    assert "settotalmass" not in done.stdout + done.stderr
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_other_mujoco_warnings_still_reach_the_user() -> None:
+    envs.quiet_mujoco()
+    model = mujoco.MjModel.from_xml_string(
+        "<mujoco><worldbody><body><freejoint/><geom size='1'/></body></worldbody></mujoco>"
+    )
+    data = mujoco.MjData(model)
+    data.qpos[:] = np.nan
+    with pytest.warns(RuntimeWarning, match="MuJoCo: Nan, Inf or huge value in QPOS"):
+        mujoco.mj_step(model, data)
