@@ -94,7 +94,7 @@ class _Run:
         quiet: bool,
     ) -> None:
         self.config, self.command = config, command
-        self.writer = runs.RunWriter(directory, algos.loss_columns(config))
+        self.writer = runs.RunWriter(directory, algos.loss_columns(config), config.tensorboard)
         self.losses = LossLogger(algos.loss_columns(config))
         self.dummy, self.venv = algos.make_training_env(config)
         self.eval_envs = [

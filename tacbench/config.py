@@ -121,6 +121,12 @@ class RunSettings:
         "Steps between losses.csv rows, each the mean over the updates since the last.",
         source="ours",
     )
+    tensorboard: bool = setting(
+        True,
+        "Also write TensorBoard event files (<run>/tensorboard/) of the rows the CSVs get.",
+        source="issue 20",
+        neutral=True,
+    )
     device: str = setting(
         "cpu",
         "Where the networks run (auto: cuda when available).",

@@ -33,6 +33,7 @@ from typing import IO, Any, Literal, Protocol, TypeVar
 from tacbench.checkpoints import write_durably
 from tacbench.config import RESULT_NEUTRAL_FIELDS
 from tacbench.errors import TacbenchError
+from tacbench.tensorboard_log import TensorBoardLog
 
 EVAL_COLUMNS = ("step", "wall_s", "return_mean", "return_std", "length_mean")
 TRAIN_COLUMNS = ("step", "wall_s", "return", "length")
@@ -233,13 +234,19 @@ class CsvLog:
 
 
 class RunWriter:
-    """Writes one run directory: config.json, status.json and the three CSVs."""
+    """Writes one run directory: config.json, status.json, the three CSVs and, with
+    ``tensorboard``, TensorBoard event files of the same rows under ``<run>/tensorboard/``."""
 
-    def __init__(self, directory: Path, loss_columns: Sequence[str]) -> None:
+    def __init__(
+        self, directory: Path, loss_columns: Sequence[str], tensorboard: bool = False
+    ) -> None:
         self.directory = Path(directory)
         self.loss_columns = ("step", *loss_columns)
+        self.tensorboard = tensorboard
         self.note = ""  # the reason status.json gives when no other is: how the run resumed
         self._logs: dict[str, CsvLog] = {}
+        self._board: TensorBoardLog | None = None
+        self._last_episode: tuple[int, float] | None = None  # (step, wall_s): for steps/s
 
     @property
     def checkpoint_dir(self) -> Path:
@@ -260,6 +267,8 @@ class RunWriter:
             ("losses", self.loss_columns),
         ):
             self._logs[name] = CsvLog(self.directory / f"{name}.csv", columns, resume_step)
+        if self.tensorboard:
+            self._board = TensorBoardLog(self.directory / "tensorboard", resume_step)
         self.status("running", resume_step or 0)
 
     def eval_row(
@@ -270,14 +279,28 @@ class RunWriter:
         std = math.sqrt(math.fsum((r - mean) ** 2 for r in returns) / len(returns))
         length = math.fsum(lengths) / len(lengths)
         self._logs["eval"].write([step, round(wall_s, 3), mean, std, length])
+        if self._board is not None:
+            self._board.scalars("eval", step, {"return": mean, "return_std": std, "length": length})
+            self._board.flush()
 
     def train_row(self, step: int, wall_s: float, episode_return: float, length: int) -> None:
         """One finished training episode (ending at ``step``)."""
-        self._logs["train"].write([step, round(wall_s, 3), episode_return, length])
+        wall_s = round(wall_s, 3)
+        self._logs["train"].write([step, wall_s, episode_return, length])
+        if self._board is not None:
+            values = {"episode_return": episode_return, "episode_length": float(length)}
+            last = self._last_episode
+            if last is not None and wall_s > last[1]:  # the first episode of a process has none
+                values["steps_per_s"] = (step - last[0]) / (wall_s - last[1])
+            self._board.scalars("train", step, values)
+        self._last_episode = (step, wall_s)
 
     def losses_row(self, step: int, values: Sequence[float]) -> None:
         """Losses and diagnostics at ``step``, in the order of ``loss_columns``."""
         self._logs["losses"].write([step, *values])
+        if self._board is not None:
+            named = dict(zip(self.loss_columns[1:], values, strict=True))
+            self._board.scalars("losses", step, named)
 
     def status(self, state: State, step: int, reason: str = "") -> None:
         """Replace status.json (``reason``, or else :attr:`note`)."""
@@ -287,10 +310,13 @@ class RunWriter:
         )
 
     def close(self) -> None:
-        """Close the CSVs."""
+        """Close the CSVs and the event file."""
         for log in self._logs.values():
             log.close()
         self._logs.clear()
+        if self._board is not None:
+            self._board.close()
+            self._board = None
 
 
 # --- planning the run directories of one trainer call ----------------------------------

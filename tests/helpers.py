@@ -11,6 +11,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+import pandas as pd
 import torch
 
 from tacbench import trainers
@@ -126,3 +128,25 @@ def checkpoint_state(run: Path) -> dict[str, Any]:
     step = max(int(p.stem.split("-")[1]) for p in folder.glob("manifest-*.json"))
     state: dict[str, Any] = torch.load(folder / f"state-{step:012d}.pt", weights_only=True)
     return state
+
+
+def assert_tensorboard_matches_csvs(run: Path) -> None:
+    """Run directory ``run``'s TensorBoard events, as TensorBoard reads them (purged points
+    left out), hold exactly the rows of its CSVs: one point per row and column, no step twice."""
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    board = EventAccumulator(str(run / "tensorboard"), size_guidance={"scalars": 0})
+    board.Reload()
+    columns = {
+        "eval": {"return_mean": "return", "return_std": "return_std", "length_mean": "length"},
+        "train": {"return": "episode_return", "length": "episode_length"},
+    }
+    for group in ("eval", "train", "losses"):
+        rows = pd.read_csv(run / f"{group}.csv")
+        names = columns.get(group, {c: c for c in rows.columns if c != "step"})
+        for column, tag in names.items():
+            points = board.Scalars(f"{group}/{tag}") if len(rows) else []
+            assert [p.step for p in points] == rows["step"].tolist(), f"{group}/{tag}"
+            expected = rows[column].to_numpy(dtype=np.float32)
+            got = np.array([p.value for p in points], dtype=np.float32)
+            np.testing.assert_array_equal(got, expected, err_msg=f"{group}/{tag}")

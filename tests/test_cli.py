@@ -67,6 +67,8 @@ def test_run_offers_every_declared_setting_with_its_default_and_source() -> None
         assert isinstance(param, click.Option) and param.help is not None
         assert declared.info.source in param.help, name
         assert param.default == declared.default, name
+        if declared.type is bool:
+            assert param.secondary_opts == ["--no-" + declared.flag[2:]], name
 
 
 def test_sweep_overrides_default_to_the_presets_value() -> None:
@@ -85,6 +87,8 @@ def test_sweep_overrides_default_to_the_presets_value() -> None:
         (["--compile", "on"], {"compile": "on"}),
         (["--compile", "off", "--steps", "300"], {"compile": "off", "total_steps": 300}),
         (["--hidden-sizes", "400,300"], {"hidden_sizes": (400, 300)}),
+        (["--no-tensorboard"], {"tensorboard": False}),
+        (["--tensorboard"], {"tensorboard": True}),
     ],
 )
 def test_sweep_passes_only_the_settings_given(args: list[str], settings: dict) -> None:

@@ -1,7 +1,7 @@
 """The run directory contract (docs/results-schema.md) for every learner: TAC (both critic
 targets) and each baseline, on a locomotion (Hopper) and a manipulation task (Pusher), each
 trained once on a tiny budget: the path, config.json, status.json, the three CSVs' columns and
-rows, and the checkpoint's layout."""
+rows, the TensorBoard events of those rows, and the checkpoint's layout."""
 
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ from baselines import OFF_POLICY, algos, hyperparams
 from tacbench.envs import paper_task
 from tacbench.runs import EVAL_COLUMNS, TRAIN_COLUMNS
 from tacbench.training import LOSS_COLUMNS
-from tests.helpers import LEARNERS, tiny_configs, train
+from tests.helpers import LEARNERS, assert_tensorboard_matches_csvs, tiny_configs, train
 
 pytestmark = pytest.mark.smoke
 
@@ -60,6 +60,7 @@ def test_every_learner_writes_the_documented_run_directory(
     status = json.loads((run / "status.json").read_text())
     assert (status["state"], status["step"]) == ("complete", 1500)
     assert set(status) == {"state", "step", "reason", "updated"}
+    assert_tensorboard_matches_csvs(run)  # on by default, for every learner
 
     evals = pd.read_csv(run / "eval.csv")
     assert tuple(evals.columns) == EVAL_COLUMNS
@@ -130,3 +131,14 @@ def test_every_learner_writes_the_documented_run_directory(
         assert replay == []
         assert_listed("state-000000001500.pt", "model-000000001500.zip")
         assert (state["normalize"] is not None) == config.hyperparams["normalize"]
+
+
+@pytest.mark.parametrize("learner", ["tac", "td3"])
+def test_no_tensorboard_writes_no_event_files(tmp_path: Path, learner: str) -> None:
+    (outcome,) = train(tmp_path, tiny_configs(learner, total_steps=500, tensorboard=False))
+    assert outcome.state == "complete"
+    assert not (outcome.directory / "tensorboard").exists()
+    assert (
+        json.loads((outcome.directory / "config.json").read_text())["config"]["tensorboard"]
+        is False
+    )

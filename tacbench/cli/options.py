@@ -33,6 +33,8 @@ class IntTuple(click.ParamType):
 
 
 def _shown(value: Any) -> str:
+    if isinstance(value, bool):
+        return "on" if value else "off"
     if isinstance(value, tuple):
         return ",".join(str(v) for v in value)
     return f"{value:g}" if isinstance(value, float) else str(value)
@@ -46,6 +48,8 @@ def _option(declared: Setting, *, sweep: bool) -> Callable[[F], F]:
         "help": f"{info.help}  [default: {default_text}]",
         "default": None if sweep else declared.default,
     }
+    if declared.type is bool:  # --name/--no-name
+        return click.option(f"{declared.flag}/--no-{declared.flag[2:]}", declared.name, **kwargs)
     if info.choices:
         kwargs["type"] = click.Choice(info.choices)
     elif declared.type in (tuple[int, ...], tuple[int, ...] | None):

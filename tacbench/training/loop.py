@@ -60,7 +60,7 @@ class GroupTrainer:
             [envs.make_env(config.env) for _ in range(config.eval_episodes)]
             for _ in range(k if config.eval_every > 0 else 0)
         ]
-        self.writers = [runs.RunWriter(d, LOSS_COLUMNS) for d in directories]
+        self.writers = [runs.RunWriter(d, LOSS_COLUMNS, config.tensorboard) for d in directories]
         self.step = 0
         self.obs = np.zeros((k, obs_dim))
         self.episode_return = np.zeros(k)
