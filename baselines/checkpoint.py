@@ -85,7 +85,9 @@ def _normalizer_state(venv: VecEnv) -> dict[str, torch.Tensor] | None:
     }
 
 
-def _set_normalizer_state(venv: VecEnv, state: dict[str, torch.Tensor] | None) -> None:
+def set_normalizer_state(venv: VecEnv, state: dict[str, torch.Tensor] | None) -> None:
+    """Give ``venv`` (a VecNormalize when ``state`` is not None) the statistics of a
+    checkpoint's ``normalize`` entry."""
     if state is None:
         return
     assert isinstance(venv, VecNormalize)
@@ -182,7 +184,7 @@ def restore(
     env = dummy.envs[0]
     env_seed = run_streams(config.seed).env_seed
     env.reset(seed=env_seed)
-    _set_normalizer_state(venv, state["normalize"])
+    set_normalizer_state(venv, state["normalize"])
     model = algos.ALGORITHMS[config.algo].load(
         directory / state["model"], env=venv, device=config.device, force_reset=False
     )

@@ -97,13 +97,14 @@ def quiet_mujoco() -> None:
         mujoco.set_mju_user_warning(_mujoco_warning)
 
 
-def make_env(env_id: str) -> gym.Env[Any, Any]:
-    """Create ``env_id``; check that TAC can drive it (bounded flat Box actions, a time limit)."""
+def make_env(env_id: str, **make_kwargs: Any) -> gym.Env[Any, Any]:
+    """Create ``env_id`` (``make_kwargs`` go to ``gym.make``, e.g. ``render_mode``); check that
+    TAC can drive it (bounded flat Box actions, a time limit)."""
     quiet_mujoco()
     try:
         with warnings.catch_warnings():  # v4 is the suite's deliberate choice (module docstring)
             warnings.filterwarnings("ignore", message=".*is out of date.*")
-            env = gym.make(env_id)
+            env = gym.make(env_id, **make_kwargs)
     except (ImportError, gym.error.Error) as err:
         alternative = SUITE.get(paper_task(env_id) or "", "")
         hint = f" Use {alternative} instead." if alternative and alternative != env_id else ""

@@ -1,8 +1,8 @@
 """The ``tacbench`` command line: parse flags, build a config, call the library. No logic here.
 
 One module per command (``run``, ``sweep``, ``report``, ``figures``, ``envs``, ``bench``,
-``regress``); ``common`` holds what they share and ``options`` generates the options of the
-declared settings.
+``regress``, ``video``); ``common`` holds what they share and ``options`` generates the options
+of the declared settings.
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ from tacbench.cli.regress import regress
 from tacbench.cli.report import report
 from tacbench.cli.run import run
 from tacbench.cli.sweep import sweep
+from tacbench.cli.video import video
 
 __all__ = ["cli", "main"]
 
@@ -28,7 +29,7 @@ def cli() -> None:
     """tacbench: train, sweep and report Tsallis Actor-Critic and its baselines."""
 
 
-for command in (figures, report, run, sweep, bench, regress, envs_command):
+for command in (figures, report, run, sweep, bench, regress, envs_command, video):
     cli.add_command(command)
 
 

@@ -1,0 +1,60 @@
+"""``tacbench video``: render episodes of a run's latest deterministic policy to MP4 or GIF."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from tacbench.errors import TacbenchError
+
+
+@click.command()
+@click.argument("run_dir", type=click.Path(file_okay=False, exists=True, path_type=Path))
+@click.option(
+    "--out",
+    type=click.Path(dir_okay=False, path_type=Path),
+    required=True,
+    help="The video to write: FILE.mp4 or FILE.gif (replaced if it exists).",
+)
+@click.option("--episodes", type=click.IntRange(min=1), default=1, show_default=True)
+@click.option(
+    "--max-steps",
+    type=click.IntRange(min=1),
+    default=None,
+    help="Cut each episode after this many steps.  [default: the task's time limit]",
+)
+@click.option("--width", type=click.IntRange(min=16), default=480, show_default=True)
+@click.option("--height", type=click.IntRange(min=16), default=360, show_default=True)
+@click.option("--fps", type=click.IntRange(min=1), default=30, show_default=True)
+def video(
+    run_dir: Path,
+    out: Path,
+    episodes: int,
+    max_steps: int | None,
+    width: int,
+    height: int,
+    fps: int,
+) -> None:
+    """Render RUN_DIR's policy at its newest checkpoint (deterministic, the evaluation's
+    seeds) with MuJoCo's offscreen renderer (EGL or OSMesa, whichever works here)."""
+    from tacbench import video as rendering  # torch, SB3 and imageio only when this runs
+
+    if out.suffix not in rendering.FORMATS:
+        raise TacbenchError(f"--out must end in {' or '.join(rendering.FORMATS)}, not {out.name!r}")
+    backend = rendering.choose_gl_backend()
+    policy = rendering.load_policy(run_dir)
+    click.echo(
+        f"rendering {episodes} episode(s) of {policy.algo} on {policy.env}, seed {policy.seed}, "
+        f"checkpoint at step {policy.step:,} ({backend})"
+    )
+    frames, returns = rendering.render_episodes(policy, episodes, width, height, max_steps)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    partial = out.with_name(f".{out.stem}.partial{out.suffix}")
+    try:
+        rendering.write_video(frames, partial, fps)
+        partial.replace(out)
+    finally:
+        partial.unlink(missing_ok=True)
+    shown = ", ".join(f"{r:.1f}" for r in returns)
+    click.echo(f"wrote {out} ({len(frames)} frames, {len(frames) / fps:.1f} s; returns {shown})")

@@ -1,0 +1,179 @@
+"""``tacbench video``: episodes of a run's latest deterministic policy, rendered offscreen.
+
+The policy is the one in the run's newest intact checkpoint generation (TAC's member weights, or
+a baseline's SB3 model with its observation normaliser), acting as in evaluation: tanh(mu) for
+TAC, ``predict(deterministic=True)`` for the baselines. Episodes are reset with the evaluation
+seeds of that step (:func:`tacbench.envs.eval_seeds`), so the first episode is the first one the
+run's evaluation at that step saw. Nothing in the run directory is changed.
+
+MuJoCo renders through EGL or OSMesa; :func:`choose_gl_backend` picks the first that works on
+this machine (or keeps ``MUJOCO_GL`` when it is set) before anything renders.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from tacbench import checkpoints, envs
+from tacbench.errors import TacbenchError
+from tacbench.runs import read_json
+
+GL_BACKENDS = ("egl", "osmesa")  # MuJoCo's offscreen backends, GPU-capable first
+FORMATS = (".mp4", ".gif")
+# what a Debian or Ubuntu machine installs for each backend
+GL_PACKAGES = {"egl": "libegl1", "osmesa": "libosmesa6"}
+_PROBE = (
+    "import mujoco; m = mujoco.MjModel.from_xml_string('<mujoco/>'); "
+    "r = mujoco.Renderer(m, 16, 16); r.render()"
+)
+
+Frame = npt.NDArray[np.uint8]
+Policy = Callable[[np.ndarray], np.ndarray]
+
+
+def _backend_works(backend: str) -> tuple[bool, str]:
+    """Whether MuJoCo renders a frame with ``backend``, tried in a child process (a failed
+    OpenGL start can leave a process unable to try another); and the error if not."""
+    env = {**os.environ, "MUJOCO_GL": backend, "PYOPENGL_PLATFORM": backend}
+    done = subprocess.run(
+        [sys.executable, "-c", _PROBE], env=env, capture_output=True, text=True, check=False
+    )
+    last = (done.stderr.strip().splitlines() or ["exit status " + str(done.returncode)])[-1]
+    return done.returncode == 0, last
+
+
+def choose_gl_backend() -> str:
+    """Set ``MUJOCO_GL`` (and PyOpenGL's platform) to the first backend of :data:`GL_BACKENDS`
+    that renders here, unless ``MUJOCO_GL`` is already set; a TacbenchError naming what to
+    install when none does."""
+    chosen = os.environ.get("MUJOCO_GL")
+    if chosen:
+        os.environ.setdefault("PYOPENGL_PLATFORM", chosen)
+        return chosen
+    failures = []
+    for backend in GL_BACKENDS:
+        works, error = _backend_works(backend)
+        if works:
+            os.environ["MUJOCO_GL"] = os.environ["PYOPENGL_PLATFORM"] = backend
+            return backend
+        failures.append(f"{backend}: {error}")
+    packages = " or ".join(f"`apt-get install {p}`" for p in GL_PACKAGES.values())
+    raise TacbenchError(
+        "MuJoCo cannot render offscreen on this machine (" + "; ".join(failures) + "). Install "
+        f"an OpenGL backend (Debian/Ubuntu: {packages}), or set MUJOCO_GL to one that works."
+    )
+
+
+@dataclass(frozen=True)
+class LoadedPolicy:
+    """A run's policy at its newest checkpoint: what acts, on which task, from which step."""
+
+    algo: str
+    env: str
+    seed: int
+    step: int
+    act: Policy  # one observation -> one action in the env's units
+
+
+def _tac_policy(config_data: dict[str, Any], state: dict[str, Any]) -> Policy:
+    import torch
+
+    from tacbench.config import RunConfig
+    from tacbench.tac.agent import TacAgent
+
+    config = RunConfig.from_dict({**config_data, "compile": "off"})  # one forward per frame
+    info = envs.env_info(config.env)
+    scale = info.high[0] if config.action_scale == "bound" else 1.0
+    agent = TacAgent(info.obs_dim, info.act_dim, config, [config.seed], torch.device("cpu"), scale)
+    agent.load_member_states([state["agent"]])
+
+    def act(obs: np.ndarray) -> np.ndarray:
+        return envs.to_env_action(agent.act_deterministic(obs[None, None])[0, 0], info)
+
+    return act
+
+
+def _baseline_policy(config_data: dict[str, Any], folder: Path, state: dict[str, Any]) -> Policy:
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from baselines import algos, checkpoint
+    from baselines.config import BaselineConfig
+
+    config = BaselineConfig(**{**config_data, "device": "cpu"})
+    model = algos.ALGORITHMS[config.algo].load(folder / state["model"], device="cpu")
+    _, venv = algos.make_training_env(config)  # only its observation normaliser is used
+    checkpoint.set_normalizer_state(venv, state["normalize"])
+
+    def act(obs: np.ndarray) -> np.ndarray:
+        observation = obs[None]  # as the evaluation does (baselines/trainer.py)
+        if isinstance(venv, VecNormalize):
+            observation = np.asarray(venv.normalize_obs(observation))
+        actions, _ = model.predict(observation, deterministic=True)
+        return np.asarray(actions, dtype=np.float64)[0]
+
+    return act
+
+
+def load_policy(run: Path) -> LoadedPolicy:
+    """The deterministic policy of run directory ``run`` at its newest intact checkpoint."""
+    import torch
+
+    if not (run / "config.json").is_file():
+        raise TacbenchError(
+            f"{run} is not a run directory (no config.json); give a folder like "
+            "results/runs/tac/Hopper-v4/q2-a0.2/seed0."
+        )
+    metadata = read_json(run / "config.json")
+    folder = run / "checkpoint"
+    step, _ = checkpoints.choose([folder]) if folder.is_dir() else (None, [])
+    if step is None:
+        raise TacbenchError(f"{run} has no checkpoint yet: a policy is saved at each checkpoint.")
+    state = torch.load(folder / f"state-{step:012d}.pt", weights_only=True)
+    config_data = dict(metadata["config"])
+    if metadata["algo"] == "tac":
+        act = _tac_policy(config_data, state)
+    else:
+        act = _baseline_policy(config_data, folder, state)
+    return LoadedPolicy(metadata["algo"], metadata["env"], int(metadata["seed"]), step, act)
+
+
+def render_episodes(
+    policy: LoadedPolicy, episodes: int, width: int, height: int, max_steps: int | None = None
+) -> tuple[list[Frame], list[float]]:
+    """Frames of ``episodes`` episodes (each at most ``max_steps`` steps), one after another,
+    and each episode's return."""
+    env = envs.make_env(policy.env, render_mode="rgb_array", width=width, height=height)
+    frames: list[Frame] = []
+    returns = []
+    try:
+        for seed in envs.eval_seeds(policy.seed, policy.step, episodes):
+            obs, _ = env.reset(seed=int(seed))
+            frames.append(np.asarray(env.render(), dtype=np.uint8))
+            done, steps, total = False, 0, 0.0
+            while not done and (max_steps is None or steps < max_steps):
+                obs, reward, terminated, truncated, _ = env.step(policy.act(np.asarray(obs)))
+                frames.append(np.asarray(env.render(), dtype=np.uint8))
+                done, steps, total = terminated or truncated, steps + 1, total + float(reward)
+            returns.append(total)
+    finally:
+        env.close()
+    return frames, returns
+
+
+def write_video(frames: list[Frame], out: Path, fps: int) -> None:
+    """An MP4 (H.264 through imageio's ffmpeg) or a looping GIF, by ``out``'s suffix."""
+    import imageio.v3 as iio
+
+    if out.suffix == ".gif":
+        iio.imwrite(out, np.stack(frames), extension=".gif", duration=1000 / fps, loop=0)
+    else:
+        iio.imwrite(out, np.stack(frames), plugin="FFMPEG", fps=fps, macro_block_size=8)

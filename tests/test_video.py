@@ -1,0 +1,90 @@
+"""``tacbench video``: the rendered policy is the run's (its returns are the evaluation's at
+that checkpoint), the file plays, and a machine or a request it cannot serve gets a clear
+error. Needs an OpenGL backend for MuJoCo (EGL or OSMesa; .ci/run installs one)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import imageio.v3 as iio
+import pandas as pd
+import pytest
+from click.testing import CliRunner
+
+from tacbench import video
+from tacbench.cli import cli
+from tacbench.errors import TacbenchError
+from tests.helpers import tiny_configs, train
+
+pytestmark = pytest.mark.smoke
+
+
+@pytest.fixture(scope="module")
+def backend() -> str:
+    with pytest.MonkeyPatch.context() as patch:  # what choose_gl_backend sets is undone after
+        patch.delenv("MUJOCO_GL", raising=False)
+        patch.delenv("PYOPENGL_PLATFORM", raising=False)
+        try:
+            chosen = video.choose_gl_backend()
+        except TacbenchError as err:
+            pytest.skip(f"no OpenGL backend for MuJoCo here: {err}")
+    return chosen  # each test sets it with its own monkeypatch
+
+
+@pytest.mark.parametrize("learner", ["tac", "td3", "ppo"])  # ppo: with VecNormalize
+def test_the_rendered_policy_is_the_one_the_run_evaluated(
+    tmp_path: Path, backend: str, monkeypatch: pytest.MonkeyPatch, learner: str
+) -> None:
+    monkeypatch.setenv("MUJOCO_GL", backend)
+    monkeypatch.setenv("PYOPENGL_PLATFORM", backend)
+    (outcome,) = train(tmp_path, tiny_configs(learner, total_steps=1024, eval_every=1024))
+    policy = video.load_policy(outcome.directory)
+    assert (policy.algo, policy.env, policy.seed, policy.step) == (
+        outcome.directory.parts[-4],
+        "Hopper-v4",
+        0,
+        1024,
+    )
+    frames, returns = video.render_episodes(policy, episodes=2, width=32, height=24)
+    evaluation = pd.read_csv(outcome.directory / "eval.csv").iloc[-1]
+    assert evaluation["step"] == 1024
+    assert sum(returns) / 2 == pytest.approx(evaluation["return_mean"], rel=1e-5)
+    assert len(frames) == 2 + 2 * evaluation["length_mean"]  # a frame per reset and per step
+    assert frames[0].shape == (24, 32, 3)
+
+
+@pytest.mark.parametrize("suffix", [".mp4", ".gif"])
+def test_the_command_writes_a_playable_video(
+    tmp_path: Path, backend: str, monkeypatch: pytest.MonkeyPatch, suffix: str
+) -> None:
+    monkeypatch.setenv("MUJOCO_GL", backend)
+    monkeypatch.setenv("PYOPENGL_PLATFORM", backend)
+    (outcome,) = train(tmp_path, tiny_configs("tac", total_steps=500, eval_every=0))
+    out = tmp_path / f"hopper{suffix}"
+    args = ["video", str(outcome.directory), "--out", str(out), "--max-steps", "20"]
+    result = CliRunner().invoke(cli, [*args, "--width", "64", "--height", "48", "--episodes", "2"])
+    assert result.exit_code == 0, result.output
+    frames = iio.imread(out, index=None)
+    assert frames.shape[1:3] == (48, 64)
+    assert f"({len(frames)} frames" in result.output
+    assert frames.std() > 0  # a picture, not a blank
+    assert [p.name for p in tmp_path.iterdir() if "partial" in p.name] == []
+
+
+def test_bad_requests_are_clear_errors(tmp_path: Path) -> None:
+    result = CliRunner().invoke(cli, ["video", str(tmp_path), "--out", str(tmp_path / "x.avi")])
+    assert result.exit_code == 2 and "must end in .mp4 or .gif" in result.output
+    result = CliRunner().invoke(cli, ["video", str(tmp_path), "--out", str(tmp_path / "x.mp4")])
+    assert result.exit_code == 2 and "is not a run directory" in result.output
+    (tmp_path / "config.json").write_text('{"algo": "tac", "env": "Hopper-v4", "seed": 0}')
+    result = CliRunner().invoke(cli, ["video", str(tmp_path), "--out", str(tmp_path / "x.mp4")])
+    assert result.exit_code == 2 and "has no checkpoint yet" in result.output
+
+
+def test_a_machine_without_opengl_is_told_what_to_install(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.delenv("MUJOCO_GL", raising=False)
+    monkeypatch.setattr(video, "_backend_works", lambda backend: (False, "no library"))
+    with pytest.raises(TacbenchError, match=r"apt-get install libegl1.*libosmesa6"):
+        video.choose_gl_backend()
