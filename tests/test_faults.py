@@ -36,21 +36,6 @@ TINY_TAC_ARGS = [
 TINY_TAC_RUN = Path("runs/tac/Hopper-v4/q1.5-a0.2-ls1000-bs32/seed0")
 
 
-@pytest.fixture(scope="module")
-def uninterrupted(tmp_path_factory: pytest.TempPathFactory) -> Callable[[str], Path]:
-    """The run directory of one uninterrupted tiny Hopper run per learner, trained once."""
-    cache: dict[str, Path] = {}
-
-    def get(learner: str) -> Path:
-        if learner not in cache:
-            (outcome,) = train(tmp_path_factory.mktemp(learner), tiny_configs(learner))
-            assert outcome.state == "complete", outcome.message
-            cache[learner] = outcome.directory
-        return cache[learner]
-
-    return get
-
-
 @pytest.fixture
 def tmpfs(tmp_path: Path) -> Iterator[Callable[[str], Path]]:
     """Mount a tmpfs with the given options under ``tmp_path`` (skip where mounting is not

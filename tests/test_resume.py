@@ -32,21 +32,6 @@ pytestmark = pytest.mark.smoke
 ON_POLICY_STOPS = {0: 0, 730: 1024, 1234: 1536}
 
 
-@pytest.fixture(scope="module")
-def uninterrupted(tmp_path_factory: pytest.TempPathFactory) -> Callable[[str], Path]:
-    """The run directory of one uninterrupted tiny Hopper run per learner, trained once."""
-    cache: dict[str, Path] = {}
-
-    def get(learner: str) -> Path:
-        if learner not in cache:
-            (outcome,) = train(tmp_path_factory.mktemp(learner), tiny_configs(learner))
-            assert outcome.state == "complete", outcome.message
-            cache[learner] = outcome.directory
-        return cache[learner]
-
-    return get
-
-
 @pytest.mark.parametrize("learner", LEARNERS)
 def test_stop_and_resume_equals_an_uninterrupted_run(
     tmp_path: Path, uninterrupted: Callable[[str], Path], learner: str

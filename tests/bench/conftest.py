@@ -10,11 +10,13 @@ a warning that says so, and ``--benchmark-save=NAME`` saves this class's first b
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+import torch
 
-from tacbench.hardware import cpu_class
+from tacbench.hardware import configure_process, cpu_class
 
 BASELINE = Path(__file__).resolve().parent / "baseline"
 
@@ -39,3 +41,12 @@ def pytest_configure(config: pytest.Config) -> None:
             ),
             stacklevel=2,
         )
+
+
+@pytest.fixture(scope="module", autouse=True)
+def one_thread() -> Iterator[None]:
+    """Every benchmark on one torch thread (as a run's default ``--threads 1``)."""
+    threads = torch.get_num_threads()
+    configure_process(1)
+    yield
+    torch.set_num_threads(threads)

@@ -13,7 +13,6 @@ from __future__ import annotations
 import statistics
 import tempfile
 import time
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -24,7 +23,6 @@ from pytest_benchmark.fixture import BenchmarkFixture
 
 from tacbench import training
 from tacbench.config import RunConfig
-from tacbench.hardware import configure_process
 from tacbench.tac import ReplayBuffer, TacAgent
 from tacbench.training.checkpoint import write_checkpoint
 
@@ -33,14 +31,6 @@ pytestmark = pytest.mark.bench
 ENV, OBS, ACT = "HalfCheetah-v4", 17, 6
 INTERVAL = RunConfig.__dataclass_fields__["checkpoint_every"].default  # 50,000
 ROUNDS, TRAIN_STEPS = 5, 1000
-
-
-@pytest.fixture(scope="module", autouse=True)
-def one_thread() -> Iterator[None]:
-    threads = torch.get_num_threads()
-    configure_process(1)
-    yield
-    torch.set_num_threads(threads)
 
 
 def _member() -> tuple[dict[str, Any], ReplayBuffer]:

@@ -9,7 +9,6 @@ with ``tox -e bench``, which compares them with the saved baseline in ``tests/be
 from __future__ import annotations
 
 import warnings
-from collections.abc import Iterator
 
 import numpy as np
 import pytest
@@ -18,7 +17,6 @@ from pytest_benchmark.fixture import BenchmarkFixture
 
 from tacbench import envs
 from tacbench.config import PAPER_Q_GRID, PAPER_SEEDS, RunConfig
-from tacbench.hardware import configure_process
 from tacbench.tac import METRICS, ReplayBuffer, TacAgent, coefficients
 
 pytestmark = pytest.mark.bench
@@ -26,14 +24,6 @@ pytestmark = pytest.mark.bench
 ENV = "HalfCheetah-v4"
 OBS, ACT, BATCH = 17, 6, 100
 FILLED = 5000  # transitions in the buffer
-
-
-@pytest.fixture(scope="module", autouse=True)
-def one_thread() -> Iterator[None]:
-    threads = torch.get_num_threads()
-    configure_process(1)
-    yield
-    torch.set_num_threads(threads)
 
 
 def _agent(k: int, compile: bool = False) -> TacAgent:
