@@ -34,8 +34,10 @@ SEEDS = (0, 10, 20, 30, 40)  # the first five of the paper's seeds (0, 10, ..., 
 STEPS = 100_000
 FRACTION = 0.1  # final return: the evaluations in the last 10% of the steps
 REPS = 10_000
-TAC, TAC_TWIN_Q, SB3 = "TAC q=1", "TAC q=1 twin-q", "SAC (SB3)"
-METHODS = (TAC, TAC_TWIN_Q, SB3)  # the paper's TAC (target V), TAC with SAC v2's target, SB3
+TAC, TAC_TWIN_Q, TAC_REFERENCE, SB3 = "TAC q=1", "TAC q=1 twin-q", "TAC q=1 reference", "SAC (SB3)"
+# the paper's TAC (target V), TAC with SAC v2's target, TAC as the authors' code ran it, SB3
+TAC_METHODS = (TAC, TAC_TWIN_Q, TAC_REFERENCE)
+METHODS = (*TAC_METHODS, SB3)
 
 
 def commands(
@@ -45,8 +47,8 @@ def commands(
     out: str = "results/parity",
 ) -> list[str]:
     """The ``tacbench run`` commands of the study: per task, TAC at q = 1 with the paper's
-    target V and with ``--critic-target twin-q`` (the seeds as members of one process), and
-    sac-sb3 (the seeds one after another)."""
+    target V, with ``--critic-target twin-q`` and in ``--profile reference`` (the seeds as
+    members of one process), and sac-sb3 (the seeds one after another)."""
     seed_flags = [flag for seed in seeds for flag in ("--seed", str(seed))]
     lines = []
     for env in envs:
@@ -55,20 +57,21 @@ def commands(
         tac = ["tacbench", "run", "--q", "1", "--alpha", f"{alpha:g}"]
         lines.append(shlex.join([*tac, *common]))
         lines.append(shlex.join([*tac, "--critic-target", "twin-q", *common]))
+        lines.append(shlex.join([*tac, "--profile", "reference", *common]))
         lines.append(shlex.join(["tacbench", "run", "--algo", "sac-sb3", *common]))
     return lines
 
 
 def load(results: Path) -> pd.DataFrame:
-    """Evaluation returns of the study's runs (TAC at q = 1, with either critic target, and
-    sac-sb3), complete runs only. Columns: method (one of :data:`METHODS`), env, seed, step,
-    return."""
+    """Evaluation returns of the study's runs (TAC at q = 1, with either critic target or in the
+    reference profile, and sac-sb3), complete runs only. Columns: method (one of
+    :data:`METHODS`), env, seed, step, return."""
     runset = load_runs(results, "eval")
     runs = runset.runs
     chosen = runs[((runs["algo"] == "tac") & (runs["q"] == 1.0)) | (runs["algo"] == "sac-sb3")]
     chosen = chosen[chosen["state"] == "complete"].copy()
-    twin_q = chosen["variant"].str.contains("-twinq", regex=False)
-    chosen["method"] = np.where(chosen["algo"] == "sac-sb3", SB3, np.where(twin_q, TAC_TWIN_Q, TAC))
+    pairs = zip(chosen["algo"], chosen["variant"], strict=True)
+    chosen["method"] = [_method(algo, variant) for algo, variant in pairs]
     several = chosen.groupby(["method", "env"])["variant"].nunique()
     if (several > 1).any():
         raise TacbenchError(
@@ -77,6 +80,16 @@ def load(results: Path) -> pd.DataFrame:
         )
     data = runset.data.merge(chosen[["run", "method"]], on="run")
     return data[["method", "env", "seed", "step", "return"]].reset_index(drop=True)
+
+
+def _method(algo: str, variant: str) -> str:
+    """The study's name of a run: SB3, or TAC by its profile and critic target."""
+    if algo == "sac-sb3":
+        return SB3
+    parts = variant.split("-")
+    if "ref" in parts:
+        return TAC_REFERENCE
+    return TAC_TWIN_Q if "twinq" in parts else TAC
 
 
 def curves(data: pd.DataFrame) -> pd.DataFrame:
@@ -112,7 +125,7 @@ def summary(finals: pd.DataFrame, reps: int = REPS) -> pd.DataFrame:
     rows = []
     for env, group in finals.groupby("env"):
         sb3 = group.loc[group["method"] == SB3, "return"].to_numpy()
-        for method in (TAC, TAC_TWIN_Q):
+        for method in TAC_METHODS:
             tac = group.loc[group["method"] == method, "return"].to_numpy()
             if not len(tac):
                 continue
@@ -139,7 +152,9 @@ def plot(table: pd.DataFrame, path: Path) -> None:
     envs = sorted(table["env"].unique())
     fig, axes = plt.subplots(1, len(envs), figsize=(5 * len(envs), 3.6), squeeze=False)
     for ax, env in zip(axes[0], envs, strict=True):
-        for method, color in zip(METHODS, ("tab:blue", "tab:green", "tab:orange"), strict=True):
+        for method, color in zip(
+            METHODS, ("tab:blue", "tab:green", "tab:purple", "tab:orange"), strict=True
+        ):
             rows = table[(table["env"] == env) & (table["method"] == method)]
             if rows.empty:
                 continue

@@ -13,17 +13,34 @@ from baselines import parity
 pytestmark = pytest.mark.unit
 
 
-def test_commands_run_both_tacs_at_q1_and_sac_sb3_on_the_same_seeds_and_budget() -> None:
+def test_commands_run_three_tacs_at_q1_and_sac_sb3_on_the_same_seeds_and_budget() -> None:
     lines = parity.commands(["Hopper-v4", "Humanoid-v4"], [0, 10], 5000, "out")
     assert [shlex.split(line)[:4] for line in lines] == [
         ["tacbench", "run", "--q", "1"],
         ["tacbench", "run", "--q", "1"],
+        ["tacbench", "run", "--q", "1"],
         ["tacbench", "run", "--algo", "sac-sb3"],
     ] * 2
-    assert ["--critic-target" in line for line in lines] == [False, True, False] * 2
+    assert ["--critic-target" in line for line in lines] == [False, True, False, False] * 2
+    assert ["--profile reference" in line for line in lines] == [False, False, True, False] * 2
     for line in lines:
         assert "--seed 0 --seed 10 --steps 5000 --out out --quiet" in line
-    assert "--alpha 0.05 --critic-target twin-q --env Humanoid-v4" in lines[4]  # paper alpha
+    assert "--alpha 0.05 --critic-target twin-q --env Humanoid-v4" in lines[5]  # paper alpha
+
+
+@pytest.mark.parametrize(
+    ("algo", "variant", "method"),
+    [
+        ("tac", "q1-a0.2", parity.TAC),
+        ("tac", "q1-a0.2-twinq", parity.TAC_TWIN_Q),
+        ("tac", "q1-a0.2-ref", parity.TAC_REFERENCE),
+        ("tac", "q1-a0.2-ref-h300", parity.TAC_REFERENCE),
+        ("tac", "q1-a0.2-reference_like", parity.TAC),  # a word, not the suffix
+        ("sac-sb3", "default", parity.SB3),
+    ],
+)
+def test_runs_are_named_by_profile_and_critic_target(algo: str, variant: str, method: str) -> None:
+    assert parity._method(algo, variant) == method
 
 
 def _frame() -> pd.DataFrame:
