@@ -26,6 +26,7 @@ from tacbench.report.methods import (
     method_sort_key,
 )
 from tacbench.report.paper import task_sort_key
+from tacbench.report.ranges import q_range_table
 from tacbench.report.stats import (
     ALL_TASKS,
     DEFAULT_REPS,
@@ -90,6 +91,7 @@ class Report:
     aggregate: pd.DataFrame
     improvement: pd.DataFrame
     profiles: pd.DataFrame
+    q_ranges: pd.DataFrame
     envs: list[str]
     methods: list[str]
     qs: dict[str, float]
@@ -171,6 +173,9 @@ def analyse(options: ReportOptions) -> Report:
         aggregate=_in_order(aggregate_estimates(extended, options.reps, rng), envs, methods),
         improvement=_in_order(improvement, envs, methods),
         profiles=profile_table(extended, PROFILE_TAUS, options.reps, rng),
+        q_ranges=_in_order(
+            q_range_table(scores, runset.data, options.last, options.reps, rng), envs, methods
+        ),
         envs=envs,
         methods=methods,
         qs=qs,

@@ -9,7 +9,13 @@ import pandas as pd
 
 from tacbench.report import plots
 from tacbench.report.build import Report
-from tacbench.report.page import TITLE, best_q_display, sections, summary_display
+from tacbench.report.page import (
+    TITLE,
+    best_q_display,
+    q_ranges_display,
+    sections,
+    summary_display,
+)
 from tacbench.report.render import markdown_table, to_html, to_markdown
 
 HTML_FORMAT = {"png": "png", "svg": "svg", "pdf": "png"}
@@ -34,6 +40,7 @@ def _tables(report: Report) -> dict[str, pd.DataFrame]:
         "stats_aggregate": report.aggregate,
         "improvement": report.improvement,
         "profiles": report.profiles,
+        "q_ranges": report.q_ranges,
     }
 
 
@@ -46,7 +53,8 @@ def write_report(report: Report) -> list[Path]:
         path = out / f"{name}.csv"
         frame.to_csv(path, index=False)
         written.append(path)
-    for name, display in {"summary": summary_display, "best_q": best_q_display}.items():
+    displays = {"summary": summary_display, "best_q": best_q_display, "q_ranges": q_ranges_display}
+    for name, display in displays.items():
         path = out / f"{name}.md"
         path.write_text(markdown_table(display(report)) + "\n", encoding="utf-8")
         written.append(path)

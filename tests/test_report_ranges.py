@@ -1,0 +1,67 @@
+"""The q-range table (tacbench/report/ranges.py): TAC's runs pooled by range of q."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from tacbench.report import ReportOptions, analyse, write_report
+from tacbench.report.ranges import within_run_spread
+from tests.report_fixtures import synthetic_tree
+
+pytestmark = pytest.mark.unit
+
+
+def _ranges(root: Path, **tree: object) -> pd.DataFrame:
+    synthetic_tree(root, **tree)  # type: ignore[arg-type]
+    return analyse(ReportOptions(results=root, out=root / "report", reps=200)).q_ranges
+
+
+def test_each_task_pools_its_runs_by_range_and_compares_the_outer_ranges(tmp_path: Path) -> None:
+    # q_level: 1.5 best, then 1; q = 0.5 and 3 far below (20 noise, 3 seeds each)
+    table = _ranges(tmp_path, qs=(0.5, 1.0, 1.5, 3.0), baselines=("td3",), spread=0.05)
+    hopper = table[table["env"] == "Hopper-v4"].set_index("range")
+    assert list(hopper.index) == ["0 < q < 1", "1 <= q < 2", "q >= 2"]
+    assert list(hopper["qs"]) == ["0.5", "1, 1.5", "3"]
+    assert list(hopper["runs"]) == [3, 6, 3]
+    assert math.isnan(hopper.loc["1 <= q < 2", "p_middle"])
+    for outer in ("0 < q < 1", "q >= 2"):
+        row = hopper.loc[outer]
+        assert row["p_middle"] == 1.0 and row["p_low"] == 1.0  # every middle run is higher
+        assert row["iqm_low"] <= row["iqm"] <= row["iqm_high"]
+    assert hopper.loc["1 <= q < 2", "iqm"] > hopper.loc["q >= 2", "iqm"]
+    everything = table[table["env"] == "all tasks"].set_index("range")
+    assert list(everything["runs"]) == [6, 12, 6]  # two tasks pooled
+    assert (everything["iqm"].between(0.0, 1.0)).all()  # normalised scores
+    assert everything["spread"].isna().all()
+
+
+def test_a_sweep_inside_one_range_has_no_comparison(tmp_path: Path) -> None:
+    table = _ranges(tmp_path, qs=(1.0, 1.5), baselines=())
+    assert table.empty
+
+
+def test_spread_is_the_std_of_each_runs_last_returns() -> None:
+    data = pd.DataFrame(
+        {
+            "run": [0, 0, 0, 0, 1, 1],
+            "step": [1, 2, 3, 4, 1, 2],
+            "return": [100.0, 1.0, 2.0, 3.0, 5.0, 5.0],
+        }
+    )
+    spread = within_run_spread(data, last=3)
+    assert spread[0] == pytest.approx(np.std([1.0, 2.0, 3.0]))
+    assert spread[1] == 0.0
+
+
+def test_the_report_writes_and_shows_the_table(tmp_path: Path) -> None:
+    root = synthetic_tree(tmp_path, qs=(0.5, 1.0, 1.5, 2.0), baselines=())
+    write_report(analyse(ReportOptions(results=root, out=tmp_path / "out", reps=100)))
+    assert (tmp_path / "out" / "q_ranges.csv").is_file()
+    shown = (tmp_path / "out" / "q_ranges.md").read_text()
+    assert "| HalfCheetah-v4 | 1 <= q < 2 | 1, 1.5 | 6 |" in shown
+    assert "P(1 <= q < 2 > this range)" in (tmp_path / "out" / "report.md").read_text()
