@@ -92,7 +92,8 @@ def make_configs(
 
 
 # TAC's `tacbench run` flags that a baseline understands, as the hyperparameter they set.
-_FLAG_KEYS = {("sac-sb3", "alpha"): "ent_coef"}
+# --alpha auto is SB3's ent_coef=auto, and --target-entropy its target_entropy
+_FLAG_KEYS = {("sac-sb3", "alpha"): "ent_coef", ("sac-sb3", "target_entropy"): "target_entropy"}
 _FLAG_KEYS.update({(algo, "learning_starts"): "learning_starts" for algo in hyperparams.OFF_POLICY})
 
 

@@ -65,6 +65,7 @@ PROFILES = ("paper", "reference")
 TIME_LIMITS = ("not-terminal", "terminal-below-1000")
 ACTION_SCALES = ("unit", "bound")
 ON_OFF = ("on", "off")
+ALPHA_MODES = ("fixed", "auto")
 # --profile: the settings where the authors' code (REFERENCE.md; docs/tac.md, "Profiles") did
 # otherwise than the paper's table; each is also a setting of its own, for ablations
 PROFILE_VALUES: dict[str, dict[str, Any]] = {
@@ -184,6 +185,22 @@ class RunConfig(RunSettings):
         source="paper eqn:q_obj and reference code",
         choices=CRITIC_TARGETS,
         variant={"twin-q": "twinq"},
+    )
+    alpha_mode: str = setting(
+        "fixed",
+        "fixed: alpha stays --alpha; auto (also --alpha auto): each member learns its alpha, "
+        "starting from --alpha, to hold its E[-ln_q pi] at --target-entropy (SAC v2's rule "
+        "with ln_q; docs/tac.md).",
+        source="paper: fixed per task; auto: issue 18, after SAC v2 (Haarnoja et al. 2018b)",
+        choices=ALPHA_MODES,
+    )  # in the variant's alpha part: q1.5-aauto0.2 (learned, from 0.2)
+    target_entropy: float | None = setting(
+        None,
+        "--alpha auto: the target of E[-ln_q pi]. Default: -A ln_q(e) (--lnq per-dim) or "
+        "-ln_q(e^A) (joint), A the action size; -A at q = 1, as SAC v2 and stable-baselines3.",
+        source="issue 18: the per-dimension density that SAC's target implies",
+        variant="te",
+        metavar="FLOAT",
     )
     update_schedule: str = setting(
         None,
@@ -314,6 +331,7 @@ class RunConfig(RunSettings):
             ("warmup_updates", ON_OFF),
             ("time_limits", TIME_LIMITS),
             ("action_scale", ACTION_SCALES),
+            ("alpha_mode", ALPHA_MODES),
         ):
             _check_choice(self, name, getattr(self, name), choices)
         _check_choice(self, "compile", self.compile, COMPILE_CHOICES)
@@ -331,6 +349,11 @@ class RunConfig(RunSettings):
             raise TacbenchError("need 0 < gamma <= 1, 0 < tau <= 1 and learning_rate > 0.")
         if not self.log_std_min < self.log_std_max:
             raise TacbenchError("log_std_min must be smaller than log_std_max.")
+        if self.target_entropy is not None and self.alpha_mode != "auto":
+            raise TacbenchError(
+                "--target-entropy is the target of a learned alpha; add --alpha auto "
+                "(or --alpha-mode auto)."
+            )
         if not 0.0 <= self.q_schedule_start < self.q_schedule_end <= 1.0:
             raise TacbenchError(
                 "need 0 <= q_schedule_start < q_schedule_end <= 1 (fractions of steps)."
@@ -357,10 +380,12 @@ class RunConfig(RunSettings):
 
     @property
     def variant(self) -> str:
-        """The run directory's variant: ``q1.5-a0.2`` plus ``-ref`` for the reference profile and
+        """The run directory's variant: ``q1.5-a0.2`` (``q1.5-aauto0.2``: alpha learned from 0.2)
+        plus ``-ref`` for the reference profile and
         a suffix for each choice that changes training and differs from its default or its
         profile's value (``-joint``, ``-episode``, ``-qlinear``, ``-ls100000``, ...)."""
-        name = f"q{self.q:g}-a{self.alpha:g}"
+        learned = "auto" if self.alpha_mode == "auto" else ""
+        name = f"q{self.q:g}-a{learned}{self.alpha:g}"
         for key, declared in settings_of(RunConfig).items():
             part, value = declared.info.variant, getattr(self, key)
             default = PROFILE_VALUES[self.profile].get(key, declared.default)

@@ -88,6 +88,7 @@ def test_sweep_overrides_default_to_the_presets_value() -> None:
         (["--compile", "off", "--steps", "300"], {"compile": "off", "total_steps": 300}),
         (["--hidden-sizes", "400,300"], {"hidden_sizes": (400, 300)}),
         (["--no-tensorboard"], {"tensorboard": False}),
+        (["--alpha-mode", "auto"], {"alpha_mode": "auto"}),
         (["--tensorboard"], {"tensorboard": True}),
     ],
 )

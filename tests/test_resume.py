@@ -141,3 +141,20 @@ def test_a_mixed_group_stopped_and_resumed_continues_every_member_exactly(
             tmp_path / "resumed"
         )
         assert_same_results(a.directory, b.directory)
+
+
+def test_a_learned_alpha_stopped_and_resumed_continues_exactly(tmp_path: Path) -> None:
+    configs = tiny_configs("tac", seeds=(0, 1), alpha_mode="auto")
+    uninterrupted = train(tmp_path / "straight", configs)
+    for stop_at in (730, 1234):
+        stopped = train(
+            tmp_path / "resumed", configs, resume=True, stop=lambda s, at=stop_at: s >= at
+        )
+        assert {(o.state, o.step) for o in stopped} == {("interrupted", stop_at)}
+    resumed = train(tmp_path / "resumed", configs, resume=True)
+    for a, b in zip(uninterrupted, resumed, strict=True):
+        assert b.state == "complete"
+        assert_same_results(a.directory, b.directory)
+        losses = pd.read_csv(b.directory / "losses.csv")
+        assert losses["alpha"].iloc[0] == pytest.approx(0.2)  # the paper's, its start
+        assert losses["alpha"].nunique() == len(losses)  # learned: a new value every row

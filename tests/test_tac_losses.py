@@ -265,7 +265,8 @@ def test_members_with_different_q_and_alpha_get_the_losses_they_would_get_apart(
         for k, (q, alpha) in enumerate(zip(qs, alphas, strict=True)):
             same = coefficients([q] * 3, [alpha] * 3, torch.device("cpu"))
             alone = tac_losses(group.views, group.target, batch, eps, same, s)
-            for a, b in zip(mixed, alone, strict=True):
+            assert mixed.alpha is None and alone.alpha is None  # a fixed alpha: no alpha loss
+            for a, b in zip(mixed[:5], alone[:5], strict=True):
                 assert torch.equal(a[k], b[k]), (lnq, q)
 
 

@@ -32,6 +32,20 @@ class IntTuple(click.ParamType):
             self.fail(f"{value!r} is not a comma-separated list of integers (400,300)", param, ctx)
 
 
+class AlphaType(click.ParamType):
+    """An entropy coefficient: a positive number, or ``auto`` (learned)."""
+
+    name = "float|auto"
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
+        if value == "auto" or isinstance(value, float):
+            return value
+        try:
+            return float(value)
+        except ValueError:
+            self.fail(f"{value!r} is neither a number nor 'auto'", param, ctx)
+
+
 def _shown(value: Any) -> str:
     if isinstance(value, bool):
         return "on" if value else "off"
@@ -54,6 +68,8 @@ def _option(declared: Setting, *, sweep: bool) -> Callable[[F], F]:
         kwargs["type"] = click.Choice(info.choices)
     elif declared.type in (tuple[int, ...], tuple[int, ...] | None):
         kwargs["type"] = IntTuple()
+    elif declared.type == float | None:
+        kwargs["type"] = float
     else:
         kwargs["type"] = declared.type
     if info.metavar:

@@ -14,13 +14,25 @@ import click
 
 from tacbench import trainers
 from tacbench.cli.common import command_line, report_outcomes
-from tacbench.cli.options import cli_settings, setting_options
+from tacbench.cli.options import AlphaType, cli_settings, setting_options
 from tacbench.config import RunConfig, RunSettings
 from tacbench.errors import TacbenchError
 from tacbench.settings import settings_of
 
 _SETTINGS = cli_settings(RunConfig)
 _RUN_SETTINGS = set(settings_of(RunSettings))
+
+
+def _alpha_auto(ctx: click.Context, alphas: tuple[float | str, ...]) -> str:
+    """``--alpha auto``: the alpha mode it stands for, refused next to other alpha values."""
+    explicit = ctx.get_parameter_source("alpha_mode") == click.core.ParameterSource.COMMANDLINE
+    if len(alphas) > 1 or (explicit and ctx.params["alpha_mode"] != "auto"):
+        raise TacbenchError(
+            "--alpha auto learns every member's alpha from the paper's value; it does not mix "
+            "with other --alpha values or --alpha-mode fixed in one command. To learn alpha from "
+            "another start: --alpha-mode auto --alpha 0.1."
+        )
+    return "auto"
 
 
 @click.command()
@@ -49,9 +61,10 @@ _RUN_SETTINGS = set(settings_of(RunSettings))
 @click.option(
     "--alpha",
     "alphas",
-    type=float,
+    type=AlphaType(),
     multiple=True,
-    help="Entropy coefficient; repeatable, like --q.  [default: the paper's: 0.2, Humanoid 0.05]",
+    help="Entropy coefficient; repeatable, like --q; auto: learned per member from the paper's "
+    "alpha (--alpha-mode auto).  [default: the paper's: 0.2, Humanoid 0.05]",
 )
 @click.option(
     "--seed",
@@ -80,7 +93,7 @@ def run(
     algo: str,
     hp: tuple[str, ...],
     qs: tuple[float, ...],
-    alphas: tuple[float, ...],
+    alphas: tuple[float | str, ...],
     seeds: tuple[int, ...],
     out: Path,
     resume: bool,
@@ -104,8 +117,12 @@ def run(
             raise TacbenchError(
                 "--hp sets a baseline's hyperparameters; TAC's have their own flags."
             )
+        if "auto" in alphas:
+            settings["alpha_mode"] = _alpha_auto(ctx, alphas)
+            alphas = ()
+        numbers = [float(a) for a in alphas]
         configs, notes = trainers.make_configs(
-            algo, env_id, envs.paper_task(env_id), seeds, settings, qs=qs, alphas=alphas
+            algo, env_id, envs.paper_task(env_id), seeds, settings, qs=qs, alphas=numbers
         )
     else:
         if len(qs) > 1 or len(alphas) > 1:

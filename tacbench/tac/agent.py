@@ -47,7 +47,8 @@ def _chunked(tensor: torch.Tensor | None, members: slice) -> torch.Tensor | None
 
 
 class TacAgent:
-    """K independent TAC learners sharing one config (all but q, alpha and the seed)."""
+    """K independent TAC learners sharing one config (all but q, alpha and the seed); with
+    ``initial_alphas`` (--alpha auto) each learns its alpha from its initial value."""
 
     def __init__(
         self,
@@ -57,13 +58,16 @@ class TacAgent:
         seeds: Sequence[int],
         device: torch.device,
         action_scale: float = 1.0,
+        initial_alphas: Sequence[float] | None = None,
     ) -> None:
         self.config = config
         self.device = device
         self.act_dim = act_dim
         self.generators = [torch.Generator().manual_seed(int(seed)) for seed in seeds]
         c = config
-        settings = LossSettings(c.gamma, c.lnq, c.log_std_min, c.log_std_max, action_scale)
+        settings = LossSettings(
+            c.gamma, c.lnq, c.log_std_min, c.log_std_max, action_scale, c.target_entropy
+        )
         k = len(seeds)
         most = k if device.type == "cuda" else CPU_MEMBERS_PER_CHUNK
         size = math.ceil(k / math.ceil(k / most))  # near-equal chunks: 45 members are 5 x 9
@@ -77,6 +81,7 @@ class TacAgent:
                 twin_q_targets=config.critic_target == "twin-q",
                 device=device,
                 per_member_steps=config.per_member_updates,
+                initial_alphas=None if initial_alphas is None else initial_alphas[members],
             )
             for members in chunks
         ]

@@ -6,7 +6,8 @@ members never mix, so summing the losses over members gives each member exactly 
 would get alone. q and alpha are per member (:class:`~tacbench.tac.maths.Coefficients`).
 
 Paper references are to the appendix "Implementation Detail" of ``tsallis-rl-paper.tex``:
-``eqn:q_obj`` (Q loss), ``eqn:v_obj`` (V loss), ``eqn:pol_obj`` (policy loss). The formulas
+``eqn:q_obj`` (Q loss), ``eqn:v_obj`` (V loss), ``eqn:pol_obj`` (policy loss); with a learned
+alpha (--alpha auto, not in the paper) SAC v2's temperature loss with ``ln_q``. The formulas
 below them (the squashed Gaussian's density, ln_q, the cap) are in :mod:`tacbench.tac.maths`.
 Where the paper is silent the reference code decides (REFERENCE.md)."""
 
@@ -16,7 +17,13 @@ from typing import NamedTuple
 
 import torch
 
-from tacbench.tac.maths import Batch, Coefficients, lnq_of_policy, squashed_gaussian
+from tacbench.tac.maths import (
+    Batch,
+    Coefficients,
+    default_lnq_target,
+    lnq_of_policy,
+    squashed_gaussian,
+)
 from tacbench.tac.networks import Layers, mlp, policy_head
 from tacbench.tac.parameters import Networks
 
@@ -29,16 +36,20 @@ class LossSettings(NamedTuple):
     log_std_min: float
     log_std_max: float
     action_scale: float = 1.0  # the critics see the policy's actions times this (buffer alike)
+    target_entropy: float | None = None  # --alpha auto: of E[-ln_q pi]; None: the default
 
 
 class TacLosses(NamedTuple):
-    """Per-member losses, each ``(K,)``, and ``(K, len(DIAGNOSTICS))`` detached diagnostics."""
+    """Per-member losses, each ``(K,)``, and ``(K, len(DIAGNOSTICS))`` detached diagnostics;
+    with a learned alpha its loss and the alpha in force ``(K,)`` (maths.ALPHA_METRICS)."""
 
     q1: torch.Tensor
     q2: torch.Tensor
     v: torch.Tensor
     pi: torch.Tensor
     diagnostics: torch.Tensor
+    alpha: torch.Tensor | None = None
+    alpha_in_force: torch.Tensor | None = None
 
 
 def _policy_sample(
@@ -76,7 +87,9 @@ def tac_losses(
     V loss -> V; policy loss -> policy (the critics are evaluated there with frozen weights).
     """
     k = eps.shape[0]
-    alpha = c.alpha[:, None]
+    # --alpha auto: the learned alpha, as it is before this step's update of it (SB3 alike)
+    alpha_in_force = c.alpha if nets.log_alpha is None else nets.log_alpha.detach().exp()
+    alpha = alpha_in_force[:, None]
     # a~ ~ pi(.|s) by the reparameterisation trick, and ln_q pi(a~|s)
     new_action, log_prob_dims, std = _policy_sample(nets.policy, batch.obs, eps, s)
     lnq_pi = lnq_of_policy(log_prob_dims, c, s.lnq)
@@ -118,6 +131,17 @@ def tac_losses(
     else:
         v_value, loss_v = v_next, torch.zeros_like(loss_q1)
 
+    # --alpha auto, SAC v2's temperature loss (Haarnoja et al. 2018b, eq. 18, on log alpha as
+    # stable-baselines3 does): J(alpha) = E[-log alpha (ln_q pi(a~|s) + H_target)], with ln_q in
+    # place of log and H_target the target of E[-ln_q pi] (default: maths.default_lnq_target)
+    loss_alpha = None
+    if nets.log_alpha is not None:
+        if s.target_entropy is None:
+            entropy_target = -default_lnq_target(c, eps.shape[-1], s.lnq)[:, None]
+        else:
+            entropy_target = torch.full_like(lnq_pi[:, :1], s.target_entropy)
+        loss_alpha = -(nets.log_alpha * (lnq_pi.detach() + entropy_target).mean(dim=-1))
+
     with torch.no_grad():
         diagnostics = torch.stack(
             [
@@ -129,4 +153,4 @@ def tac_losses(
             ],
             dim=-1,
         )
-    return TacLosses(loss_q1, loss_q2, loss_v, loss_pi, diagnostics)
+    return TacLosses(loss_q1, loss_q2, loss_v, loss_pi, diagnostics, loss_alpha, alpha_in_force)

@@ -29,6 +29,8 @@ LOSSES = ("loss_q1", "loss_q2", "loss_v", "loss_pi")
 # Diagnostics written to losses.csv besides the four losses (means over the batch).
 DIAGNOSTICS = ("log_pi", "lnq_pi", "q1_pi", "v", "std")
 METRICS = LOSSES + DIAGNOSTICS  # the columns of an update's metrics, (K, len(METRICS))
+# with a learned alpha (--alpha auto): the alpha in force and its loss, appended to METRICS
+ALPHA_METRICS = ("alpha", "loss_alpha")
 
 
 class Batch(NamedTuple):
@@ -138,3 +140,13 @@ def lnq_of_policy(log_prob_dims: torch.Tensor, c: Coefficients, lnq: str) -> tor
     cap = per_member(c.log_cap, log_prob_dims)
     clamped = log_prob_dims.clamp(min=LOG_DENSITY_FLOOR).clamp(max=cap)
     return log_q_of_log(clamped, per_member(c.q_minus_one, log_prob_dims)).sum(dim=-1)
+
+
+def default_lnq_target(c: Coefficients, act_dim: int, lnq: str) -> torch.Tensor:
+    """The default target of E[ln_q pi] of ``--alpha auto``, per member ``(K,)``: ln_q of the
+    policy whose every dimension has log-density 1, i.e. the density that SAC's target entropy
+    -dim(A) implies (E[log pi] = dim(A)). Per-dimension form: ``A ln_q(e)``; joint form:
+    ``ln_q(e^A)``; both ``A`` at q = 1, where the target entropy is SAC v2's ``-dim(A)``.
+    Computed with :func:`lnq_of_policy` itself, the formula the loss compares it with."""
+    ones = c.q_minus_one.new_ones(c.q_minus_one.shape[0], 1, act_dim)
+    return lnq_of_policy(ones, c, lnq)[:, 0]

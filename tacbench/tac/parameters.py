@@ -29,11 +29,13 @@ ADAM_EPS = 1e-8
 
 
 class Networks(NamedTuple):
-    """Views of the trained networks (or of a gradient of them): K, 2K and K members."""
+    """Views of the trained networks (or of a gradient of them): K, 2K and K members, and with
+    a learned alpha (--alpha auto) each member's log alpha ``(K,)``."""
 
     policy: Layers
     critics: Layers  # the K members of Q1, then the K members of Q2
     v: Layers
+    log_alpha: torch.Tensor | None = None
 
 
 class FlatLayout(NamedTuple):
@@ -65,10 +67,16 @@ class FlatLayout(NamedTuple):
 
     def networks(self, flat: torch.Tensor) -> Networks:
         """Policy, critic pair and V views of a flat tensor of this layout (the parameters, a
-        gradient, or the tensor that autograd differentiates)."""
+        gradient, or the tensor that autograd differentiates), and log alpha if it has it."""
         blocks = self.views(flat)
         n = 2 * self.n_layers
-        return Networks(_layers(blocks[:n]), _layers(blocks[n : 2 * n]), _layers(blocks[2 * n :]))
+        log_alpha = blocks[3 * n] if len(blocks) > 3 * n else None
+        return Networks(
+            _layers(blocks[:n]),
+            _layers(blocks[n : 2 * n]),
+            _layers(blocks[2 * n : 3 * n]),
+            log_alpha,
+        )
 
     def layers(self, flat: torch.Tensor) -> Layers:
         """A one-network buffer (a target) as layers."""
@@ -76,15 +84,19 @@ class FlatLayout(NamedTuple):
 
 
 def _pack(
-    groups: Sequence[Sequence[Layers]], device: torch.device
+    groups: Sequence[Sequence[Layers]],
+    device: torch.device,
+    tail: Sequence[torch.Tensor] = (),
 ) -> tuple[FlatLayout, torch.Tensor]:
     """One flat buffer holding, per group of same-shaped stacks (one network, or Q1 and Q2), each
-    layer's weight block then its bias block, the group's stacks side by side."""
+    layer's weight block then its bias block, the group's stacks side by side; then the
+    ``tail`` blocks."""
     blocks = []
     for group in groups:
         for i in range(len(group[0].weights)):
             blocks.append(torch.cat([layers.weights[i] for layers in group]))
             blocks.append(torch.cat([layers.biases[i] for layers in group]))
+    blocks += list(tail)
     layout = FlatLayout(tuple(tuple(block.shape) for block in blocks), len(group[0].weights))
     data = torch.empty(layout.size, device=device)
     for view, block in zip(layout.views(data), blocks, strict=True):
@@ -110,13 +122,16 @@ class TacParameters:
         twin_q_targets: bool,
         device: torch.device,
         per_member_steps: bool = False,
+        initial_alphas: Sequence[float] | None = None,
     ) -> None:
         self.n_members = len(generators)
         policy = init_layers([obs_dim, *hidden_sizes, 2 * act_dim], generators)
         q1, q2 = (init_layers([obs_dim + act_dim, *hidden_sizes, 1], generators) for _ in "12")
         v = init_layers([obs_dim, *hidden_sizes, 1], generators)
         self.n_layers = len(hidden_sizes) + 1
-        self.layout, self.data = _pack([[policy], [q1, q2], [v]], device)
+        # --alpha auto: each member's log alpha is one more trained parameter, after V's
+        tail = [] if initial_alphas is None else [torch.tensor(initial_alphas).log()]
+        self.layout, self.data = _pack([[policy], [q1, q2], [v]], device, tail)
         self.grad = torch.zeros_like(self.data)
         self.exp_avg = torch.zeros_like(self.data)
         self.exp_avg_sq = torch.zeros_like(self.data)
@@ -241,6 +256,8 @@ class TacParameters:
             for i, (weight, bias) in enumerate(zip(layers.weights, layers.biases, strict=True)):
                 yield f"{prefix}.weights.{i}", weight
                 yield f"{prefix}.biases.{i}", bias
+        if nets.log_alpha is not None:
+            yield "log_alpha", nets.log_alpha
 
     def named_gradients(self) -> dict[str, torch.Tensor]:
         """Every trained parameter's gradient ``(K, ...)``, named as in :meth:`member_state`."""

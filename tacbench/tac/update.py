@@ -63,15 +63,21 @@ def total_loss(
     s: LossSettings,
     eps_next: torch.Tensor | None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """The sum of the live members' four losses at parameters ``theta`` (flat, of ``layout``;
-    the target networks' ``target`` of ``target_layout``), which autograd differentiates, and
-    the detached metrics ``(K, len(METRICS))``. Members never mix, so each member's gradient is
+    """The sum of the live members' four losses (five with a learned alpha) at parameters
+    ``theta`` (flat, of ``layout``; the target networks' ``target`` of ``target_layout``), which
+    autograd differentiates, and the detached metrics ``(K, len(METRICS))`` (plus
+    ``ALPHA_METRICS`` with a learned alpha). Members never mix, so each member's gradient is
     its own losses'."""
     nets, target_net = layout.networks(theta), target_layout.layers(target)
     losses = tac_losses(nets, target_net, batch, eps, c, s, eps_next)
     per_member = torch.stack([losses.q1, losses.q2, losses.v, losses.pi], dim=-1)
+    metrics = [per_member.detach(), losses.diagnostics]
+    if losses.alpha is not None:  # --alpha auto: the temperature loss joins the sum
+        assert losses.alpha_in_force is not None
+        per_member = torch.cat([per_member, losses.alpha[:, None]], dim=-1)
+        metrics.append(torch.stack([losses.alpha_in_force, losses.alpha.detach()], dim=-1))
     total = torch.where(alive, per_member.sum(dim=-1), 0.0).sum()
-    return total, torch.cat([per_member.detach(), losses.diagnostics], dim=-1)
+    return total, torch.cat(metrics, dim=-1)
 
 
 def eager_gradient(theta: torch.Tensor, *args: Any) -> tuple[torch.Tensor, torch.Tensor]:

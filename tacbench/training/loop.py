@@ -22,10 +22,11 @@ from tacbench.progress import Progress
 from tacbench.runs import Outcome
 from tacbench.seeding import run_streams
 from tacbench.tac import METRICS, Coefficients, ReplayBuffer, TacAgent, coefficients
+from tacbench.tac.maths import ALPHA_METRICS
 from tacbench.training.checkpoint import load_replay, read, write_checkpoint
 from tacbench.training.schedule import rounds, updates_due
 
-LOSS_COLUMNS = ("q", "updates", *METRICS)
+LOSS_COLUMNS = ("q", "updates", *METRICS)  # with --alpha auto, ALPHA_METRICS follow
 
 
 class GroupTrainer:
@@ -45,6 +46,7 @@ class GroupTrainer:
         self.env_seeds = [s.env_seed for s in streams]
         # reference profile: the critics and the buffer see actions times the action bound
         self.action_scale = self.info.high[0] if config.action_scale == "bound" else 1.0
+        learns_alpha = config.alpha_mode == "auto"  # one setting, so shared by the members
         self.agent = TacAgent(
             obs_dim,
             act_dim,
@@ -52,7 +54,9 @@ class GroupTrainer:
             [s.torch_seed for s in streams],
             torch.device(config.device),
             self.action_scale,
+            [c.alpha for c in configs] if learns_alpha else None,
         )
+        self.metrics = METRICS + ALPHA_METRICS if learns_alpha else METRICS
         self.buffer = ReplayBuffer(k, obs_dim, act_dim, min(config.buffer_size, config.total_steps))
         self.rngs = [np.random.default_rng(s.numpy) for s in streams]
         self.envs = [envs.make_env(config.env) for _ in range(k)]
@@ -60,12 +64,13 @@ class GroupTrainer:
             [envs.make_env(config.env) for _ in range(config.eval_episodes)]
             for _ in range(k if config.eval_every > 0 else 0)
         ]
-        self.writers = [runs.RunWriter(d, LOSS_COLUMNS, config.tensorboard) for d in directories]
+        columns = ("q", "updates", *self.metrics)
+        self.writers = [runs.RunWriter(d, columns, config.tensorboard) for d in directories]
         self.step = 0
         self.obs = np.zeros((k, obs_dim))
         self.episode_return = np.zeros(k)
         self.episode_length = np.zeros(k, dtype=np.int64)
-        self.loss_sum = torch.zeros(k, len(METRICS), device=self.agent.device)
+        self.loss_sum = torch.zeros(k, len(self.metrics), device=self.agent.device)
         self.loss_count = np.zeros(k, dtype=np.int64)  # updates since the last losses row
         self.updates_started = np.zeros(k, dtype=bool)  # training.schedule
         self.alive = list(range(k))  # live members, kept on the host (no device sync to read)
@@ -281,7 +286,7 @@ class GroupTrainer:
         outcomes, failed = [], torch.nonzero(bad).flatten().tolist()
         for k in failed:
             config = self.configs[k]
-            values = dict(zip(METRICS, metrics[k].tolist(), strict=True))
+            values = dict(zip(self.metrics, metrics[k].tolist(), strict=True))
             names = ", ".join(n for n, v in values.items() if not np.isfinite(v))
             reason = f"non-finite {names} at step {self.step} (mean log pi {values['log_pi']:.4g})"
             if config.lnq == "joint" and config.q_at(self.step) > 1:
