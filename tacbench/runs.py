@@ -28,12 +28,14 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import IO, Any, Literal, Protocol, TypeVar
+from typing import IO, TYPE_CHECKING, Any, Literal, Protocol, TypeVar
 
 from tacbench.checkpoints import write_durably
 from tacbench.config import RESULT_NEUTRAL_FIELDS
 from tacbench.errors import TacbenchError
-from tacbench.tensorboard_log import TensorBoardLog
+
+if TYPE_CHECKING:
+    from tacbench.tensorboard_log import TensorBoardLog
 
 EVAL_COLUMNS = ("step", "wall_s", "return_mean", "return_std", "length_mean")
 TRAIN_COLUMNS = ("step", "wall_s", "return", "length")
@@ -268,6 +270,8 @@ class RunWriter:
         ):
             self._logs[name] = CsvLog(self.directory / f"{name}.csv", columns, resume_step)
         if self.tensorboard:
+            from tacbench.tensorboard_log import TensorBoardLog  # protobuf: only when used
+
             self._board = TensorBoardLog(self.directory / "tensorboard", resume_step)
         self.status("running", resume_step or 0)
 
@@ -281,7 +285,6 @@ class RunWriter:
         self._logs["eval"].write([step, round(wall_s, 3), mean, std, length])
         if self._board is not None:
             self._board.scalars("eval", step, {"return": mean, "return_std": std, "length": length})
-            self._board.flush()
 
     def train_row(self, step: int, wall_s: float, episode_return: float, length: int) -> None:
         """One finished training episode (ending at ``step``)."""
