@@ -120,6 +120,14 @@ def test_ctrl_c_checkpoints_and_resume_completes(
     assert train_steps.is_monotonic_increasing and not train_steps.duplicated().any()
 
 
+def _stopped_twice_then_resumed(out: Path, configs: list) -> list:
+    """Train ``configs`` into ``out`` stopped at steps 730 and 1234, then to the end."""
+    for stop_at in (730, 1234):
+        stopped = train(out, configs, resume=True, stop=lambda s, at=stop_at: s >= at)
+        assert {(o.state, o.step) for o in stopped} == {("interrupted", stop_at)}
+    return train(out, configs, resume=True)
+
+
 @pytest.mark.parametrize("profile", ["paper", "reference"])
 def test_a_mixed_group_stopped_and_resumed_continues_every_member_exactly(
     tmp_path: Path, profile: str
@@ -129,12 +137,7 @@ def test_a_mixed_group_stopped_and_resumed_continues_every_member_exactly(
     settings = {"profile": profile, "hidden_sizes": (32,)} if profile == "reference" else {}
     configs = tiny_configs("tac", seeds=[0, 10], qs=[1.0, 2.0], **settings)
     reference = train(tmp_path / "reference", configs)
-    for stop_at in (730, 1234):
-        stopped = train(
-            tmp_path / "resumed", configs, resume=True, stop=lambda s, at=stop_at: s >= at
-        )
-        assert {(o.state, o.step) for o in stopped} == {("interrupted", stop_at)}
-    resumed = train(tmp_path / "resumed", configs, resume=True)
+    resumed = _stopped_twice_then_resumed(tmp_path / "resumed", configs)
     assert [o.state for o in resumed] == ["complete"] * 4
     for a, b in zip(reference, resumed, strict=True):
         assert a.directory.relative_to(tmp_path / "reference") == b.directory.relative_to(
@@ -146,12 +149,7 @@ def test_a_mixed_group_stopped_and_resumed_continues_every_member_exactly(
 def test_a_learned_alpha_stopped_and_resumed_continues_exactly(tmp_path: Path) -> None:
     configs = tiny_configs("tac", seeds=(0, 1), alpha_mode="auto")
     uninterrupted = train(tmp_path / "straight", configs)
-    for stop_at in (730, 1234):
-        stopped = train(
-            tmp_path / "resumed", configs, resume=True, stop=lambda s, at=stop_at: s >= at
-        )
-        assert {(o.state, o.step) for o in stopped} == {("interrupted", stop_at)}
-    resumed = train(tmp_path / "resumed", configs, resume=True)
+    resumed = _stopped_twice_then_resumed(tmp_path / "resumed", configs)
     for a, b in zip(uninterrupted, resumed, strict=True):
         assert b.state == "complete"
         assert_same_results(a.directory, b.directory)
