@@ -8,7 +8,8 @@ module prints those commands and analyses their run directories:
   evaluation step, per task and algorithm (a table and a figure);
 - final return: per run, the mean evaluation return over the last ``fraction`` of the steps;
   per task, the difference of the two algorithms' means (TAC minus SB3) with a percentile
-  bootstrap confidence interval, seeds resampled independently within each algorithm.
+  bootstrap confidence interval (rliable's), seeds resampled independently within each
+  algorithm.
 
 ``python -m baselines.parity commands`` prints the study's commands;
 ``python -m baselines.parity analyse --results DIR`` prints the tables and writes the figure.
@@ -24,6 +25,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from tacbench.bootstrap import mean_difference
 from tacbench.config import PAPER_ALPHA
 from tacbench.envs import paper_task
 from tacbench.errors import TacbenchError
@@ -110,13 +112,9 @@ def final_returns(data: pd.DataFrame, fraction: float = FRACTION) -> pd.DataFram
 def bootstrap_difference(
     a: np.ndarray, b: np.ndarray, reps: int = REPS, seed: int = 0
 ) -> tuple[float, float, float]:
-    """mean(a) - mean(b) and its 95% percentile bootstrap interval (a and b resampled
-    independently, with replacement)."""
-    rng = np.random.default_rng(seed)
-    boot_a = a[rng.integers(0, len(a), size=(reps, len(a)))].mean(axis=1)
-    boot_b = b[rng.integers(0, len(b), size=(reps, len(b)))].mean(axis=1)
-    low, high = np.percentile(boot_a - boot_b, [2.5, 97.5])
-    return float(a.mean() - b.mean()), float(low), float(high)
+    """mean(a) - mean(b) and its 95% percentile interval from rliable's bootstrap (a and b
+    resampled independently, with replacement)."""
+    return mean_difference(a, b, reps, seed)
 
 
 def summary(finals: pd.DataFrame, reps: int = REPS) -> pd.DataFrame:

@@ -61,7 +61,7 @@ def test_bandit_table_covers_both_figures_without_duplicates() -> None:
 
 
 def test_bandit_policies_match_closed_forms() -> None:
-    table = bandit_policies_table().set_index(["q", "alpha"])
+    table = bandit_policies_table().set_index(["q", "alpha"]).sort_index(kind="stable")
     r = np.asarray(BANDIT_REWARDS)
     np.testing.assert_allclose(table.loc[(1.0, 0.5), "prob"], softmax(r / 0.5), atol=1e-12)
     # q = 2, alpha = 1: sparsemax of r/2 = [1,1,1,1,2,2,2.25,2.5]; threshold 1.5625 keeps 4 arms.

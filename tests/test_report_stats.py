@@ -1,4 +1,4 @@
-"""rliable estimators and the vectorised stratified bootstrap: values, strata, coverage."""
+"""rliable estimators and their bootstrap intervals: values, unequal run counts, coverage."""
 
 from __future__ import annotations
 
@@ -12,9 +12,9 @@ from tacbench.report.stats import (
     ALL_TASKS,
     improvement_over_q1,
     interval_estimates,
+    iqm,
     performance_profile,
     probability_of_improvement,
-    resample,
 )
 
 pytestmark = pytest.mark.unit
@@ -31,6 +31,14 @@ def test_point_estimates_are_rliables() -> None:
     assert p == pytest.approx(metrics.probability_of_improvement(other, matrix))
 
 
+@pytest.mark.parametrize("runs", [1, 2, 3, 4, 5, 7, 8, 10, 13, 40])
+def test_the_bootstraps_iqm_is_rliables_for_every_run_count(runs: int) -> None:
+    tasks = list(np.random.default_rng(runs).normal(size=(runs, 3)).T)
+    matrix = np.stack(tasks, axis=1)
+    assert iqm(*tasks) == pytest.approx(metrics.aggregate_iqm(matrix), rel=1e-12)
+    assert iqm(*tasks) == pytest.approx(trim_mean(matrix.ravel(), 0.25), rel=1e-12)
+
+
 def test_tasks_may_have_different_run_counts() -> None:
     tasks = [np.array([1.0, 2.0, 3.0, 4.0]), np.array([10.0, 20.0])]
     estimates = interval_estimates(tasks, 300, np.random.default_rng(0))
@@ -44,14 +52,6 @@ def test_tasks_may_have_different_run_counts() -> None:
     )
     assert p == pytest.approx((1.0 + 0.75) / 2)  # task 2: one tie and one win of two pairs
     assert low <= p <= high
-
-
-def test_bootstrap_resamples_runs_within_each_task_only() -> None:
-    tasks = [np.array([1.0, 2.0, 3.0]), np.array([100.0, 200.0])]
-    boot = resample(tasks, 500, np.random.default_rng(0))
-    assert boot[0].shape == (500, 3) and boot[1].shape == (500, 2)
-    assert set(np.unique(boot[0])) == {1.0, 2.0, 3.0}
-    assert set(np.unique(boot[1])) == {100.0, 200.0}
 
 
 def test_degenerate_and_separated_samples() -> None:

@@ -25,6 +25,7 @@ import numpy as np
 import numpy.typing as npt
 
 from tacbench import runs
+from tacbench.bootstrap import mean_difference
 from tacbench.errors import TacbenchError
 from tacbench.regress import manifest as mf
 from tacbench.regress.outcome import Row, TierResult
@@ -65,17 +66,11 @@ def permutation_pvalue(reference: Sequence[float], fresh: Sequence[float]) -> fl
     return hits / splits if splits <= EXACT_LIMIT else (hits + 1) / (MONTE_CARLO_DRAWS + 1)
 
 
-def bootstrap_interval(
-    reference: Sequence[float], fresh: Sequence[float], level: float = 0.95
-) -> tuple[float, float]:
-    """Percentile bootstrap interval of mean(fresh) - mean(reference), each side resampled
-    on its own (fixed generator, :data:`BOOTSTRAP_REPS` replications)."""
-    rng = np.random.default_rng(0)
-    ref, new = np.asarray(reference, float), np.asarray(fresh, float)
-    ref_means = rng.choice(ref, (BOOTSTRAP_REPS, ref.size)).mean(axis=1)
-    new_means = rng.choice(new, (BOOTSTRAP_REPS, new.size)).mean(axis=1)
-    low, high = np.quantile(new_means - ref_means, [(1 - level) / 2, (1 + level) / 2])
-    return float(low), float(high)
+def bootstrap_interval(reference: Sequence[float], fresh: Sequence[float]) -> tuple[float, float]:
+    """95 % percentile interval of mean(fresh) - mean(reference) from rliable's bootstrap, each
+    side resampled on its own (seed 0, :data:`BOOTSTRAP_REPS` replications)."""
+    _, low, high = mean_difference(fresh, reference, BOOTSTRAP_REPS, seed=0)
+    return low, high
 
 
 def compare_scores(

@@ -139,7 +139,8 @@ def analyse(options: ReportOptions) -> Report:
     metric = cast(Metric, options.metric)
     runset = load_runs(options.results, metric)
     failed = _failed_runs(runset)
-    labels = assign_methods(pd.concat([runset.runs[_IDENTITY], failed], ignore_index=True))
+    identities = [runset.runs[_IDENTITY], *([failed[_IDENTITY]] if len(failed) else [])]
+    labels = assign_methods(pd.concat(identities, ignore_index=True))
     runs = runset.runs.assign(method=labels.iloc[: len(runset.runs)].to_numpy())
     failed = failed.assign(method=labels.iloc[len(runset.runs) :].to_numpy())
 

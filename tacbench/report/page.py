@@ -8,9 +8,10 @@ from collections import Counter
 
 import pandas as pd
 
+from tacbench.bootstrap import CONFIDENCE
 from tacbench.report.build import Report
 from tacbench.report.render import Bullets, Code, Image, Section, Table, Text
-from tacbench.report.stats import ALL_TASKS, CONFIDENCE
+from tacbench.report.stats import ALL_TASKS
 
 TITLE = "tacbench report"
 

@@ -1,66 +1,60 @@
-"""rliable statistics with a vectorised stratified bootstrap.
+"""rliable statistics: its estimators and its stratified bootstrap.
 
 The estimators are rliable's (Agarwal et al., 2021, "Deep RL at the Edge of the Statistical
 Precipice"): the interquartile mean (IQM, 25 % trimmed mean over all runs of all tasks), the
 mean of per-task means, the probability of improvement P(X > Y) (Mann-Whitney U / (n_x n_y),
 averaged over tasks) and score-distribution performance profiles (fraction of runs scoring above
-tau). Point estimates call ``rliable.metrics`` directly.
+tau). Point estimates call ``rliable.metrics`` directly where its matrices (runs x tasks) can
+hold the scores; with different run counts per task the same quantities are computed per task.
 
-Confidence intervals are 95 % percentile intervals of a *stratified* bootstrap, as in
-``rliable.library.StratifiedBootstrap``: runs are resampled with replacement within each task
-(tasks are not resampled), and for P(X > Y) the runs of X and of Y are resampled independently
-(``StratifiedIndependentBootstrap``). rliable's own bootstrap loops over replications in Python
-through the ``arch`` package (and ``arch`` does not import next to pandas 3); here every
-replication is drawn at once as an index array, so ``reps`` replications cost one vectorised
-call. Tasks may have different numbers of runs.
+Confidence intervals are 95 % percentile intervals of rliable's stratified bootstrap
+(:func:`tacbench.bootstrap.interval`): runs are resampled with replacement within each task
+(tasks are not resampled), and for P(X > Y) the runs of X and of Y are resampled independently.
+Each call draws its bootstrap seed from the ``rng`` it is given, so a report is a function of
+its scores and ``ReportOptions.seed`` (0).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 
 import numpy as np
 import pandas as pd
 from rliable import metrics
-from scipy.stats import trim_mean
+
+from tacbench.bootstrap import interval, scalar_interval
 
 DEFAULT_REPS = 2000
 """Bootstrap replications. With 2,000 the Monte-Carlo standard deviation of each interval endpoint
 is about 1.5 % of the interval's width (measured on 10 runs per task); Efron & Tibshirani ask for
 at least 1,000 for percentile intervals, and rliable uses 2,000 for performance profiles."""
 
-CONFIDENCE = 0.95
 ALL_TASKS = "all tasks"
 """The ``env`` value of rows aggregated over tasks."""
 Estimate = tuple[float, float, float]
 """(point estimate, lower 95 % bound, upper 95 % bound)."""
 
 
-def _percentiles(boot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    tail = 100 * (1 - CONFIDENCE) / 2
-    low, high = np.percentile(boot, [tail, 100 - tail], axis=0)
-    return low, high
+def _seed(rng: np.random.Generator) -> int:
+    return int(rng.integers(2**31))
 
 
-def resample(tasks: Sequence[np.ndarray], reps: int, rng: np.random.Generator) -> list[np.ndarray]:
-    """Per task, ``reps`` resamples of its runs with replacement: arrays of shape (reps, n_task)."""
-    return [scores[rng.integers(0, len(scores), size=(reps, len(scores)))] for scores in tasks]
+def iqm(*tasks: np.ndarray) -> float:
+    """IQM over all runs of all tasks (one 1-D array per task): the mean of the middle runs
+    after cutting ``int(0.25 n)`` from each end, as ``scipy.stats.trim_mean(x, 0.25)`` (which
+    ``rliable.metrics.aggregate_iqm`` calls) at a sixth of its per-call cost."""
+    pooled = np.sort(np.concatenate(tasks))
+    cut = int(0.25 * len(pooled))
+    return float(pooled[cut : len(pooled) - cut].mean())
 
 
-def iqm(tasks: Sequence[np.ndarray]) -> np.ndarray:
-    """IQM over all runs of all tasks, per replication (arrays of shape (reps, n_task))."""
-    return np.asarray(trim_mean(np.concatenate(tasks, axis=-1), 0.25, axis=-1))
+def mean_of_means(*tasks: np.ndarray) -> float:
+    """Mean over tasks of the per-task mean."""
+    return float(np.mean([scores.mean() for scores in tasks]))
 
 
-def mean_of_means(tasks: Sequence[np.ndarray]) -> np.ndarray:
-    """Mean over tasks of the per-task mean, per replication."""
-    return np.mean([scores.mean(axis=-1) for scores in tasks], axis=0)
-
-
-AGGREGATES: dict[str, Callable[[Sequence[np.ndarray]], np.ndarray]] = {
-    "iqm": iqm,
-    "mean": mean_of_means,
-}
+def _iqm_and_mean(*tasks: np.ndarray) -> np.ndarray:
+    return np.array([iqm(*tasks), mean_of_means(*tasks)])
 
 
 def interval_estimates(
@@ -74,22 +68,19 @@ def interval_estimates(
     equal = len({len(scores) for scores in tasks}) == 1
     matrix = np.stack(tasks, axis=1) if equal else None
     points = {
-        "iqm": float(metrics.aggregate_iqm(matrix)) if equal else float(iqm(tasks)),
-        "mean": float(metrics.aggregate_mean(matrix)) if equal else float(mean_of_means(tasks)),
+        "iqm": float(metrics.aggregate_iqm(matrix)) if equal else iqm(*tasks),
+        "mean": float(metrics.aggregate_mean(matrix)) if equal else mean_of_means(*tasks),
     }
-    boot = resample(tasks, reps, rng)
-    result: dict[str, Estimate] = {}
-    for name, func in AGGREGATES.items():
-        low, high = _percentiles(func(boot))
-        result[name] = (points[name], float(low), float(high))
-    return result
+    _, low, high = interval(_iqm_and_mean, tasks, reps, _seed(rng))
+    return {name: (points[name], float(low[i]), float(high[i])) for i, name in enumerate(points)}
 
 
-def _improvement(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """P(X > Y) + P(X = Y) / 2 over all pairs, for x (..., n_x) and y (..., n_y)."""
-    greater = (x[..., :, None] > y[..., None, :]).mean(axis=(-2, -1))
-    ties = (x[..., :, None] == y[..., None, :]).mean(axis=(-2, -1))
-    return np.asarray(greater + 0.5 * ties)
+def pairwise_improvement(x: np.ndarray, y: np.ndarray) -> float:
+    """P(X > Y) + P(X = Y) / 2 over all pairs: Mann-Whitney U / (n_x n_y), as rliable's
+    ``probability_of_improvement`` on one task, without scipy's per-call overhead."""
+    greater = (x[:, None] > y[None, :]).mean()
+    ties = (x[:, None] == y[None, :]).mean()
+    return float(greater + 0.5 * ties)
 
 
 def probability_of_improvement(
@@ -102,16 +93,28 @@ def probability_of_improvement(
     """
     xs = [np.asarray(x, dtype=np.float64) for x in xs]
     ys = [np.asarray(y, dtype=np.float64) for y in ys]
+    if len(xs) != len(ys):
+        raise ValueError("X and Y need scores on the same tasks")
+    tasks = len(xs)
+
+    def averaged(*strata: np.ndarray) -> float:
+        return float(
+            np.mean(
+                [
+                    pairwise_improvement(x, y)
+                    for x, y in zip(strata[:tasks], strata[tasks:], strict=True)
+                ]
+            )
+        )
+
     if len({len(a) for a in xs}) == 1 and len({len(b) for b in ys}) == 1:
         point = float(
             metrics.probability_of_improvement(np.stack(xs, axis=1), np.stack(ys, axis=1))
         )
     else:
-        point = float(np.mean([_improvement(x, y) for x, y in zip(xs, ys, strict=True)]))
-    boot_x, boot_y = resample(xs, reps, rng), resample(ys, reps, rng)
-    per_task = [_improvement(x, y) for x, y in zip(boot_x, boot_y, strict=True)]
-    low, high = _percentiles(np.mean(per_task, axis=0))
-    return point, float(low), float(high)
+        point = averaged(*xs, *ys)
+    _, low, high = scalar_interval(averaged, [*xs, *ys], reps, _seed(rng))
+    return point, low, high
 
 
 def performance_profile(
@@ -121,11 +124,12 @@ def performance_profile(
 
     As rliable's score distributions: every run weighs the same, runs resampled within tasks.
     """
-    pooled = np.concatenate([np.asarray(t, dtype=np.float64) for t in tasks])
-    profile = (pooled[:, None] > taus[None, :]).mean(axis=0)
-    boot = np.concatenate(resample(tasks, reps, rng), axis=1)
-    low, high = _percentiles((boot[:, :, None] > taus[None, None, :]).mean(axis=1))
-    return profile, low, high
+
+    def profile(*strata: np.ndarray) -> np.ndarray:
+        pooled = np.concatenate(strata)
+        return np.asarray((pooled[:, None] > taus[None, :]).mean(axis=0))
+
+    return interval(profile, [np.asarray(t, dtype=np.float64) for t in tasks], reps, _seed(rng))
 
 
 def per_task_estimates(scores: pd.DataFrame, reps: int, rng: np.random.Generator) -> pd.DataFrame:
