@@ -1,4 +1,4 @@
-"""``tacbench sweep``: the paper's grids, locally or on Ray.
+"""``tacbench sweep``: the paper's grids, locally, on Ray or on Slurm.
 
 The options that replace a preset's settings (``--steps``, ``--critic-target``, ...) are
 generated from the settings' declarations, like ``tacbench run``'s: a TAC setting applies to the
@@ -16,7 +16,7 @@ from tacbench import trainers
 from tacbench.cli.common import command_line
 from tacbench.cli.options import cli_settings, setting_options
 from tacbench.config import RunConfig
-from tacbench.sweep import GROUPS
+from tacbench.sweep import EXECUTORS, GROUPS
 from tacbench.sweep.presets import PRESETS as SWEEP_PRESETS
 
 _OVERRIDES = cli_settings(RunConfig, sweep=True)
@@ -41,16 +41,35 @@ _OVERRIDES = cli_settings(RunConfig, sweep=True)
 )
 @click.option("--seed", "seeds", type=int, multiple=True, help="Repeatable: keep only these seeds.")
 @setting_options(RunConfig, _OVERRIDES, sweep=True)
-@click.option("--executor", type=click.Choice(["local", "ray"]), default="local", show_default=True)
+@click.option("--executor", type=click.Choice(EXECUTORS), default="local", show_default=True)
 @click.option(
     "--workers",
     type=int,
     default=None,
-    help="Units at once. [default: local: the core count; ray: what the cluster has room for]",
+    help="Units at once. [default: local: the core count; ray: what the cluster has room for; "
+    "slurm: every unit, as one job array]",
 )
 @click.option("--address", default=None, help="Ray cluster: auto, HOST:6379 or ray://HOST:10001.")
-@click.option("--cpus-per-run", type=float, default=1.0, show_default=True, help="Ray request.")
-@click.option("--gpus-per-run", type=float, default=0.0, show_default=True, help="Ray; > 0: cuda.")
+@click.option(
+    "--cpus-per-run", type=float, default=1.0, show_default=True, help="Ray or Slurm request."
+)
+@click.option(
+    "--gpus-per-run", type=float, default=0.0, show_default=True, help="Ray or Slurm; > 0: cuda."
+)
+@click.option("--partition", default=None, help="Slurm partition.  [default: the cluster's]")
+@click.option(
+    "--time",
+    "time_limit",
+    default=None,
+    help="Slurm time limit per job: minutes or [D-]H:MM[:SS]; a unit that needs longer "
+    "checkpoints at the limit and is requeued.  [default: 4:00:00]",
+)
+@click.option(
+    "--slurm-arg",
+    "slurm_args",
+    multiple=True,
+    help="Repeatable: KEY=VALUE, an sbatch option without its dashes (mem=8G, qos=normal).",
+)
 @click.option(
     "--scratch",
     type=click.Path(file_okay=False, path_type=Path),
@@ -84,8 +103,8 @@ _OVERRIDES = cli_settings(RunConfig, sweep=True)
 @click.option("--dry-run", is_flag=True, help="Print the plan and cost estimate; train nothing.")
 @click.pass_context
 def sweep(ctx: click.Context, preset: str, **p: Any) -> None:
-    """Train a preset grid of runs (or what is left of it) locally or on Ray; rerun the same
-    command to resume after Ctrl-C or a crash (docs/sweep.md).
+    """Train a preset grid of runs (or what is left of it) locally, on Ray or on Slurm; rerun
+    the same command to resume after Ctrl-C or a crash (docs/sweep.md).
 
     Exit status: 0 when every run is complete, 1 when a run failed more than --max-retries
     times, 130 when interrupted (rerun to resume), 2 for a usage error.
@@ -115,6 +134,9 @@ def sweep(ctx: click.Context, preset: str, **p: Any) -> None:
         members=p["members"],
         max_retries=p["max_retries"],
         command=command_line(ctx),
+        partition=p["partition"],
+        slurm_args=p["slurm_args"],
+        time_limit=p["time_limit"],
     )
     if p["dry_run"]:
         work, _ = driver.load_plan(grid, p["out"], options, save=False)

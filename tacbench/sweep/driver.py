@@ -26,7 +26,7 @@ from tacbench import envs, hardware, runs
 from tacbench.checkpoints import DiskError, disk_errors
 from tacbench.errors import TacbenchError
 from tacbench.interrupts import stop_signals
-from tacbench.sweep import GROUPS, cost, executors, plan, state, summary
+from tacbench.sweep import EXECUTORS, GROUPS, cost, executors, plan, slurm, state, summary
 from tacbench.sweep.presets import Preset
 from tacbench.sweep.progress import SweepProgress
 
@@ -46,10 +46,15 @@ class Options:
     members: int | None = None  # at most this many per unit; None: what memory and workers allow
     max_retries: int = 2
     command: str = ""
+    partition: str | None = None  # Slurm
+    time_limit: str | None = None  # Slurm, per job (None: slurm.DEFAULT_TIME); longer: requeued
+    slurm_args: tuple[str, ...] = ()  # Slurm: KEY=VALUE sbatch options
 
     def __post_init__(self) -> None:
-        if self.executor not in ("local", "ray"):
-            raise TacbenchError(f"--executor must be local or ray (got {self.executor!r}).")
+        if self.executor not in EXECUTORS:
+            raise TacbenchError(
+                f"--executor must be one of {', '.join(EXECUTORS)} (got {self.executor!r})."
+            )
         if self.workers is not None and self.workers < 1:
             raise TacbenchError(f"--workers must be at least 1 (got {self.workers}).")
         if self.group not in GROUPS:
@@ -69,8 +74,22 @@ class Options:
         ):
             raise TacbenchError(
                 "--address, --cpus-per-run, --gpus-per-run, --scratch and --shared-fs are Ray "
-                "options: add --executor ray (the local executor runs one thread per worker)."
+                "(or, the first three, Slurm) options: add --executor ray or slurm (the local "
+                "executor runs one thread per worker)."
             )
+        slurm_only = self.partition or self.slurm_args or self.time_limit is not None
+        if self.executor != "slurm" and slurm_only:
+            raise TacbenchError(
+                "--partition, --time and --slurm-arg are Slurm options: add --executor slurm."
+            )
+        if self.executor == "slurm":
+            if self.address or self.scratch or self.shared_fs:
+                raise TacbenchError(
+                    "--address, --scratch and --shared-fs are Ray options; Slurm jobs write "
+                    "into --out, which must be on a file system every node shares."
+                )
+            slurm.parse_time(self.time_limit or slurm.DEFAULT_TIME)
+            slurm.parse_slurm_args(self.slurm_args)
 
     def worker_count(self) -> int:
         """Workers for the plan's estimate: --workers, else this machine's cores."""
@@ -104,7 +123,7 @@ def load_plan(
     a status.json but not in the history (a run that failed outside a sweep) is added to the
     history, which is saved if ``save`` (not for a dry run)."""
     device = "cuda" if options.gpus_per_run else "cpu"
-    threads = max(1, int(options.cpus_per_run)) if options.executor == "ray" else 1
+    threads = max(1, int(options.cpus_per_run)) if options.executor != "local" else 1
     all_runs = plan.build_runs(preset, device=device, threads=threads)
     history = state.SweepState(out)
     statuses = {run.key: plan.read_status(out, run) for run in all_runs}
@@ -179,6 +198,17 @@ def run_sweep(
 
 
 def _executor(out: Path, options: Options) -> executors.Executor:
+    if options.executor == "slurm":
+        return slurm.SlurmExecutor(
+            out,
+            workers=options.workers,
+            partition=options.partition,
+            time_limit=options.time_limit or slurm.DEFAULT_TIME,
+            cpus=options.cpus_per_run,
+            gpus=options.gpus_per_run,
+            slurm_args=slurm.parse_slurm_args(options.slurm_args),
+            command=options.command,
+        )
     if options.executor == "ray":
         return executors.RayExecutor(
             out,

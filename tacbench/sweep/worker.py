@@ -1,4 +1,4 @@
-"""What runs in a sweep's worker (a local process or a Ray task): train one unit.
+"""What runs in a sweep's worker (a local process, a Ray task or a Slurm job): train one unit.
 
 The unit's runs are trained with their trainer's ``train(..., resume=True)`` (TAC's
 :func:`tacbench.training.train` or :func:`baselines.trainer.train`), so a new run starts, a
@@ -16,6 +16,7 @@ import contextlib
 import os
 import signal
 import socket
+import subprocess
 import sys
 import time
 import traceback
@@ -212,6 +213,34 @@ def ray_main(job: Job, board: Any) -> JobResult:
         log_tail=tail if job.return_files else "",
         node=ray.get_runtime_context().get_node_id(),
     )
+
+
+def slurm_main(job: Job) -> JobResult:
+    """Body of a Slurm job (through submitit): train into ``--out`` on the shared file system.
+
+    SIGTERM (preemption, ``scontrol requeue``, ``scancel``; the trainer's own handler) and
+    SIGUSR2 (the time limit is near; this function's) make the trainer checkpoint and return
+    "interrupted"; the job then exits without a result, so the driver keeps waiting for the
+    requeued attempt, which resumes from the checkpoint. After SIGUSR2 the job requeues itself
+    (Slurm requeues preempted jobs on its own)."""
+    near_limit: list[int] = []
+    signal.signal(signal.SIGUSR2, lambda signum, _frame: near_limit.append(signum))
+    limit_threads(job.threads)
+    try:
+        with output_to(job.log, f"{job.unit.key} (Slurm job {_slurm_job_id()})"):
+            result = execute(job, lambda _at: bool(near_limit))
+    except OSError as err:
+        result = _log_failed(job, err)
+    if not any(outcome.state == "interrupted" for outcome in result.outcomes):
+        return result
+    if near_limit:
+        subprocess.run(["scontrol", "requeue", _slurm_job_id()], check=False)
+    sys.exit("stopped by a signal from Slurm: checkpointed, resumes when the job is requeued")
+
+
+def _slurm_job_id() -> str:
+    """This job's id as scontrol takes it (an array task's own id)."""
+    return os.environ.get("SLURM_JOB_ID", "?")
 
 
 def _log_failed(job: Job, err: OSError) -> JobResult:

@@ -1,0 +1,242 @@
+"""The Slurm executor: a sweep's units as one job array per batch, submitted through submitit.
+
+Each unit becomes one task of a Slurm job array (``submitit.SlurmExecutor.batch``) running
+:func:`tacbench.sweep.worker.slurm_main` on a compute node; every node sees ``--out`` on the
+shared file system, where the runs, their checkpoints and the unit logs are written. A job that
+Slurm preempts, requeues (``scontrol requeue``) or cancels gets SIGTERM, and one that nears its
+time limit gets SIGUSR2 (``--signal=USR2@``:data:`SIGNAL_DELAY_S`); either way the trainer
+checkpoints and the job exits without a result, and a job near its time limit requeues itself
+(``--requeue`` is set on every job), so the requeued attempt resumes exactly from the
+checkpoint. The driver sees a unit end when its job writes a result (submitit's result file)
+or leaves Slurm's queue without one (a job killed, cancelled or failed outside Python: then it
+"died", and the driver's retry rules apply as for a worker process that died).
+
+No accounting database is needed: jobs are followed with ``squeue``, not ``sacct``.
+"""
+
+from __future__ import annotations
+
+import re
+import shutil
+import subprocess
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from tacbench import runs
+from tacbench.errors import TacbenchError
+from tacbench.sweep import state, worker
+from tacbench.sweep.executors import Finished
+from tacbench.sweep.plan import Unit
+
+SIGNAL_DELAY_S = 180
+"""Seconds before the time limit at which Slurm sends SIGUSR2: time for a checkpoint."""
+DEFAULT_TIME = "4:00:00"
+"""--time default: a Hopper TAC unit of five members at 100,000 steps with room to spare; a
+longer run is requeued at the limit and resumes, so a short limit costs only queue time."""
+MAX_UNITS = 1000
+"""Units in flight without --workers: Slurm's default MaxArraySize is 1001."""
+GONE_POLLS = 2  # polls a job must be missing from squeue (and have no result) to have died
+_TIME = re.compile(r"^(?:(?P<days>\d+)-)?(?P<h>\d+):(?P<m>\d{1,2})(?::(?P<s>\d{1,2}))?$")
+
+
+def parse_time(text: str) -> int:
+    """Slurm's time limit in whole minutes: ``MINUTES``, ``H:MM``, ``H:MM:SS`` or
+    ``D-H:MM[:SS]`` (seconds round up)."""
+    text = text.strip()
+    if text.isdigit():
+        minutes = int(text)
+    else:
+        match = _TIME.match(text)
+        if not match:
+            raise TacbenchError(
+                f"--time {text!r}: give minutes (90) or [D-]H:MM[:SS] (1:30:00, 2-00:00)."
+            )
+        days, seconds = int(match["days"] or 0), int(match["s"] or 0)
+        minutes = (days * 24 + int(match["h"])) * 60 + int(match["m"]) + (seconds > 0)
+    if minutes < 1:
+        raise TacbenchError(f"--time {text!r} must be at least one minute.")
+    return minutes
+
+
+def parse_slurm_args(pairs: tuple[str, ...]) -> dict[str, str]:
+    """``--slurm-arg KEY=VALUE`` pairs as sbatch options (``mem=8G`` is ``#SBATCH --mem=8G``)."""
+    parsed: dict[str, str] = {}
+    for pair in pairs:
+        key, sep, value = pair.partition("=")
+        key = key.strip().lstrip("-").replace("-", "_")
+        if not sep or not key:
+            raise TacbenchError(
+                f"--slurm-arg {pair!r}: give KEY=VALUE, an sbatch option without its dashes "
+                "(e.g. --slurm-arg mem=8G --slurm-arg qos=normal)."
+            )
+        parsed[key] = value
+    return parsed
+
+
+@dataclass
+class _Submitted:
+    unit: Unit
+    job: Any  # submitit.Job
+    missing: int = 0  # consecutive polls without the job in squeue
+
+
+class SlurmExecutor:
+    """Units as Slurm array tasks; ``cpus`` and ``gpus`` per task, ``threads`` = ``cpus``."""
+
+    def __init__(
+        self,
+        out: Path,
+        *,
+        workers: int | None,
+        partition: str | None,
+        time_limit: str,
+        cpus: float,
+        gpus: float,
+        slurm_args: dict[str, str],
+        command: str,
+    ) -> None:
+        try:
+            import submitit
+        except ImportError:
+            raise TacbenchError(
+                "--executor slurm needs submitit: pip install -c constraints.txt -e '.[slurm]'"
+            ) from None
+        if shutil.which("sbatch") is None or shutil.which("squeue") is None:
+            raise TacbenchError(
+                "--executor slurm needs Slurm's sbatch and squeue on this machine's PATH: run "
+                "the sweep on a login node of the cluster (docs/sweep.md, 'Slurm')."
+            )
+        self.out, self.command = Path(out).resolve(), command
+        self.workers, self.threads = workers, max(1, int(cpus))
+        self.folder = self.out / "sweep" / "slurm"
+        self._executor = submitit.SlurmExecutor(folder=self.folder / "%j")
+        parameters: dict[str, Any] = {
+            "job_name": "tacbench-sweep",
+            "time": parse_time(time_limit),
+            "cpus_per_task": self.threads,
+            "signal_delay_s": SIGNAL_DELAY_S,
+            "additional_parameters": {"requeue": True, **slurm_args},
+        }
+        if partition:
+            parameters["partition"] = partition
+        if gpus:
+            parameters["gpus_per_node"] = int(gpus)
+        self._executor.update_parameters(**parameters)
+        self._pending: list[Unit] = []
+        self._jobs: dict[str, _Submitted] = {}
+
+    def capacity(self) -> int:
+        return self.workers or MAX_UNITS
+
+    def running(self) -> int:
+        return len(self._jobs) + len(self._pending)
+
+    def submit(self, unit: Unit, node: str | None = None) -> None:
+        self._pending.append(unit)  # submitted together, as one array, by the next wait()
+
+    def _flush(self) -> None:
+        if not self._pending:
+            return
+        jobs = [
+            worker.Job(
+                unit, self.out, state.log_path(self.out, unit.key), self.command, self.threads
+            )
+            for unit in self._pending
+        ]
+        try:
+            with self._executor.batch():
+                handles = [self._executor.submit(worker.slurm_main, job) for job in jobs]
+        except Exception as err:  # submitit raises its own errors for sbatch's
+            lines = str(err).strip().splitlines()
+            raise TacbenchError(
+                f"sbatch refused the sweep's jobs: {lines[-1] if lines else err}"
+            ) from None
+        for unit, handle in zip(self._pending, handles, strict=True):
+            self._jobs[handle.job_id] = _Submitted(unit, handle)
+        self._pending.clear()
+
+    def wait(self, timeout: float) -> list[Finished]:
+        self._flush()
+        finished: list[Finished] = []
+        queued = _queued(list(self._jobs)) if self._jobs else set()
+        for job_id, entry in list(self._jobs.items()):
+            if entry.job.paths.result_pickle.exists():
+                finished.append(self._collect(entry))
+            elif job_id in queued:
+                entry.missing = 0
+                continue
+            else:
+                entry.missing += 1
+                if entry.missing < GONE_POLLS:
+                    continue
+                finished.append(
+                    Finished(
+                        entry.unit,
+                        None,
+                        f"Slurm job {job_id} ended without a result ({_job_state(job_id)}; "
+                        f"see {entry.job.paths.stderr})",
+                    )
+                )
+            del self._jobs[job_id]
+        if not finished and self._jobs:
+            time.sleep(min(timeout, 5.0))
+        return finished
+
+    def _collect(self, entry: _Submitted) -> Finished:
+        try:
+            result: worker.JobResult = entry.job.result()
+        except Exception as err:  # the job's own exception, re-raised by submitit
+            lines = str(err).strip().splitlines()
+            return Finished(entry.unit, None, f"Slurm job failed: {lines[-1] if lines else err}")
+        return Finished(entry.unit, result)
+
+    def steps(self) -> dict[str, int]:
+        latest: dict[str, int] = {}
+        for entry in self._jobs.values():
+            status = self.out / entry.unit.runs[0].key / "status.json"
+            if status.exists():
+                latest[entry.unit.key] = int(runs.read_json(status).get("step", 0))
+        return latest
+
+    def request_stop(self) -> None:
+        """Cancel every job: Slurm sends SIGTERM, each trainer checkpoints (within KillWait)."""
+        self._pending.clear()
+        if self._jobs:
+            subprocess.run(["scancel", *self._jobs], check=False, capture_output=True)
+
+    def close(self, force: bool = False) -> None:
+        if self._jobs or self._pending:
+            self.request_stop()
+        self._jobs.clear()
+
+
+def _queued(job_ids: list[str]) -> set[str]:
+    """The ids (``<array>_<task>``) of these jobs that Slurm still holds: pending, running,
+    completing or requeued."""
+    arrays = sorted({job_id.split("_")[0] for job_id in job_ids})
+    listing = subprocess.run(
+        ["squeue", "--noheader", "--array", "--format=%i", "--jobs", ",".join(arrays)],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    if listing.returncode != 0 and "Invalid job id" not in listing.stderr:
+        raise TacbenchError(f"squeue failed: {listing.stderr.strip()}")
+    return set(listing.stdout.split())
+
+
+def _job_state(job_id: str) -> str:
+    """Slurm's last word on a finished job (kept for MinJobAge), else "state unknown"."""
+    shown = subprocess.run(
+        ["scontrol", "show", "job", "--oneliner", job_id],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    fields = dict(f.split("=", 1) for f in shown.stdout.split() if "=" in f)
+    if "JobState" not in fields:
+        return "state unknown"
+    reason = fields.get("Reason", "None")
+    return fields["JobState"] + ("" if reason == "None" else f", {reason}")
