@@ -65,17 +65,14 @@ class Options:
             raise TacbenchError(f"--max-retries must be 0 or more (got {self.max_retries}).")
         if self.cpus_per_run <= 0 or self.gpus_per_run < 0:
             raise TacbenchError("--cpus-per-run must be > 0 and --gpus-per-run >= 0.")
-        if self.executor == "local" and (
-            self.address
-            or self.gpus_per_run
-            or self.cpus_per_run != 1.0
-            or self.scratch
-            or self.shared_fs
-        ):
+        if self.executor == "local" and (self.address or self.scratch or self.shared_fs):
             raise TacbenchError(
-                "--address, --cpus-per-run, --gpus-per-run, --scratch and --shared-fs are Ray "
-                "(or, the first three, Slurm) options: add --executor ray or slurm (the local "
-                "executor runs one thread per worker)."
+                "--address, --scratch and --shared-fs are Ray options: add --executor ray."
+            )
+        if self.executor == "local" and (self.gpus_per_run or self.cpus_per_run != 1.0):
+            raise TacbenchError(
+                "--cpus-per-run and --gpus-per-run are Ray or Slurm requests: add --executor ray "
+                "or slurm (the local executor runs one thread per worker)."
             )
         slurm_only = self.partition or self.slurm_args or self.time_limit is not None
         if self.executor != "slurm" and slurm_only:
