@@ -20,6 +20,7 @@ it. Error messages name the command-line flag of the offending setting.
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, ClassVar
@@ -66,6 +67,8 @@ TIME_LIMITS = ("not-terminal", "terminal-below-1000")
 ACTION_SCALES = ("unit", "bound")
 ON_OFF = ("on", "off")
 ALPHA_MODES = ("fixed", "auto")
+Q_MODES = ("fixed", "auto")
+PBT_FIELDS = ("pbt_every", "q_range")  # in the variant only with --q auto
 # --profile: the settings where the authors' code (REFERENCE.md; docs/tac.md, "Profiles") did
 # otherwise than the paper's table; each is also a setting of its own, for ablations
 PROFILE_VALUES: dict[str, dict[str, Any]] = {
@@ -239,6 +242,32 @@ class RunConfig(RunSettings):
         variant={"bound": "abound", "unit": "aunit"},
         profile=True,
     )
+    q_mode: str = setting(
+        "fixed",
+        "fixed: each member keeps its --q; auto (also --q auto): the members (at least 4 seeds) "
+        "are a population that learns q by population-based training: every --pbt-every steps "
+        "the bottom quarter by recent training return copy a top-quarter member and perturb its "
+        "q within --q-range (tacbench/training/pbt.py, docs/tac.md).",
+        source="paper: a grid search (its future work: learn q); auto: issue 18, after "
+        "Jaderberg et al. 2017",
+        choices=Q_MODES,
+        sweep=False,  # a population is one process's members: tacbench run
+    )  # in the variant's q part: qauto
+    pbt_every: int = setting(
+        10_000,
+        "--q auto: steps between exploit/explore rounds, counted from --learning-starts.",
+        source="ours (issue 18): 8 rounds in a 100,000-step run (at 20,000, ..., 90,000)",
+        variant="pbt",
+        sweep=False,
+    )
+    q_range: tuple[float, ...] = setting(
+        (0.5, 5.0),
+        "--q auto: the range q starts in (log-spaced over the members) and explores, LOW,HIGH.",
+        source="the paper's grid, 0.5 to 5",
+        variant="qr",
+        metavar="LOW,HIGH",
+        sweep=False,
+    )
     q_schedule: str = setting(
         "constant",
         "linear: q goes from 1 to --q between --q-schedule-start and --q-schedule-end.",
@@ -358,6 +387,29 @@ class RunConfig(RunSettings):
             raise TacbenchError(
                 "need 0 <= q_schedule_start < q_schedule_end <= 1 (fractions of steps)."
             )
+        self._check_pbt()
+
+    def _check_pbt(self) -> None:
+        _check_choice(self, "q_mode", self.q_mode, Q_MODES)
+        object.__setattr__(self, "q_range", tuple(float(v) for v in self.q_range))
+        low_high = self.q_range
+        finite = all(0 < v < math.inf for v in low_high)
+        if len(low_high) != 2 or not finite or low_high[0] >= low_high[1]:
+            raise TacbenchError(
+                f"--q-range must be LOW,HIGH with 0 < LOW < HIGH < inf (got {low_high}); "
+                "the paper's grid is 0.5,5."
+            )
+        if self.pbt_every < 1:
+            raise TacbenchError(f"--pbt-every must be at least 1 step (got {self.pbt_every}).")
+        declared = settings_of(RunConfig)
+        changed = [f for f in PBT_FIELDS if getattr(self, f) != declared[f].default]
+        if self.q_mode != "auto" and changed:
+            flags = " and ".join(flag_of(RunConfig, f) for f in changed)
+            raise TacbenchError(f"{flags} set population-based training of q; add --q auto.")
+        if self.q_mode == "auto" and self.q_schedule != "constant":
+            raise TacbenchError("--q auto learns q; it does not combine with --q-schedule linear.")
+        if self.q_mode == "auto" and not low_high[0] <= self.q <= low_high[1]:
+            raise TacbenchError(f"--q auto: a member's q {self.q:g} lies outside --q-range.")
 
     @property
     def per_member_updates(self) -> bool:
@@ -385,16 +437,17 @@ class RunConfig(RunSettings):
         a suffix for each choice that changes training and differs from its default or its
         profile's value (``-joint``, ``-episode``, ``-qlinear``, ``-ls100000``, ...)."""
         learned = "auto" if self.alpha_mode == "auto" else ""
-        name = f"q{self.q:g}-a{learned}{self.alpha:g}"
+        q_part = "auto" if self.q_mode == "auto" else f"{self.q:g}"
+        name = f"q{q_part}-a{learned}{self.alpha:g}"
         for key, declared in settings_of(RunConfig).items():
             part, value = declared.info.variant, getattr(self, key)
             default = PROFILE_VALUES[self.profile].get(key, declared.default)
-            if part is None or value == default:
+            if part is None or value == default or (key in PBT_FIELDS and self.q_mode != "auto"):
                 continue
             if isinstance(part, Mapping):
                 name += f"-{part[value]}"
             elif isinstance(value, tuple):
-                name += f"-{part}" + "x".join(str(v) for v in value)
+                name += f"-{part}" + "x".join(f"{v:g}" for v in value)
             else:
                 name += f"-{part}" + (f"{value:g}" if isinstance(value, float) else str(value))
         return name
@@ -412,6 +465,7 @@ class RunConfig(RunSettings):
         """A JSON-ready dict of every field (tuples become lists)."""
         data = dataclasses.asdict(self)
         data["hidden_sizes"] = list(self.hidden_sizes)
+        data["q_range"] = list(self.q_range)
         return data
 
     @classmethod
@@ -497,12 +551,19 @@ def make_run_configs(
         notes.append(f"q = {paper_q:g}: {q_source}")
     if not alphas:
         notes.append(f"alpha = {paper_alpha:g}: {alpha_source}")
-    configs = [
-        RunConfig(env=env, q=q, alpha=alpha, seed=seed, **overrides)
-        for q in qs or (paper_q,)
-        for alpha in alphas or (paper_alpha,)
-        for seed in seeds
-    ]
+    if overrides.get("q_mode") == "auto":
+        configs = _population(env, seeds, qs, alphas or (paper_alpha,), overrides)
+        notes[:1] = [
+            f"q = auto: {len(seeds)} members start at q = "
+            + ", ".join(f"{c.q:.3g}" for c in configs)
+        ]
+    else:
+        configs = [
+            RunConfig(env=env, q=q, alpha=alpha, seed=seed, **overrides)
+            for q in qs or (paper_q,)
+            for alpha in alphas or (paper_alpha,)
+            for seed in seeds
+        ]
     for q in sorted({c.q for c in configs if c.q >= 2}):
         cap = 10 ** (8 / (q - 1))
         notes.append(
@@ -510,6 +571,35 @@ def make_run_configs(
         )
     notes.append(compile_note(configs[0], overrides.get("compile", "auto")))
     return configs, notes
+
+
+def _population(
+    env: str,
+    seeds: Sequence[int],
+    qs: Sequence[float],
+    alphas: Sequence[float],
+    overrides: Mapping[str, Any],
+) -> list[RunConfig]:
+    """``--q auto``: one member per seed, starting at q spread in log q over ``--q-range``."""
+    from tacbench.training.pbt import MIN_POPULATION, initial_qs
+
+    if qs or len(alphas) != 1:
+        raise TacbenchError(
+            "--q auto learns q: give no other --q, and one --alpha (or --alpha auto)."
+        )
+    if len(seeds) < MIN_POPULATION:
+        raise TacbenchError(
+            f"--q auto needs a population of at least {MIN_POPULATION} members: repeat --seed "
+            f"(got {len(seeds)}; e.g. --seed 0 --seed 10 --seed 20 --seed 30)."
+        )
+    q_range = tuple(overrides.get("q_range", settings_of(RunConfig)["q_range"].default))
+    if len(q_range) != 2 or not 0 < q_range[0] < q_range[1] < math.inf:
+        RunConfig(env=env, q=1.0, alpha=alphas[0], **overrides)  # raises the --q-range error
+    starts = initial_qs(len(seeds), (q_range[0], q_range[1]))
+    return [
+        RunConfig(env=env, q=q, alpha=alphas[0], seed=seed, **overrides)
+        for q, seed in zip(starts, seeds, strict=True)
+    ]
 
 
 def compile_note(config: RunConfig, asked: str) -> str:

@@ -240,10 +240,15 @@ class RunWriter:
     ``tensorboard``, TensorBoard event files of the same rows under ``<run>/tensorboard/``."""
 
     def __init__(
-        self, directory: Path, loss_columns: Sequence[str], tensorboard: bool = False
+        self,
+        directory: Path,
+        loss_columns: Sequence[str],
+        tensorboard: bool = False,
+        extra: Mapping[str, Sequence[str]] | None = None,
     ) -> None:
         self.directory = Path(directory)
         self.loss_columns = ("step", *loss_columns)
+        self.extra = dict(extra or {})  # more CSVs by name (pbt.csv): columns, step first
         self.tensorboard = tensorboard
         self.note = ""  # the reason status.json gives when no other is: how the run resumed
         self._logs: dict[str, CsvLog] = {}
@@ -267,6 +272,7 @@ class RunWriter:
             ("eval", EVAL_COLUMNS),
             ("train", TRAIN_COLUMNS),
             ("losses", self.loss_columns),
+            *self.extra.items(),
         ):
             self._logs[name] = CsvLog(self.directory / f"{name}.csv", columns, resume_step)
         if self.tensorboard:
@@ -304,6 +310,10 @@ class RunWriter:
         if self._board is not None:
             named = dict(zip(self.loss_columns[1:], values, strict=True))
             self._board.scalars("losses", step, named)
+
+    def extra_row(self, name: str, row: Sequence[Any]) -> None:
+        """A row of one of the ``extra`` CSVs (step first)."""
+        self._logs[name].write(row)
 
     def status(self, state: State, step: int, reason: str = "") -> None:
         """Replace status.json (``reason``, or else :attr:`note`)."""

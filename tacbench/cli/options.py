@@ -32,6 +32,34 @@ class IntTuple(click.ParamType):
             self.fail(f"{value!r} is not a comma-separated list of integers (400,300)", param, ctx)
 
 
+class FloatTuple(click.ParamType):
+    """Comma-separated numbers: ``0.5,5`` -> ``(0.5, 5.0)``."""
+
+    name = "numbers"
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
+        if isinstance(value, tuple):
+            return value
+        try:
+            return tuple(float(part) for part in str(value).split(","))
+        except ValueError:
+            self.fail(f"{value!r} is not a comma-separated list of numbers (0.5,5)", param, ctx)
+
+
+class QType(click.ParamType):
+    """An entropic index: a number, or ``auto`` (learned by the population)."""
+
+    name = "float|auto"
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
+        if value == "auto" or isinstance(value, float):
+            return value
+        try:
+            return float(value)
+        except ValueError:
+            self.fail(f"{value!r} is neither a number nor 'auto'", param, ctx)
+
+
 class AlphaType(click.ParamType):
     """An entropy coefficient: a positive number, or ``auto`` (learned)."""
 
@@ -68,6 +96,8 @@ def _option(declared: Setting, *, sweep: bool) -> Callable[[F], F]:
         kwargs["type"] = click.Choice(info.choices)
     elif declared.type in (tuple[int, ...], tuple[int, ...] | None):
         kwargs["type"] = IntTuple()
+    elif declared.type == tuple[float, ...]:
+        kwargs["type"] = FloatTuple()
     elif declared.type == float | None:
         kwargs["type"] = float
     else:

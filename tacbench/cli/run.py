@@ -14,7 +14,7 @@ import click
 
 from tacbench import trainers
 from tacbench.cli.common import command_line, report_outcomes
-from tacbench.cli.options import AlphaType, cli_settings, setting_options
+from tacbench.cli.options import AlphaType, QType, cli_settings, setting_options
 from tacbench.config import RunConfig, RunSettings
 from tacbench.errors import TacbenchError
 from tacbench.settings import settings_of
@@ -31,6 +31,17 @@ def _alpha_auto(ctx: click.Context, alphas: tuple[float | str, ...]) -> str:
             "--alpha auto learns every member's alpha from the paper's value; it does not mix "
             "with other --alpha values or --alpha-mode fixed in one command. To learn alpha from "
             "another start: --alpha-mode auto --alpha 0.1."
+        )
+    return "auto"
+
+
+def _q_auto(ctx: click.Context, qs: tuple[float | str, ...]) -> str:
+    """``--q auto``: the q mode it stands for, refused next to other q values."""
+    explicit = ctx.get_parameter_source("q_mode") == click.core.ParameterSource.COMMANDLINE
+    if len(qs) > 1 or (explicit and ctx.params["q_mode"] != "auto"):
+        raise TacbenchError(
+            "--q auto learns q in a population; it does not mix with other --q values or "
+            "--q-mode fixed in one command."
         )
     return "auto"
 
@@ -53,10 +64,11 @@ def _alpha_auto(ctx: click.Context, alphas: tuple[float | str, ...]) -> str:
 @click.option(
     "--q",
     "qs",
-    type=float,
+    type=QType(),
     multiple=True,
     help="Entropic index q; repeatable (--q 0.5 --q 1 --q 1.5): every q x alpha x seed trains "
-    "as a member of one process.  [default: the paper's best q for the task]",
+    "as a member of one process; auto: the seeds (at least 4) learn q as a population "
+    "(--q-mode auto).  [default: the paper's best q for the task]",
 )
 @click.option(
     "--alpha",
@@ -92,7 +104,7 @@ def run(
     env: str,
     algo: str,
     hp: tuple[str, ...],
-    qs: tuple[float, ...],
+    qs: tuple[float | str, ...],
     alphas: tuple[float | str, ...],
     seeds: tuple[int, ...],
     out: Path,
@@ -120,11 +132,22 @@ def run(
         if "auto" in alphas:
             settings["alpha_mode"] = _alpha_auto(ctx, alphas)
             alphas = ()
+        if "auto" in qs:
+            settings["q_mode"] = _q_auto(ctx, qs)
+            qs = ()
         numbers = [float(a) for a in alphas]
         configs, notes = trainers.make_configs(
-            algo, env_id, envs.paper_task(env_id), seeds, settings, qs=qs, alphas=numbers
+            algo,
+            env_id,
+            envs.paper_task(env_id),
+            seeds,
+            settings,
+            qs=[float(q) for q in qs],
+            alphas=numbers,
         )
     else:
+        if "auto" in qs:
+            raise TacbenchError(f"--q auto is TAC's (a population learning q); not for {algo}.")
         if len(qs) > 1 or len(alphas) > 1:
             raise TacbenchError(
                 f"--q and --alpha are repeatable for TAC only; {algo} trains one value per command."

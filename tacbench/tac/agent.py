@@ -206,6 +206,13 @@ class TacAgent:
         chunk, index = self._chunk_of(k)
         return {**chunk.params.member_state(index), "generator": self.generators[k].get_state()}
 
+    def copy_member(self, source: int, member: int) -> None:
+        """Give ``member`` exactly ``source``'s weights, targets, Adam state and (with
+        --alpha auto) log alpha; its own generator stays (--q auto, training/pbt.py)."""
+        state = self.member_state(source)
+        chunk, index = self._chunk_of(member)
+        chunk.params.load_member_state(index, state)
+
     def load_member_states(self, states: Sequence[Mapping[str, Any]]) -> None:
         """Load one :meth:`member_state` per member (their Adam step counts must agree)."""
         for chunk in self.chunks:

@@ -278,6 +278,20 @@ class TacParameters:
             },
         }
 
+    def load_member_state(self, k: int, state: Mapping[str, Any]) -> None:
+        """Load a :meth:`member_state` (maybe another member's) into member k alone."""
+        with torch.no_grad():
+            for flat, target, key in (
+                (self.data, self.target, None),
+                (self.exp_avg, None, "exp_avg"),
+                (self.exp_avg_sq, None, "exp_avg_sq"),
+            ):
+                values = state["params"] if key is None else state["adam"][key]
+                for name, tensor in self._named(flat, target):
+                    tensor[k].copy_(values[name])
+            self.steps[k] = state["adam"]["step"].reshape(())
+        self._host_steps[k] = int(state["adam"]["step"].reshape(()).item())
+
     def load_member_states(self, states: Sequence[Mapping[str, Any]]) -> None:
         """Load one :meth:`member_state` per member."""
         with torch.no_grad():

@@ -24,6 +24,7 @@ from tacbench.seeding import run_streams
 from tacbench.tac import METRICS, Coefficients, ReplayBuffer, TacAgent, coefficients
 from tacbench.tac.maths import ALPHA_METRICS
 from tacbench.training.checkpoint import load_replay, read, write_checkpoint
+from tacbench.training.pbt import PBT_COLUMNS, Population
 from tacbench.training.schedule import rounds, updates_due
 
 LOSS_COLUMNS = ("q", "updates", *METRICS)  # with --alpha auto, ALPHA_METRICS follow
@@ -65,7 +66,13 @@ class GroupTrainer:
             for _ in range(k if config.eval_every > 0 else 0)
         ]
         columns = ("q", "updates", *self.metrics)
-        self.writers = [runs.RunWriter(d, columns, config.tensorboard) for d in directories]
+        self.population = (
+            Population(self.seeds, [c.q for c in configs], config)
+            if config.q_mode == "auto"
+            else None
+        )
+        extra = {"pbt": PBT_COLUMNS} if self.population else {}
+        self.writers = [runs.RunWriter(d, columns, config.tensorboard, extra) for d in directories]
         self.step = 0
         self.obs = np.zeros((k, obs_dim))
         self.episode_return = np.zeros(k)
@@ -128,6 +135,8 @@ class GroupTrainer:
             self.loss_sum[k] = state["loss_sum"].to(self.loss_sum.device)
             self.loss_count[k] = state["loss_count"]
             self.updates_started[k] = state["updates_started"]
+        if self.population is not None:
+            self.population.load_member_states([s["pbt"] for s in states])
         self.wall_offset = states[0]["wall_s"]
 
     def _metadata(self, config: RunConfig) -> dict[str, Any]:
@@ -170,6 +179,8 @@ class GroupTrainer:
         config = self.config
         done = self._env_step()
         outcomes = self._learn(done)
+        if self.population is not None and self.population.due(self.step):
+            self._pbt_round()
         eval_mean = self._maybe_evaluate()
         every = config.checkpoint_every
         if (every and self.step % every == 0) or self.step == config.total_steps:
@@ -224,6 +235,8 @@ class GroupTrainer:
             self.writers[k].train_row(
                 self.step, self.wall_s, float(self.episode_return[k]), int(self.episode_length[k])
             )
+            if self.population is not None:
+                self.population.episode_ended(k, float(self.episode_return[k]))
             next_obs[k] = self.envs[k].reset()[0]
             self.buffer.start_episodes([k], next_obs[k : k + 1])
         self.obs = next_obs
@@ -232,10 +245,16 @@ class GroupTrainer:
         self.episode_length[done] = 0
         return done
 
+    def q_of(self, k: int, step: int) -> float:
+        """Member k's q at ``step``: its schedule's value, or with --q auto its q now."""
+        if self.population is not None:
+            return self.population.qs[k]
+        return self.configs[k].q_at(step)
+
     def coefficients_at(self, step: int) -> Coefficients:
-        """Each member's q (its schedule's value at ``step``) and alpha, as tensors; made again
-        only when a q changes."""
-        qs = tuple(c.q_at(step) for c in self.configs)
+        """Each member's q (:meth:`q_of`) and alpha, as tensors; made again only when a q
+        changes."""
+        qs = tuple(self.q_of(k, step) for k in range(len(self.configs)))
         if self._coefficients is None or self._coefficients[0] != qs:
             alphas = [c.alpha for c in self.configs]
             self._coefficients = qs, coefficients(qs, alphas, self.agent.device)
@@ -275,7 +294,7 @@ class GroupTrainer:
                     self.loss_sum / torch.as_tensor(self.loss_count).clamp(min=1)[:, None]
                 ).cpu()
                 for k in logged:
-                    q = self.configs[k].q_at(self.step)
+                    q = self.q_of(k, self.step)
                     row = [q, int(self.loss_count[k]), *mean[k].tolist()]
                     self.writers[k].losses_row(self.step, row)
                     self.loss_sum[k] = 0.0
@@ -289,7 +308,7 @@ class GroupTrainer:
             values = dict(zip(self.metrics, metrics[k].tolist(), strict=True))
             names = ", ".join(n for n, v in values.items() if not np.isfinite(v))
             reason = f"non-finite {names} at step {self.step} (mean log pi {values['log_pi']:.4g})"
-            if config.lnq == "joint" and config.q_at(self.step) > 1:
+            if config.lnq == "joint" and self.q_of(k, self.step) > 1:
                 reason += (
                     "; ln_q of a large joint density overflows float32 (docs/tac.md, "
                     "Numerics): --lnq per-dim, the reference code's form, stays finite"
@@ -303,6 +322,25 @@ class GroupTrainer:
         self.agent.alive &= ~bad
         self.alive = [k for k in self.alive if k not in failed]
         return outcomes
+
+    def _pbt_round(self) -> None:
+        """--q auto: one exploit/explore round (training/pbt.py), each decision in pbt.csv."""
+        assert self.population is not None
+        alive = [k in self.alive for k in range(len(self.configs))]
+        decisions = self.population.round(alive, self.config.q_range)
+        for d in decisions:
+            if d.source is not None:
+                self.agent.copy_member(d.source, d.member)
+        for d in decisions:
+            self.writers[d.member].extra_row("pbt", self.population.row(self.step, d))
+        copied = [d for d in decisions if d.source is not None]
+        if copied:
+            moves = ", ".join(
+                f"{self.seeds[d.member]}<-{self.seeds[d.source]} q={d.q_after:.3g}"
+                for d in copied
+                if d.source is not None
+            )
+            self.progress.message(f"step {self.step}: pbt {moves}")
 
     def _maybe_evaluate(self) -> float | None:
         """Deterministic evaluation (reference protocol) when due; returns the mean over members."""
@@ -345,6 +383,8 @@ class GroupTrainer:
                 "updates_started": bool(self.updates_started[k]),
                 "wall_s": self.wall_s,
             }
+            if self.population is not None:
+                state["pbt"] = self.population.member_state(k)
             since = (self.chunk_added, int(self.chunk_rows[k]))
             self.replay_chunks[k] = write_checkpoint(
                 self.writers[k].checkpoint_dir, state, self.buffer, k, since, self.replay_chunks[k]
@@ -365,6 +405,7 @@ def _members_label(configs: list[RunConfig]) -> str:
     qs = list(dict.fromkeys(c.q for c in configs))
     alphas = list(dict.fromkeys(c.alpha for c in configs))
     seeds = list(dict.fromkeys(c.seed for c in configs))
-    parts = [f"q={listed(qs)}"] + ([f"alpha={listed(alphas)}"] if len(alphas) > 1 else [])
+    q_part = "q=auto" if configs[0].q_mode == "auto" else f"q={listed(qs)}"
+    parts = [q_part] + ([f"alpha={listed(alphas)}"] if len(alphas) > 1 else [])
     parts.append(f"seed{'s' if len(seeds) > 1 else ''} {listed([float(s) for s in seeds])}")
     return " ".join(parts) + (f" ({len(configs)} members)" if len(configs) > 1 else "")
