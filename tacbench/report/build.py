@@ -21,11 +21,13 @@ from tacbench.report.curves import run_matrix, seed_curves
 from tacbench.report.load import METRIC_SOURCES, Metric, RunSet, load_runs
 from tacbench.report.methods import (
     BEST_Q_LABEL,
+    Q_AUTO_LABEL,
     SAC_LABEL,
     assign_methods,
     method_sort_key,
 )
 from tacbench.report.paper import task_sort_key
+from tacbench.report.population import one_per_population, q_trajectories
 from tacbench.report.ranges import q_range_table
 from tacbench.report.stats import (
     ALL_TASKS,
@@ -47,7 +49,7 @@ from tacbench.report.tables import (
 FORMATS: tuple[str, ...] = ("png", "svg", "pdf")
 DEFAULT_GRID_POINTS = 200
 PROFILE_TAUS = np.linspace(0.0, 1.0, 101)
-_IDENTITY = ["algo", "env", "variant", "q", "alpha", "seed"]
+_IDENTITY = ["algo", "env", "variant", "q", "alpha", "seed", "population"]
 
 
 @dataclass(frozen=True)
@@ -95,12 +97,13 @@ class Report:
     envs: list[str]
     methods: list[str]
     qs: dict[str, float]
+    trajectories: pd.DataFrame  # TAC q=auto: each member's q over training
     figures: dict[str, Figure] = field(default_factory=dict)
 
     @property
     def tac_methods(self) -> list[str]:
-        """TAC methods (SAC included) in q order."""
-        return [m for m in self.methods if not math.isnan(self.qs[m])]
+        """TAC methods (SAC included) in q order, then TAC q=auto."""
+        return [m for m in self.methods if not math.isnan(self.qs[m]) or m.startswith(Q_AUTO_LABEL)]
 
     @property
     def comparison_methods(self) -> list[str]:
@@ -148,6 +151,7 @@ def analyse(options: ReportOptions) -> Report:
     scores["score"], anchors = normalise(scores)
     summary = summary_table(scores, failed)
     extended = _with_best_q(scores, best_q_rows(summary))
+    independent = one_per_population(extended)  # what the statistics count
 
     grids, values = run_matrix(runset.data, runs, options.grid_points, metric)
     rows = pd.Index(runs["run"]).get_indexer(extended["run"])
@@ -158,7 +162,8 @@ def analyse(options: ReportOptions) -> Report:
     qs[BEST_Q_LABEL] = math.nan
     methods = sorted(qs, key=lambda m: method_sort_key(m, qs[m]))
     q_methods = [m for m in methods if not math.isnan(qs[m]) and qs[m] != 1.0]
-    improvement = improvement_over_q1(extended, [*q_methods, BEST_Q_LABEL], options.reps, rng)
+    q_methods += [m for m in methods if m.startswith(Q_AUTO_LABEL)]
+    improvement = improvement_over_q1(independent, [*q_methods, BEST_Q_LABEL], options.reps, rng)
     envs = sorted((str(e) for e in runs["env"].unique()), key=task_sort_key)
     methods = [m for m in methods if m in set(extended["method"])]
     report = Report(
@@ -170,16 +175,17 @@ def analyse(options: ReportOptions) -> Report:
         best_q=_in_order(best_q_table(summary, improvement), envs, methods),
         curves=curves,
         anchors=_in_order(anchors, envs, methods),
-        per_task=_in_order(per_task_estimates(extended, options.reps, rng), envs, methods),
-        aggregate=_in_order(aggregate_estimates(extended, options.reps, rng), envs, methods),
+        per_task=_in_order(per_task_estimates(independent, options.reps, rng), envs, methods),
+        aggregate=_in_order(aggregate_estimates(independent, options.reps, rng), envs, methods),
         improvement=_in_order(improvement, envs, methods),
-        profiles=profile_table(extended, PROFILE_TAUS, options.reps, rng),
+        profiles=profile_table(independent, PROFILE_TAUS, options.reps, rng),
         q_ranges=_in_order(
             q_range_table(scores, runset.data, options.last, options.reps, rng), envs, methods
         ),
         envs=envs,
         methods=methods,
         qs=qs,
+        trajectories=q_trajectories(runs, runset.root),
     )
     report.figures = make_figures(report)
     return report
@@ -200,6 +206,12 @@ def make_figures(report: Report) -> dict[str, Figure]:
             report.qs,
             "Effect of the entropic index q: TAC, mean ± 1 std over seeds",
             ylabel,
+        )
+    if not report.trajectories.empty:
+        figures["q_trajectories"] = plots.q_trajectory_figure(
+            report.trajectories,
+            [e for e in report.envs if e in set(report.trajectories["env"])],
+            "TAC q=auto: each member's q (colour: population)",
         )
     figures["comparison"] = plots.curve_figure(
         report.curves,

@@ -44,6 +44,7 @@ RUN_COLUMNS = (
     "q",
     "alpha",
     "seed",
+    "population",
     "state",
     "step_reached",
     "total_steps",
@@ -142,7 +143,11 @@ def _identity(config: dict[str, Any]) -> dict[str, Any]:
     if isinstance(seed, bool) or not isinstance(seed, int):
         raise _Unreadable("config.json: 'seed' missing or not an integer")
     q, alpha = _number(config.get("q")), _number(config.get("alpha"))
-    if config["algo"] == "tac" and not q > 0:
+    settings = config.get("config")
+    population = _population(config) if isinstance(settings, dict) else ""
+    if population:
+        q = math.nan  # learned (--q auto): config.json's q is where the member started
+    elif config["algo"] == "tac" and not q > 0:
         raise _Unreadable("config.json: a TAC run needs a number q > 0")
     total = config.get("total_steps")
     versions = config.get("versions")
@@ -153,6 +158,7 @@ def _identity(config: dict[str, Any]) -> dict[str, Any]:
         "q": q,
         "alpha": alpha,
         "seed": seed,
+        "population": population,
         "total_steps": float(total) if isinstance(total, int) and total > 0 else math.nan,
         "command": str(config.get("command", "")),
         "git_commit": str(config.get("git_commit", "")),
@@ -160,6 +166,17 @@ def _identity(config: dict[str, Any]) -> dict[str, Any]:
         "created": str(config.get("created", "")),
         "versions": json.dumps(versions, sort_keys=True) if isinstance(versions, dict) else "{}",
     }
+
+
+def _population(config: dict[str, Any]) -> str:
+    """A --q auto member's population, named by its members' seeds (``seeds 0,10,20,30``);
+    empty for every other run."""
+    if config["algo"] != "tac" or config["config"].get("q_mode") != "auto":
+        return ""
+    members = config.get("members")
+    if not isinstance(members, list) or not all(isinstance(m, dict) for m in members):
+        raise _Unreadable("config.json: a --q auto run needs its 'members'")
+    return "seeds " + ",".join(str(m.get("seed")) for m in members)
 
 
 def _status(run_dir: Path) -> tuple[str, float, str]:

@@ -1,7 +1,8 @@
 """Method labels, their order, and one fixed colour and marker per method for every figure.
 
 A *method* is what a figure line or a table row stands for: a TAC entropic index (``TAC q=1.5``),
-SAC (TAC with q = 1, as the paper defines it), a baseline (``DDPG``), or ``TAC (best q)`` (the
+SAC (TAC with q = 1, as the paper defines it), ``TAC q=auto`` (q learned by a population), a
+baseline (``DDPG``), or ``TAC (best q)`` (the
 best q other than 1 on each task, as in the paper's comparison figure). The paper's caption
 fixes two styles: SAC is the red square line, TAC the blue pentagon line.
 """
@@ -22,6 +23,7 @@ from tacbench.config import PAPER_Q_GRID
 
 SAC_LABEL = "SAC (TAC q=1)"
 BEST_Q_LABEL = "TAC (best q)"
+Q_AUTO_LABEL = "TAC q=auto"  # --q auto: q learned by a population (training/pbt.py)
 BASELINE_NAMES: dict[str, str] = {
     "ddpg": "DDPG",
     "td3": "TD3",
@@ -43,6 +45,7 @@ class Style:
 
 _FIXED_STYLES: dict[str, Style] = {
     BEST_Q_LABEL: Style("#1f5fbf", "p"),  # paper: "TAC (blue pentagon line)"
+    Q_AUTO_LABEL: Style("#111111", "P"),
     SAC_LABEL: Style("#d62728", "s"),  # paper: "SAC (red square line)"
     "DDPG": Style("#2ca02c", "^"),
     "TD3": Style("#ff7f0e", "v"),
@@ -81,9 +84,13 @@ def assign_methods(runs: pd.DataFrame) -> pd.Series:
     per_task = tac.groupby(["env", "q"])["variant"].nunique()
     ambiguous = set(per_task[per_task > 1].index.get_level_values("q").astype(float))
     several = {str(algo) for algo, n in runs.groupby("algo")["variant"].nunique().items() if n > 1}
+    learned = tac[tac["q"].isna()].groupby("env")["variant"].nunique()
+    several_learned = bool((learned > 1).any())
     labels = []
     for algo, variant, q in zip(runs["algo"], runs["variant"], runs["q"], strict=True):
-        if algo == "tac":
+        if algo == "tac" and math.isnan(q):
+            name, tagged = Q_AUTO_LABEL, several_learned
+        elif algo == "tac":
             name, tagged = tac_label(q), q in ambiguous
         else:
             name, tagged = BASELINE_NAMES.get(algo, algo.upper()), algo in several
@@ -92,7 +99,10 @@ def assign_methods(runs: pd.DataFrame) -> pd.Series:
 
 
 def method_sort_key(method: str, q: float) -> tuple[int, float, str]:
-    """TAC by q (SAC in its place), then TAC (best q), the baselines in paper order, the rest."""
+    """TAC by q (SAC in its place), TAC q=auto, then TAC (best q), the baselines in paper
+    order, the rest."""
+    if method.startswith(Q_AUTO_LABEL):
+        return 0, math.inf, method
     if not math.isnan(q):
         return 0, q, method
     if method == BEST_Q_LABEL:

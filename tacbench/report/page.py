@@ -173,6 +173,17 @@ def _how_to_read(report: Report) -> list[str]:
         "that excludes 0.5 is evidence of a difference.",
         "Performance profiles: the fraction of runs whose normalised final score exceeds tau; "
         "a curve above another is better everywhere.",
+        *(
+            [
+                "TAC q=auto: q learned by population-based training (`--q auto`); the members "
+                "of a population copy each other, so they are not independent runs: its "
+                "statistics (intervals, probabilities of improvement, profiles; the 'runs' "
+                "column) count one value per population, the mean of its members' scores; the "
+                "curves and the summary table show the members."
+            ]
+            if not report.trajectories.empty
+            else []
+        ),
         "TAC (best q) takes, per task, the q ≠ 1 with the highest mean final return on these "
         "same runs (as the paper did), so its numbers are optimistic.",
         "Partial runs (still running or stopped before their planned steps) are included and "
@@ -268,6 +279,11 @@ def sections(report: Report) -> list[Section]:
             "Effect of the entropic index",
             [
                 Image("q_sweep", "TAC for every q: mean over seeds, shaded ± 1 std."),
+                Image(
+                    "q_trajectories",
+                    "TAC q=auto: the q of every population member over training (pbt.csv has "
+                    "each decision).",
+                ),
                 Table(best_q_display(report), "Best q per task, compared with the paper"),
                 Table(
                     q_ranges_display(report),

@@ -300,3 +300,32 @@ _METADATA: dict[str, dict[str, str | None]] = {
     "svg": {"Date": None},
     "pdf": {"CreationDate": None},
 }
+
+
+def q_trajectory_figure(trajectories: pd.DataFrame, envs: Sequence[str], title: str) -> Figure:
+    """TAC q=auto: each member's q over training (log scale), one panel per task, one colour
+    per population."""
+    populations = list(dict.fromkeys(trajectories["population"]))
+    colours = dict(zip(populations, sns.color_palette("tab10", len(populations)), strict=True))
+    with rc_context(_theme()):
+        fig, axes = _panels(len(envs), title_height=0.6)
+        for ax, env in zip(axes, envs, strict=True):
+            task = trajectories[trajectories["env"] == env]
+            for (population, _seed), member in task.groupby(["population", "seed"], sort=False):
+                ax.plot(  # a losses row's q held since the previous row
+                    member["step"],
+                    member["q"],
+                    color=colours[population],
+                    linewidth=1,
+                    alpha=0.7,
+                    drawstyle="steps-pre",
+                )
+            ax.set_yscale("log")
+            ax.minorticks_off()
+            ax.set_yticks([0.5, 1, 2, 5], labels=["0.5", "1", "2", "5"])
+            ax.set_title(env)
+            ax.set_xlabel("environment steps")
+            ax.set_ylabel("q")
+        handles = [Line2D([], [], color=colours[p], label=p) for p in populations]
+        fig.legend(handles=handles, loc="lower center", ncol=min(len(handles), 3), frameon=False)
+        return _finish(fig, title, math.ceil(len(handles) / 3))

@@ -118,7 +118,7 @@ def summary_table(scores: pd.DataFrame, failed: pd.DataFrame) -> pd.DataFrame:
 def best_q_rows(summary: pd.DataFrame) -> pd.DataFrame:
     """Per task, the TAC row with the highest mean final return among q != 1 (for the figure)."""
     tac = summary[summary["algo"] == "tac"]
-    candidates = tac[tac["q"] != 1.0]
+    candidates = tac[tac["q"].notna() & (tac["q"] != 1.0)]  # a fixed q: not TAC q=auto
     best = candidates.loc[candidates.groupby("env", sort=False)["final_mean"].idxmax()]
     return best.reset_index(drop=True)
 
@@ -135,7 +135,7 @@ def best_q_table(summary: pd.DataFrame, improvement: pd.DataFrame) -> pd.DataFra
     optimistic because the best q was picked on the same runs.
     """
     rows = []
-    tac = summary[summary["algo"] == "tac"]
+    tac = summary[(summary["algo"] == "tac") & summary["q"].notna()]  # TAC q=auto has no q
     for env, group in tac.groupby("env", sort=False):
         ranked = group.sort_values("final_mean", ascending=False)
         top = ranked.iloc[0]

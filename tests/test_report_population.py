@@ -1,0 +1,78 @@
+"""The report's ``TAC q=auto``: one value per population in the statistics, the members in the
+curves and the summary, and a figure of each member's q."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tacbench.report import ReportOptions, analyse, write_report
+from tests.report_fixtures import write_run
+
+pytestmark = pytest.mark.unit
+
+STEPS = [1000.0, 2000.0, 3000.0]
+
+
+def _population(root: Path, seeds: list[int], level: float) -> list[Path]:
+    members = [{"q": 1.0, "alpha": 0.2, "seed": s} for s in seeds]
+    paths = []
+    for i, seed in enumerate(seeds):
+        path = write_run(
+            root,
+            algo="tac",
+            env="Hopper-v4",
+            variant="qauto-a0.2",
+            seed=seed,
+            steps=STEPS,
+            returns=[level + i, level + 10 + i, level + 20 + i],
+            q=0.5 * 10 ** (i / (len(seeds) - 1)),
+            alpha=0.2,
+        )
+        config = json.loads((path / "config.json").read_text())
+        config["members"] = members
+        config["config"]["q_mode"] = "auto"
+        (path / "config.json").write_text(json.dumps(config))
+        (path / "losses.csv").write_text("step,q\n1000,0.5\n2000,1.2\n3000,1.44\n")
+        paths.append(path)
+    return paths
+
+
+def test_statistics_count_one_value_per_population(tmp_path: Path) -> None:
+    _population(tmp_path, [0, 1, 2, 3], 100.0)
+    _population(tmp_path, [4, 5, 6, 7], 200.0)
+    for seed in range(8):
+        write_run(
+            tmp_path,
+            algo="tac",
+            env="Hopper-v4",
+            variant="q1-a0.2",
+            seed=seed,
+            steps=STEPS,
+            returns=[150.0, 160.0, 170.0 + seed],
+            q=1.0,
+            alpha=0.2,
+        )
+    report = analyse(ReportOptions(results=tmp_path, out=tmp_path / "report", reps=200, last=1))
+    assert "TAC q=auto" in report.methods
+    per_task = report.per_task.set_index("method")
+    assert per_task.loc["TAC q=auto", "runs"] == 2  # two populations, not eight members
+    # population means of the final returns: 121.5 and 221.5
+    assert per_task.loc["TAC q=auto", "mean"] == pytest.approx((121.5 + 221.5) / 2)
+    assert per_task.loc["SAC (TAC q=1)", "runs"] == 8
+    summary = report.summary.set_index("method")
+    assert summary.loc["TAC q=auto", "seeds"] == 8  # the summary shows the members
+    (improvement,) = report.improvement[report.improvement["method"] == "TAC q=auto"].itertuples()
+    # P(population mean > q = 1 run): 121.5 beats none of 170..177, 221.5 beats all
+    assert improvement.p == pytest.approx(0.5)
+    assert "q_trajectories" in report.figures
+    assert set(report.trajectories["population"]) == {"seeds 0,1,2,3", "seeds 4,5,6,7"}
+    assert np.allclose(report.trajectories["q"].unique(), [0.5, 1.2, 1.44])
+    assert not report.best_q["best_q"].isna().any()  # TAC q=auto is not a best fixed q
+    write_report(report)
+    page = (tmp_path / "report" / "report.md").read_text()
+    assert "count one value per population" in page
+    assert (tmp_path / "report" / "q_trajectories.png").exists()
