@@ -107,20 +107,32 @@ def test_performance_profile_values_and_bands() -> None:
     assert low[0] == high[0] == 1.0 and low[-1] == high[-1] == 0.0
 
 
-def test_improvement_compares_with_q1_runs_of_the_same_alpha() -> None:
+def test_improvement_compares_with_q1_runs_of_the_same_alpha_and_alpha_mode() -> None:
     rows = []
     for env in ("A", "B"):
-        for q, alpha, finals in (
-            (1.0, 0.2, [1.0, 2.0]),
-            (1.0, 0.1, [50.0, 60.0]),
-            (1.5, 0.2, [3.0, 4.0]),
+        for q, alpha, variant, finals in (
+            (1.0, 0.2, "q1-a0.2", [1.0, 2.0]),
+            (1.0, 0.1, "q1-a0.1", [50.0, 60.0]),
+            (1.0, 0.2, "q1-aauto0.2", [10.0, 11.0]),
+            (1.5, 0.2, "q1.5-a0.2", [3.0, 4.0]),
+            (1.5, 0.2, "q1.5-aauto0.2", [5.0, 6.0]),
         ):
-            label = "SAC" if q == 1.0 else "TAC q=1.5"
+            label = ("SAC" if q == 1.0 else "TAC q=1.5") + (" auto" if "auto" in variant else "")
             rows += [
-                {"env": env, "method": label, "q": q, "alpha": alpha, "final": f} for f in finals
+                {
+                    "env": env,
+                    "method": label,
+                    "q": q,
+                    "alpha": alpha,
+                    "variant": variant,
+                    "final": f,
+                }
+                for f in finals
             ]
     scores = pd.DataFrame(rows)
-    table = improvement_over_q1(scores, ["TAC q=1.5"], 200, np.random.default_rng(0))
-    assert table["env"].tolist() == ["A", "B", ALL_TASKS]
-    assert table["p"].tolist() == [1.0, 1.0, 1.0]
-    assert table["tasks"].tolist() == [1, 1, 2]
+    methods = ["TAC q=1.5", "TAC q=1.5 auto"]
+    table = improvement_over_q1(scores, methods, 200, np.random.default_rng(0))
+    assert table["env"].tolist() == ["A", "B", ALL_TASKS] * 2
+    # fixed 0.2 against fixed 0.2 (1, 2): wins; learned against learned (10, 11): losses
+    assert table["p"].tolist() == [1.0, 1.0, 1.0, 0.0, 0.0, 0.0]
+    assert table["tasks"].tolist() == [1, 1, 2] * 2

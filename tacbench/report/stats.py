@@ -165,10 +165,17 @@ def _flat(estimates: dict[str, Estimate]) -> dict[str, float]:
     return flat
 
 
-def _reference_runs(scores: pd.DataFrame, env: str, alpha: float) -> np.ndarray:
-    """Final returns of the q = 1 runs on ``env`` with the same alpha (NaN matches NaN)."""
+def _learns_alpha(variants: pd.Series) -> pd.Series:
+    """Whether each run learned its alpha (--alpha auto: ``-aauto`` in the variant)."""
+    return variants.astype(str).str.contains("-aauto", regex=False)
+
+
+def _reference_runs(scores: pd.DataFrame, env: str, alpha: float, learned: bool) -> np.ndarray:
+    """Final returns of the q = 1 runs on ``env`` with the same alpha (NaN matches NaN) and
+    the same alpha mode (a learned alpha is compared with a learned alpha from the same start)."""
     same = scores[(scores["env"] == env) & (scores["q"] == 1.0)]
     same = same[same["alpha"].isna()] if np.isnan(alpha) else same[same["alpha"] == alpha]
+    same = same[_learns_alpha(same["variant"]) == learned]
     return same["final"].to_numpy()
 
 
@@ -177,8 +184,9 @@ def improvement_over_q1(
 ) -> pd.DataFrame:
     """P(method > q = 1) per task and over all tasks, with 95 % intervals.
 
-    Each TAC method is compared, task by task, with the q = 1 runs that share its alpha; tasks
-    without such runs are left out. ``env`` is ``"all tasks"`` on the aggregate rows.
+    Each TAC method is compared, task by task, with the q = 1 runs that share its alpha and its
+    alpha mode (fixed, or learned: --alpha auto); tasks without such runs are left out.
+    ``env`` is ``"all tasks"`` on the aggregate rows.
     """
     rows = []
     for method in methods:
@@ -186,8 +194,9 @@ def improvement_over_q1(
         mine = scores[scores["method"] == method]
         for env, group in mine.groupby("env", sort=False):
             alphas = group["alpha"].unique()
-            reference = _reference_runs(scores, str(env), float(alphas[0]))
-            if len(alphas) != 1 or len(reference) == 0:
+            modes = _learns_alpha(group["variant"]).unique()
+            reference = _reference_runs(scores, str(env), float(alphas[0]), bool(modes[0]))
+            if len(alphas) != 1 or len(modes) != 1 or len(reference) == 0:
                 continue
             xs.append(group["final"].to_numpy())
             ys.append(reference)
