@@ -1,0 +1,142 @@
+"""The adaptive study (docs/adaptive.md): does learning q (``--q auto``) or alpha (``--alpha
+auto``) beat the fixed values, on the same seeds?
+
+Per task: two ``--q auto`` populations of eight (seeds 0-70 and 80-150), fixed q = 1 and the
+paper's best fixed q on those 16 seeds, and ``--alpha auto`` at q = 1 and at the best q on seeds
+0-40 (against the fixed runs of the same seeds). ``python -m tacbench.adaptive_study commands``
+prints the commands; ``python -m tacbench.adaptive_study analyse --results DIR`` the tables.
+
+A run's final return is the report's: the mean of its last 10 evaluations. A population is one
+unit (its members copy each other): it is compared with the mean of the fixed runs of its own
+eight seeds, so each task gives two paired differences. The learned-alpha runs are compared with
+the fixed-alpha runs of the same seeds, seed by seed, with rliable's bootstrap interval of the
+mean difference.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from tacbench.bootstrap import mean_difference
+from tacbench.report.load import load_runs
+from tacbench.report.tables import DEFAULT_LAST, run_scores
+
+BEST_Q = {"HalfCheetah-v4": 1.5, "Hopper-v4": 2.0}  # the paper's per-task table
+POPULATIONS = (tuple(range(0, 80, 10)), tuple(range(80, 160, 10)))
+ALPHA_SEEDS = tuple(range(0, 50, 10))  # the paper-q-grid study's seeds (results/studies/)
+STEPS = 100_000
+REPS = 10_000
+
+
+def _seeds(seeds: Sequence[int]) -> list[str]:
+    return [arg for s in seeds for arg in ("--seed", str(s))]
+
+
+def commands(out: str = "results/adaptive") -> list[str]:
+    """The study's ``tacbench run`` commands, one population or group of members each."""
+    lines = []
+    for env, best in BEST_Q.items():
+        common = ["--env", env, "--steps", str(STEPS), "--out", out, "--quiet"]
+        for population in POPULATIONS:
+            lines.append(["--q", "auto", *_seeds(population), *common])
+        every = sorted({s for p in POPULATIONS for s in p})
+        lines.append(["--q", "1", "--q", f"{best:g}", *_seeds(every), *common])
+        lines.append(["--q", "1", "--q", f"{best:g}", "--alpha", "auto", *_seeds(ALPHA_SEEDS)])
+        lines[-1] += common
+    return [shlex.join(["tacbench", "run", *line]) for line in lines]
+
+
+def finals(results: Path) -> pd.DataFrame:
+    """One row per run: env, variant, q (NaN: learned), seed, population, final return."""
+    runset = load_runs(results, "eval")
+    scores = run_scores(runset.data, DEFAULT_LAST)
+    table = runset.runs.join(scores, on="run")
+    return table[["env", "variant", "q", "seed", "population", "final"]]
+
+
+def population_table(table: pd.DataFrame) -> pd.DataFrame:
+    """Each population's mean final return against the fixed runs of its own seeds."""
+    rows = []
+    for (env, population), members in table[table["q"].isna()].groupby(["env", "population"]):
+        seeds = set(members["seed"])
+        row: dict[str, object] = {"env": env, "population": population}
+        row["q auto"] = members["final"].mean()
+        for label, variant in (("q = 1", "q1-a0.2"), ("best q", f"q{BEST_Q[str(env)]:g}-a0.2")):
+            fixed = table[
+                (table["env"] == env) & (table["variant"] == variant) & table["seed"].isin(seeds)
+            ]
+            row[f"fixed {label}"] = fixed["final"].mean() if len(fixed) == len(seeds) else np.nan
+            row[f"auto - {label}"] = row["q auto"] - row[f"fixed {label}"]  # type: ignore[operator]
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def alpha_table(table: pd.DataFrame, reps: int = REPS) -> pd.DataFrame:
+    """Learned minus fixed alpha at q = 1 and the best q, on the same seeds."""
+    rows = []
+    for env, best in BEST_Q.items():
+        for q in (1.0, best):
+            learned = table[(table["env"] == env) & (table["variant"] == f"q{q:g}-aauto0.2")]
+            fixed = table[
+                (table["env"] == env)
+                & (table["variant"] == f"q{q:g}-a0.2")
+                & table["seed"].isin(learned["seed"])
+            ]
+            if learned.empty or len(fixed) != len(learned):
+                continue
+            a, b = learned.sort_values("seed"), fixed.sort_values("seed")
+            diff, low, high = mean_difference(a["final"], b["final"], reps, seed=0)
+            rows.append(
+                {
+                    "env": env,
+                    "q": q,
+                    "seeds": len(a),
+                    "alpha auto": a["final"].mean(),
+                    "alpha auto std": a["final"].std(ddof=1),
+                    "fixed": b["final"].mean(),
+                    "fixed std": b["final"].std(ddof=1),
+                    "auto - fixed": diff,
+                    "CI low": low,
+                    "CI high": high,
+                }
+            )
+    return pd.DataFrame(rows)
+
+
+def final_q(results: Path, table: pd.DataFrame) -> pd.DataFrame:
+    """Each population member's q at the end (the last losses.csv row)."""
+    runset = load_runs(results, "eval")
+    learned = runset.runs[runset.runs["q"].isna()]
+    rows = []
+    for run in learned.itertuples():
+        losses = pd.read_csv(results / str(run.path) / "losses.csv", usecols=["step", "q"])
+        rows.append({"env": run.env, "population": run.population, "seed": run.seed})
+        rows[-1]["final q"] = float(losses["q"].iloc[-1])
+    return pd.DataFrame(rows)
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(prog="python -m tacbench.adaptive_study")
+    sub = parser.add_subparsers(dest="action", required=True)
+    sub.add_parser("commands").add_argument("--out", default="results/adaptive")
+    analyse = sub.add_parser("analyse")
+    analyse.add_argument("--results", type=Path, required=True)
+    args = parser.parse_args(argv)
+    if args.action == "commands":
+        print("\n".join(commands(args.out)))
+        return
+    table = finals(args.results)
+    pd.set_option("display.width", 200)
+    print(population_table(table).round(1).to_string(index=False))
+    print(alpha_table(table).round(1).to_string(index=False))
+    print(final_q(args.results, table).to_string(index=False))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,52 @@
+"""The adaptive study's commands and tables (tacbench/adaptive_study.py, docs/adaptive.md)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from tacbench import adaptive_study as study
+
+pytestmark = pytest.mark.unit
+
+
+def test_the_commands_are_two_populations_and_the_same_seeds_fixed_and_learned_alpha() -> None:
+    lines = study.commands("out")
+    assert len(lines) == 8  # per task: two populations, the fixed runs, the learned alphas
+    hopper = [line for line in lines if "Hopper-v4" in line]
+    assert hopper[0].count("--seed") == hopper[1].count("--seed") == 8
+    assert "--q auto" in hopper[0] and "--q 1 --q 2 " in hopper[2]
+    assert hopper[2].count("--seed") == 16 and "--alpha auto" in hopper[3]
+
+
+def _table() -> pd.DataFrame:
+    rows = []
+    for seed in range(0, 160, 10):
+        population = "seeds " + ",".join(
+            str(s) for s in (range(0, 80, 10) if seed < 80 else range(80, 160, 10))
+        )
+        rows.append(("Hopper-v4", "qauto-a0.2", np.nan, seed, population, 300.0 + seed))
+        rows.append(("Hopper-v4", "q1-a0.2", 1.0, seed, "", 200.0 + seed))
+        rows.append(("Hopper-v4", "q2-a0.2", 2.0, seed, "", 250.0 + seed))
+    for seed in range(0, 50, 10):
+        rows.append(("Hopper-v4", "q1-aauto0.2", 1.0, seed, "", 210.0 + seed))
+    return pd.DataFrame(rows, columns=["env", "variant", "q", "seed", "population", "final"])
+
+
+def test_a_population_is_compared_with_the_fixed_runs_of_its_own_seeds() -> None:
+    table = study.population_table(_table()).set_index("population")
+    assert len(table) == 2
+    first = table.loc["seeds 0,10,20,30,40,50,60,70"]
+    assert first["q auto"] == pytest.approx(335.0)
+    assert first["auto - q = 1"] == pytest.approx(100.0)
+    assert first["auto - best q"] == pytest.approx(50.0)
+
+
+def test_learned_alpha_is_compared_seed_by_seed() -> None:
+    table = study.alpha_table(_table(), reps=500)
+    assert len(table) == 1  # no learned alpha at q = 2 here
+    row = table.iloc[0]
+    assert (row["q"], row["seeds"]) == (1.0, 5)
+    assert row["auto - fixed"] == pytest.approx(10.0)  # every seed is 10 better
+    assert row["CI low"] == pytest.approx(10.0, abs=20.0) and row["CI high"] >= 10.0
