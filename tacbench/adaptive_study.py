@@ -109,16 +109,16 @@ def alpha_table(table: pd.DataFrame, reps: int = REPS) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def final_q(results: Path, table: pd.DataFrame) -> pd.DataFrame:
+def final_q(results: Path) -> pd.DataFrame:
     """Each population member's q at the end (the last losses.csv row)."""
     runset = load_runs(results, "eval")
     learned = runset.runs[runset.runs["q"].isna()]
     rows = []
     for run in learned.itertuples():
-        losses = pd.read_csv(results / str(run.path) / "losses.csv", usecols=["step", "q"])
+        losses = pd.read_csv(runset.root / str(run.path) / "losses.csv", usecols=["step", "q"])
         rows.append({"env": run.env, "population": run.population, "seed": run.seed})
         rows[-1]["final q"] = float(losses["q"].iloc[-1])
-    return pd.DataFrame(rows)
+    return pd.DataFrame(rows).sort_values(["env", "population", "seed"], ignore_index=True)
 
 
 def main(argv: Sequence[str] | None = None) -> None:
@@ -135,7 +135,10 @@ def main(argv: Sequence[str] | None = None) -> None:
     pd.set_option("display.width", 200)
     print(population_table(table).round(1).to_string(index=False))
     print(alpha_table(table).round(1).to_string(index=False))
-    print(final_q(args.results, table).to_string(index=False))
+    ends = final_q(args.results)
+    print(ends.to_string(index=False))
+    summary = ends.groupby(["env", "population"])["final q"].describe()
+    print(summary[["min", "50%", "max"]].round(2).to_string())
 
 
 if __name__ == "__main__":
