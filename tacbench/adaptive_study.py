@@ -127,18 +127,29 @@ def main(argv: Sequence[str] | None = None) -> None:
     sub.add_parser("commands").add_argument("--out", default="results/adaptive")
     analyse = sub.add_parser("analyse")
     analyse.add_argument("--results", type=Path, required=True)
+    analyse.add_argument("--out", type=Path, help="also write the tables here as CSV")
     args = parser.parse_args(argv)
     if args.action == "commands":
         print("\n".join(commands(args.out)))
         return
-    table = finals(args.results)
-    pd.set_option("display.width", 200)
-    print(population_table(table).round(1).to_string(index=False))
-    print(alpha_table(table).round(1).to_string(index=False))
-    ends = final_q(args.results)
-    print(ends.to_string(index=False))
+    for name, frame in tables(args.results).items():
+        print(f"{name}:\n{frame.round(2).to_string(index=False)}\n")
+        if args.out:
+            args.out.mkdir(parents=True, exist_ok=True)
+            frame.to_csv(args.out / f"{name}.csv", index=False)
+
+
+def tables(results: Path) -> dict[str, pd.DataFrame]:
+    """Every table of the study, by name: populations, alpha, final_q, final_q_summary."""
+    table = finals(results)
+    ends = final_q(results)
     summary = ends.groupby(["env", "population"])["final q"].describe()
-    print(summary[["min", "50%", "max"]].round(2).to_string())
+    return {
+        "populations": population_table(table),
+        "alpha": alpha_table(table),
+        "final_q": ends,
+        "final_q_summary": summary[["min", "50%", "max"]].reset_index(),
+    }
 
 
 if __name__ == "__main__":
