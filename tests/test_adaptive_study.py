@@ -2,15 +2,17 @@
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import numpy as np
 import pandas as pd
 import pytest
 
 from tacbench import adaptive_study as study
 
-pytestmark = pytest.mark.unit
 
-
+@pytest.mark.unit
 def test_the_commands_are_two_populations_and_the_same_seeds_fixed_and_learned_alpha() -> None:
     lines = study.commands("out")
     assert len(lines) == 8  # per task: two populations, the fixed runs, the learned alphas
@@ -34,6 +36,7 @@ def _table() -> pd.DataFrame:
     return pd.DataFrame(rows, columns=["env", "variant", "q", "seed", "population", "final"])
 
 
+@pytest.mark.unit
 def test_a_population_is_compared_with_the_fixed_runs_of_its_own_seeds() -> None:
     table = study.population_table(_table()).set_index("population")
     assert len(table) == 2
@@ -43,6 +46,7 @@ def test_a_population_is_compared_with_the_fixed_runs_of_its_own_seeds() -> None
     assert first["auto - best q"] == pytest.approx(50.0)
 
 
+@pytest.mark.unit
 def test_learned_alpha_is_compared_seed_by_seed() -> None:
     table = study.alpha_table(_table(), reps=500)
     assert len(table) == 1  # no learned alpha at q = 2 here
@@ -50,3 +54,17 @@ def test_learned_alpha_is_compared_seed_by_seed() -> None:
     assert (row["q"], row["seeds"]) == (1.0, 5)
     assert row["auto - fixed"] == pytest.approx(10.0)  # every seed is 10 better
     assert row["CI low"] == pytest.approx(10.0, abs=20.0) and row["CI high"] >= 10.0
+
+
+STUDY = Path(__file__).resolve().parents[1] / "results" / "studies" / "adaptive-q-100k"
+
+
+@pytest.mark.smoke
+def test_the_published_study_is_complete_and_its_tables_regenerate(tmp_path: Path) -> None:
+    statuses = [json.loads(p.read_text()) for p in STUDY.glob("runs/tac/*/*/seed*/status.json")]
+    assert len(statuses) == 116  # 32 population members, 64 fixed, 20 learned alpha
+    assert {(s["state"], s["step"]) for s in statuses} == {("complete", 100_000)}
+    assert not list(STUDY.glob("runs/**/checkpoint"))
+    study.main(["analyse", "--results", str(STUDY), "--out", str(tmp_path)])
+    for table in sorted((STUDY / "analysis").glob("*.csv")):
+        assert (tmp_path / table.name).read_text() == table.read_text(), table.name
