@@ -391,14 +391,8 @@ class RunConfig(RunSettings):
 
     def _check_pbt(self) -> None:
         _check_choice(self, "q_mode", self.q_mode, Q_MODES)
-        object.__setattr__(self, "q_range", tuple(float(v) for v in self.q_range))
-        low_high = self.q_range
-        finite = all(0 < v < math.inf for v in low_high)
-        if len(low_high) != 2 or not finite or low_high[0] >= low_high[1]:
-            raise TacbenchError(
-                f"--q-range must be LOW,HIGH with 0 < LOW < HIGH < inf (got {low_high}); "
-                "the paper's grid is 0.5,5."
-            )
+        low_high = check_q_range(self.q_range)
+        object.__setattr__(self, "q_range", low_high)
         if self.pbt_every < 1:
             raise TacbenchError(f"--pbt-every must be at least 1 step (got {self.pbt_every}).")
         declared = settings_of(RunConfig)
@@ -573,6 +567,17 @@ def make_run_configs(
     return configs, notes
 
 
+def check_q_range(values: Sequence[float]) -> tuple[float, float]:
+    """``--q-range`` as (LOW, HIGH), or a TacbenchError unless 0 < LOW < HIGH < inf."""
+    low_high = tuple(float(v) for v in values)
+    if len(low_high) != 2 or not 0 < low_high[0] < low_high[1] < math.inf:
+        raise TacbenchError(
+            f"--q-range must be LOW,HIGH with 0 < LOW < HIGH < inf (got {low_high}); "
+            "the paper's grid is 0.5,5."
+        )
+    return low_high[0], low_high[1]
+
+
 def _population(
     env: str,
     seeds: Sequence[int],
@@ -592,10 +597,8 @@ def _population(
             f"--q auto needs a population of at least {MIN_POPULATION} members: repeat --seed "
             f"(got {len(seeds)}; e.g. --seed 0 --seed 10 --seed 20 --seed 30)."
         )
-    q_range = tuple(overrides.get("q_range", settings_of(RunConfig)["q_range"].default))
-    if len(q_range) != 2 or not 0 < q_range[0] < q_range[1] < math.inf:
-        RunConfig(env=env, q=1.0, alpha=alphas[0], **overrides)  # raises the --q-range error
-    starts = initial_qs(len(seeds), (q_range[0], q_range[1]))
+    q_range = overrides.get("q_range", settings_of(RunConfig)["q_range"].default)
+    starts = initial_qs(len(seeds), check_q_range(q_range))
     return [
         RunConfig(env=env, q=q, alpha=alphas[0], seed=seed, **overrides)
         for q, seed in zip(starts, seeds, strict=True)

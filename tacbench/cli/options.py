@@ -18,50 +18,29 @@ from tacbench.settings import Setting, settings_of
 F = TypeVar("F", bound=Callable[..., Any])
 
 
-class IntTuple(click.ParamType):
-    """Comma-separated integers: ``400,300`` -> ``(400, 300)``."""
+class NumberTuple(click.ParamType):
+    """Comma-separated numbers of one kind: ``400,300`` -> ``(400, 300)`` (int), ``0.5,5`` ->
+    ``(0.5, 5.0)`` (float)."""
 
-    name = "integers"
-
-    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
-        if isinstance(value, tuple):
-            return value
-        try:
-            return tuple(int(part) for part in str(value).split(","))
-        except ValueError:
-            self.fail(f"{value!r} is not a comma-separated list of integers (400,300)", param, ctx)
-
-
-class FloatTuple(click.ParamType):
-    """Comma-separated numbers: ``0.5,5`` -> ``(0.5, 5.0)``."""
-
-    name = "numbers"
+    def __init__(self, kind: type[int] | type[float], example: str) -> None:
+        self.kind, self.example = kind, example
+        self.name = "integers" if kind is int else "numbers"
 
     def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
         if isinstance(value, tuple):
             return value
         try:
-            return tuple(float(part) for part in str(value).split(","))
+            return tuple(self.kind(part) for part in str(value).split(","))
         except ValueError:
-            self.fail(f"{value!r} is not a comma-separated list of numbers (0.5,5)", param, ctx)
+            self.fail(
+                f"{value!r} is not a comma-separated list of {self.name} ({self.example})",
+                param,
+                ctx,
+            )
 
 
-class QType(click.ParamType):
-    """An entropic index: a number, or ``auto`` (learned by the population)."""
-
-    name = "float|auto"
-
-    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
-        if value == "auto" or isinstance(value, float):
-            return value
-        try:
-            return float(value)
-        except ValueError:
-            self.fail(f"{value!r} is neither a number nor 'auto'", param, ctx)
-
-
-class AlphaType(click.ParamType):
-    """An entropy coefficient: a positive number, or ``auto`` (learned)."""
+class NumberOrAuto(click.ParamType):
+    """A number, or ``auto`` (learned: --q auto, --alpha auto)."""
 
     name = "float|auto"
 
@@ -95,9 +74,9 @@ def _option(declared: Setting, *, sweep: bool) -> Callable[[F], F]:
     if info.choices:
         kwargs["type"] = click.Choice(info.choices)
     elif declared.type in (tuple[int, ...], tuple[int, ...] | None):
-        kwargs["type"] = IntTuple()
+        kwargs["type"] = NumberTuple(int, "400,300")
     elif declared.type == tuple[float, ...]:
-        kwargs["type"] = FloatTuple()
+        kwargs["type"] = NumberTuple(float, "0.5,5")
     elif declared.type == float | None:
         kwargs["type"] = float
     else:

@@ -14,7 +14,7 @@ import click
 
 from tacbench import trainers
 from tacbench.cli.common import command_line, report_outcomes
-from tacbench.cli.options import AlphaType, QType, cli_settings, setting_options
+from tacbench.cli.options import NumberOrAuto, cli_settings, setting_options
 from tacbench.config import RunConfig, RunSettings
 from tacbench.errors import TacbenchError
 from tacbench.settings import settings_of
@@ -23,25 +23,17 @@ _SETTINGS = cli_settings(RunConfig)
 _RUN_SETTINGS = set(settings_of(RunSettings))
 
 
-def _alpha_auto(ctx: click.Context, alphas: tuple[float | str, ...]) -> str:
-    """``--alpha auto``: the alpha mode it stands for, refused next to other alpha values."""
-    explicit = ctx.get_parameter_source("alpha_mode") == click.core.ParameterSource.COMMANDLINE
-    if len(alphas) > 1 or (explicit and ctx.params["alpha_mode"] != "auto"):
+def _learned_mode(
+    ctx: click.Context, name: str, values: tuple[float | str, ...], does: str, tip: str = ""
+) -> str:
+    """``--<name> auto``: the mode setting ``<name>_mode`` it stands for, refused next to other
+    values of the flag or an explicit ``--<name>-mode fixed``."""
+    mode = f"{name}_mode"
+    explicit = ctx.get_parameter_source(mode) == click.core.ParameterSource.COMMANDLINE
+    if len(values) > 1 or (explicit and ctx.params[mode] != "auto"):
         raise TacbenchError(
-            "--alpha auto learns every member's alpha from the paper's value; it does not mix "
-            "with other --alpha values or --alpha-mode fixed in one command. To learn alpha from "
-            "another start: --alpha-mode auto --alpha 0.1."
-        )
-    return "auto"
-
-
-def _q_auto(ctx: click.Context, qs: tuple[float | str, ...]) -> str:
-    """``--q auto``: the q mode it stands for, refused next to other q values."""
-    explicit = ctx.get_parameter_source("q_mode") == click.core.ParameterSource.COMMANDLINE
-    if len(qs) > 1 or (explicit and ctx.params["q_mode"] != "auto"):
-        raise TacbenchError(
-            "--q auto learns q in a population; it does not mix with other --q values or "
-            "--q-mode fixed in one command."
+            f"--{name} auto {does}; it does not mix with other --{name} values or "
+            f"--{name}-mode fixed in one command.{tip}"
         )
     return "auto"
 
@@ -64,7 +56,7 @@ def _q_auto(ctx: click.Context, qs: tuple[float | str, ...]) -> str:
 @click.option(
     "--q",
     "qs",
-    type=QType(),
+    type=NumberOrAuto(),
     multiple=True,
     help="Entropic index q; repeatable (--q 0.5 --q 1 --q 1.5): every q x alpha x seed trains "
     "as a member of one process; auto: the seeds (at least 4) learn q as a population "
@@ -73,7 +65,7 @@ def _q_auto(ctx: click.Context, qs: tuple[float | str, ...]) -> str:
 @click.option(
     "--alpha",
     "alphas",
-    type=AlphaType(),
+    type=NumberOrAuto(),
     multiple=True,
     help="Entropy coefficient; repeatable, like --q; auto: learned per member from the paper's "
     "alpha (--alpha-mode auto).  [default: the paper's: 0.2, Humanoid 0.05]",
@@ -130,10 +122,16 @@ def run(
                 "--hp sets a baseline's hyperparameters; TAC's have their own flags."
             )
         if "auto" in alphas:
-            settings["alpha_mode"] = _alpha_auto(ctx, alphas)
+            settings["alpha_mode"] = _learned_mode(
+                ctx,
+                "alpha",
+                alphas,
+                "learns every member's alpha from the paper's value",
+                " To learn alpha from another start: --alpha-mode auto --alpha 0.1.",
+            )
             alphas = ()
         if "auto" in qs:
-            settings["q_mode"] = _q_auto(ctx, qs)
+            settings["q_mode"] = _learned_mode(ctx, "q", qs, "learns q in a population")
             qs = ()
         numbers = [float(a) for a in alphas]
         configs, notes = trainers.make_configs(
