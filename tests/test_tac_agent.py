@@ -205,3 +205,30 @@ def test_a_member_without_an_update_is_bit_identical_after_the_groups_update() -
             after[k]["params"]["q1.weights.0"], before[k]["params"]["q1.weights.0"]
         )
         assert after[k]["adam"]["step"].item() == 2.0
+
+
+def test_members_updating_at_their_own_times_each_train_as_if_alone() -> None:
+    """With per-member updates a CPU agent holds each member in its own chunk and a round
+    touches only the chunks that are due: after rounds with different members due, every
+    member's weights and Adam state are exactly those of the same seed trained alone on its
+    own rows of the same minibatches."""
+    seeds, due = [3, 4, 5], [[True, True, True], [True, False, True], [False, True, False]]
+    group = _agent(seeds, update_schedule="episode")
+    assert [c.members for c in group.chunks] == [slice(0, 1), slice(1, 2), slice(2, 3)]
+    alone = [_agent([seed], update_schedule="episode") for seed in seeds]
+    for r, members in enumerate(due):
+        batch = _batch(3, seed=r)
+        metrics = group.update(batch, _c(3), members=members)
+        for k in np.flatnonzero(members):
+            own = alone[k].update({n: v[k : k + 1] for n, v in batch.items()}, _c(1))
+            assert torch.equal(metrics[k], own[0])
+        assert (metrics[~torch.as_tensor(members)] == 0).all()
+    for k, single in enumerate(alone):
+        state, expected = group.member_state(k), single.member_state(0)
+        assert torch.equal(state["adam"]["step"], expected["adam"]["step"])
+        for part, name in (("params", None), ("adam", "exp_avg"), ("adam", "exp_avg_sq")):
+            mine, theirs = state[part], expected[part]
+            if name is not None:
+                mine, theirs = mine[name], theirs[name]
+            assert mine.keys() == theirs.keys()
+            assert all(torch.equal(mine[n], theirs[n]) for n in theirs), (k, part, name)

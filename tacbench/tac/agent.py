@@ -11,6 +11,12 @@ own parameter buffers, updated one after the other through one shared (compiled)
 large group's activations then stay in the caches (docs/performance.md: per member, the
 compiled update took 0.41 ms at 10 members and 0.73 ms at 90). Members never interact, so
 this is the same computation in another order. On a GPU all members are one chunk.
+
+When members update at their own times (the episode schedule, updates during warm-up:
+``config.per_member_updates``), a CPU agent holds each member in its own chunk and an update
+round skips the chunks of the members that are not due: on Hopper, whose members' episodes end
+at different steps, a round then costs one member's update instead of the whole group's
+(docs/performance.md). Every member's numbers are the same either way.
 """
 
 from __future__ import annotations
@@ -70,6 +76,8 @@ class TacAgent:
         )
         k = len(seeds)
         most = k if device.type == "cuda" else CPU_MEMBERS_PER_CHUNK
+        if device.type == "cpu" and config.per_member_updates:
+            most = 1  # a round trains only the chunks of the members that are due
         size = math.ceil(k / math.ceil(k / most))  # near-equal chunks: 45 members are 5 x 9
         chunks = [slice(first, min(first + size, k)) for first in range(0, k, size)]
         params = [
@@ -187,15 +195,26 @@ class TacAgent:
         active: npt.NDArray[np.bool_] | None,
     ) -> torch.Tensor:
         """``TacUpdate.<method>`` on each chunk's members; their metrics, in member order."""
-        metrics = []
+        metrics: list[torch.Tensor | None] = []
         for chunk in self.chunks:
             m = chunk.members
+            if active is not None and not active[m].any():
+                metrics.append(None)  # nothing to train: the chunk is not touched at all
+                continue
             args = [Batch(*(t[m] for t in batch)), eps[m], self.alive[m]]
             args += [Coefficients(*(t[m] for t in c)), _chunked(eps_next, m)]
             if active is not None:
                 args.append(active[m])
             metrics.append(getattr(chunk.update, method)(*args))
-        return torch.cat(metrics)
+        width = next(x for x in metrics if x is not None).shape[1]
+        return torch.cat(
+            [
+                torch.zeros(chunk.members.stop - chunk.members.start, width, device=self.device)
+                if x is None
+                else x
+                for chunk, x in zip(self.chunks, metrics, strict=True)
+            ]
+        )
 
     def _chunk_of(self, k: int) -> tuple[_Chunk, int]:
         chunk = self.chunks[k // self.chunks[0].params.n_members]
