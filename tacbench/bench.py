@@ -30,9 +30,10 @@ from typing import Any
 import torch
 
 from tacbench import envs, training
-from tacbench.config import PAPER_Q_GRID, PAPER_SEEDS, RunConfig, make_run_configs
+from tacbench.config import PAPER_Q_GRID, PAPER_SEEDS, RunConfig
 from tacbench.errors import TacbenchError
 from tacbench.hardware import configure_process, cpu_class, cpu_name
+from tacbench.members import make_run_configs
 
 Advance = Callable[[int], int]
 WARMUP_UPDATES = 50  # untimed updates after learning starts (compilation happens here)

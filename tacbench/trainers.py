@@ -13,7 +13,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from baselines import ALGOS as BASELINES
-from tacbench.config import RunConfig, RunSettings, make_run_configs
+from tacbench.config import RunConfig, RunSettings
+from tacbench.members import make_run_configs
 from tacbench.settings import settings_of
 
 if TYPE_CHECKING:

@@ -8,8 +8,9 @@ import pytest
 import torch
 
 from tacbench import hardware
-from tacbench.config import PAPER_SEEDS, RunConfig, make_run_configs, paper_defaults
+from tacbench.config import PAPER_SEEDS, RunConfig
 from tacbench.errors import TacbenchError
+from tacbench.members import make_run_configs, paper_defaults
 
 pytestmark = pytest.mark.unit
 
@@ -195,3 +196,17 @@ def test_device_resolution() -> None:
     if not torch.cuda.is_available():
         with pytest.raises(TacbenchError, match="no CUDA device"):
             resolve_device("cuda")
+
+
+def test_q_auto_notes_the_cap_once_and_not_for_its_starting_qs() -> None:
+    """A --q auto population's q moves during training: one note about the q >= 2 cap when the
+    range reaches 2, none per starting q; none at all for a range below 2."""
+    seeds = [0, 10, 20, 30]
+    configs, notes = make_run_configs("Hopper-v4", "Hopper", seeds, alphas=[0.2], q_mode="auto")
+    assert max(c.q for c in configs) >= 2  # the default range 0.5,5 starts members above 2
+    assert not any(note.startswith("q = 5 >= 2") for note in notes)
+    assert sum("policy density is capped" in note for note in notes) == 1
+    _, low = make_run_configs(
+        "Hopper-v4", "Hopper", seeds, alphas=[0.2], q_mode="auto", q_range=(0.5, 1.5)
+    )
+    assert not any("capped" in note for note in low)

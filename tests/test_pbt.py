@@ -14,7 +14,8 @@ import pytest
 import torch
 
 from tacbench.cli import cli
-from tacbench.config import RunConfig, make_run_configs
+from tacbench.config import RunConfig
+from tacbench.members import make_run_configs
 from tacbench.tac import TacAgent
 from tacbench.training.pbt import (
     PBT_COLUMNS,

@@ -1,0 +1,138 @@
+"""The members of one ``tacbench run``: a config per (q, alpha, seed) of the flags' product, or
+a ``--q auto`` population, with the paper's values filled in and notes that say where each
+default came from and what ``--compile auto`` chose."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+from tacbench.config import (
+    COMPILE_AUTO_LEARNING_STEPS,
+    DEFAULT_ALPHA,
+    DEFAULT_Q,
+    PAPER_ALPHA,
+    PAPER_BEST_Q,
+    RunConfig,
+    check_q_range,
+)
+from tacbench.errors import TacbenchError
+from tacbench.settings import settings_of
+
+
+def paper_defaults(task: str | None) -> tuple[float, float, str, str]:
+    """(q, alpha, where q comes from, where alpha comes from) for a paper task name (None: a
+    task the paper did not run)."""
+    if task is None:
+        return (
+            DEFAULT_Q,
+            DEFAULT_ALPHA,
+            "the paper reports no best q for this task; q = 1 is Shannon entropy, i.e. SAC",
+            "the paper's alpha for every task but Humanoid",
+        )
+    return (
+        PAPER_BEST_Q[task],
+        PAPER_ALPHA[task],
+        f"the paper's best q for {task} (appendix, per-task table)",
+        f"the paper's alpha for {task} (appendix, per-task table)",
+    )
+
+
+def make_run_configs(
+    env: str,
+    task: str | None,
+    seeds: Sequence[int],
+    qs: Sequence[float] = (),
+    alphas: Sequence[float] = (),
+    **overrides: Any,
+) -> tuple[list[RunConfig], list[str]]:
+    """One config per (q, alpha, seed) of the cross product (the members of one process) and
+    notes on the defaults chosen.
+
+    ``task`` is the paper's name for ``env`` (None if the paper did not run it); ``qs`` and
+    ``alphas`` left empty take the paper's values for that task.
+    """
+    for flag, values in (("--seed", seeds), ("--q", qs), ("--alpha", alphas)):
+        if len(set(values)) != len(values):
+            raise TacbenchError(f"{flag} values must differ (got {list(values)}).")
+    if not seeds:
+        raise TacbenchError("give at least one --seed.")
+    paper_q, paper_alpha, q_source, alpha_source = paper_defaults(task)
+    notes = []
+    if not qs:
+        notes.append(f"q = {paper_q:g}: {q_source}")
+    if not alphas:
+        notes.append(f"alpha = {paper_alpha:g}: {alpha_source}")
+    if overrides.get("q_mode") == "auto":
+        configs = _population(env, seeds, qs, alphas or (paper_alpha,), overrides)
+        notes[:1] = [
+            f"q = auto: {len(seeds)} members start at q = "
+            + ", ".join(f"{c.q:.3g}" for c in configs)
+        ]
+    else:
+        configs = [
+            RunConfig(env=env, q=q, alpha=alpha, seed=seed, **overrides)
+            for q in qs or (paper_q,)
+            for alpha in alphas or (paper_alpha,)
+            for seed in seeds
+        ]
+    learned_q = overrides.get("q_mode") == "auto"  # q changes during training
+    if learned_q and max(c.q_range[1] for c in configs) >= 2:
+        notes.append(
+            "q = auto: while a member's q is 2 or more, its policy density is capped at "
+            "10^(8/(q-1)) (paper, Numerical Issue)"
+        )
+    for q in sorted({c.q for c in configs if c.q >= 2 and c.q_mode == "fixed"}):
+        cap = 10 ** (8 / (q - 1))
+        notes.append(
+            f"q = {q:g} >= 2: the policy density is capped at {cap:.3g} (paper, Numerical Issue)"
+        )
+    notes.append(compile_note(configs[0], overrides.get("compile", "auto")))
+    return configs, notes
+
+
+def _population(
+    env: str,
+    seeds: Sequence[int],
+    qs: Sequence[float],
+    alphas: Sequence[float],
+    overrides: Mapping[str, Any],
+) -> list[RunConfig]:
+    """``--q auto``: one member per seed, starting at q spread in log q over ``--q-range``."""
+    from tacbench.training.pbt import MIN_POPULATION, initial_qs
+
+    if qs or len(alphas) != 1:
+        raise TacbenchError(
+            "--q auto learns q: give no other --q, and one --alpha (or --alpha auto)."
+        )
+    if len(seeds) < MIN_POPULATION:
+        raise TacbenchError(
+            f"--q auto needs a population of at least {MIN_POPULATION} members: repeat --seed "
+            f"(got {len(seeds)}; e.g. --seed 0 --seed 10 --seed 20 --seed 30)."
+        )
+    q_range = overrides.get("q_range", settings_of(RunConfig)["q_range"].default)
+    starts = initial_qs(len(seeds), check_q_range(q_range))
+    return [
+        RunConfig(env=env, q=q, alpha=alphas[0], seed=seed, **overrides)
+        for q, seed in zip(starts, seeds, strict=True)
+    ]
+
+
+def compile_note(config: RunConfig, asked: str) -> str:
+    """What ``--compile`` resolved to for ``config``, and why."""
+    if asked != "auto":
+        return f"compile: {config.compile} (--compile {asked})"
+    if config.learning_steps < COMPILE_AUTO_LEARNING_STEPS:
+        return (
+            f"compile: off (--compile auto: {config.learning_steps:,} learning steps, fewer than "
+            f"the {COMPILE_AUTO_LEARNING_STEPS:,} that repay the compilation)"
+        )
+    if config.compile == "off":
+        return (
+            "WARNING: compile: off (--compile auto found no C++ compiler, which torch.compile "
+            "needs on a CPU; install one, e.g. Debian's g++, for a 3-4x faster update)"
+        )
+    return (
+        f"compile: on (--compile auto: {config.learning_steps:,} learning steps repay the "
+        "compilation of the first update)"
+    )
