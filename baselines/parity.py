@@ -12,7 +12,9 @@ module prints those commands and analyses their run directories:
   algorithm.
 
 ``python -m baselines.parity commands`` prints the study's commands;
-``python -m baselines.parity analyse --results DIR`` prints the tables and writes the figure.
+``python -m baselines.parity analyse --results DIR`` prints the tables and writes the figure;
+``--finals CSV`` adds final returns recorded by an earlier study whose runs are not kept (one
+row per run: env, method, seed, return), so a new method can be compared with them.
 """
 
 from __future__ import annotations
@@ -109,6 +111,29 @@ def final_returns(data: pd.DataFrame, fraction: float = FRACTION) -> pd.DataFram
     return tail.groupby(["env", "method", "seed"])["return"].mean().reset_index()
 
 
+FINALS_COLUMNS = ("env", "method", "seed", "return")
+
+
+def recorded_finals(path: Path, finals: pd.DataFrame) -> pd.DataFrame:
+    """``finals`` with the final returns recorded in the CSV at ``path`` added (columns
+    :data:`FINALS_COLUMNS`; others are kept out). A method and task in both is an error."""
+    recorded = pd.read_csv(path)
+    missing = [c for c in FINALS_COLUMNS if c not in recorded.columns]
+    if missing:
+        raise TacbenchError(f"{path} lacks the columns {missing}; it needs {list(FINALS_COLUMNS)}.")
+    unknown = sorted(set(recorded["method"]) - set(METHODS))
+    if unknown:
+        raise TacbenchError(f"{path}: unknown methods {unknown}; the study's are {list(METHODS)}.")
+    recorded = recorded[list(FINALS_COLUMNS)]
+    both = recorded[["env", "method"]].merge(finals[["env", "method"]].drop_duplicates())
+    if not both.empty:
+        pairs = sorted({(e, m) for e, m in zip(both["env"], both["method"], strict=True)})
+        raise TacbenchError(
+            f"{path} records {pairs}, which the run directories also hold: keep one source."
+        )
+    return pd.concat([finals, recorded], ignore_index=True)
+
+
 def bootstrap_difference(
     a: np.ndarray, b: np.ndarray, reps: int = REPS, seed: int = 0
 ) -> tuple[float, float, float]:
@@ -178,24 +203,33 @@ def main(argv: Sequence[str] | None = None) -> None:
     show.add_argument("--out", default="results/parity")
     analyse = sub.add_parser("analyse", help="curves and final-return difference")
     analyse.add_argument("--results", type=Path, default=Path("results/parity"))
-    analyse.add_argument("--out", type=Path, help="folder for curves.csv, finals.csv, curves.png")
+    analyse.add_argument(
+        "--out", type=Path, help="folder for curves.csv, finals.csv, summary.csv, curves.png"
+    )
     analyse.add_argument("--reps", type=int, default=REPS)
+    analyse.add_argument(
+        "--finals", type=Path, action="append", default=[], help="recorded finals CSV; repeatable"
+    )
     args = parser.parse_args(argv)
     if args.action == "commands":
         print("\n".join(commands(args.env or ENVS, args.seed or SEEDS, args.steps, args.out)))
         return
     data = load(args.results)
     table, finals = curves(data), final_returns(data)
+    for path in args.finals:
+        finals = recorded_finals(path, finals)
     pd.set_option("display.width", 200)
     print(table.to_string(index=False, float_format=lambda x: f"{x:.1f}"))
     print(finals.to_string(index=False, float_format=lambda x: f"{x:.1f}"))
-    print(summary(finals, args.reps).to_string(index=False, float_format=lambda x: f"{x:.1f}"))
+    differences = summary(finals, args.reps)
+    print(differences.to_string(index=False, float_format=lambda x: f"{x:.1f}"))
     if args.out is not None:
         args.out.mkdir(parents=True, exist_ok=True)
         table.to_csv(args.out / "curves.csv", index=False)
         finals.to_csv(args.out / "finals.csv", index=False)
+        differences.to_csv(args.out / "summary.csv", index=False)
         plot(table, args.out / "curves.png")
-        print(f"wrote {args.out / 'curves.csv'}, finals.csv and curves.png")
+        print(f"wrote {args.out / 'curves.csv'}, finals.csv, summary.csv and curves.png")
 
 
 if __name__ == "__main__":

@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
+import re
 import shlex
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
 
 from baselines import parity
+from tacbench.errors import TacbenchError
 
 pytestmark = pytest.mark.unit
 
@@ -83,3 +86,32 @@ def test_bootstrap_interval_covers_the_difference_of_means() -> None:
     se = np.sqrt(a.var() / 5 + b.var() / 5)  # the interval is about +/- 2 standard errors
     assert 2.5 * se < high - low < 5.0 * se
     assert parity.bootstrap_difference(a, b, reps=5000) == (diff, low, high)  # seeded
+
+
+def test_recorded_finals_join_the_runs_and_are_compared(tmp_path: Path) -> None:
+    """SB3's finals from an earlier study, recorded in a CSV, are compared with new TAC runs."""
+    finals = parity.final_returns(_frame())
+    tac_only = finals[finals["method"] == parity.TAC]
+    recorded = tmp_path / "sb3.csv"
+    sb3 = finals[finals["method"] == parity.SB3].assign(measured="2026-11-22")
+    sb3.to_csv(recorded, index=False)
+    joined = parity.recorded_finals(recorded, tac_only)
+    assert list(joined.columns) == list(parity.FINALS_COLUMNS)
+    pd.testing.assert_frame_equal(
+        parity.summary(joined, reps=2000), parity.summary(finals, reps=2000)
+    )
+
+
+@pytest.mark.parametrize(
+    ("rows", "message"),
+    [
+        ("env,method,seed\nHopper-v4,SAC (SB3),0\n", "lacks the columns ['return']"),
+        ("env,method,seed,return\nHopper-v4,SAC,0,1.0\n", "unknown methods ['SAC']"),
+        ("env,method,seed,return\nHopper-v4,TAC q=1,0,1.0\n", "keep one source"),
+    ],
+)
+def test_recorded_finals_refuse_bad_files(tmp_path: Path, rows: str, message: str) -> None:
+    path = tmp_path / "finals.csv"
+    path.write_text(rows)
+    with pytest.raises(TacbenchError, match=re.escape(message)):
+        parity.recorded_finals(path, parity.final_returns(_frame()))
