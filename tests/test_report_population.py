@@ -70,7 +70,10 @@ def test_statistics_count_one_value_per_population(tmp_path: Path) -> None:
     assert improvement.p == pytest.approx(0.5)
     assert "q_trajectories" in report.figures
     assert set(report.trajectories["population"]) == {"seeds 0,1,2,3", "seeds 4,5,6,7"}
-    assert np.allclose(report.trajectories["q"].unique(), [0.5, 1.2, 1.44])
+    starts = report.trajectories[report.trajectories["step"] == 0].sort_values("seed")
+    assert np.allclose(starts["q"], [0.5 * 10 ** (i / 3) for i in range(4)] * 2)  # config's q
+    logged = report.trajectories[report.trajectories["step"] > 0]
+    assert np.allclose(logged["q"].unique(), [0.5, 1.2, 1.44])
     assert not report.best_q["best_q"].isna().any()  # TAC q=auto is not a best fixed q
     write_report(report)
     page = (tmp_path / "report" / "report.md").read_text()

@@ -8,6 +8,7 @@ scores (:func:`one_per_population`); the curves and the summary table still show
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pandas as pd
@@ -29,10 +30,14 @@ def one_per_population(scores: pd.DataFrame) -> pd.DataFrame:
 
 
 def q_trajectories(runs: pd.DataFrame, root: Path) -> pd.DataFrame:
-    """Each population member's q at every losses row (``losses.csv``), for the figure."""
+    """Each population member's q from step 0 (its starting q, the run's config) and at every
+    losses row (``losses.csv``), for the figure."""
     frames = []
     for run in runs[runs["population"].fillna("") != ""].itertuples():
-        losses = pd.read_csv(root / str(run.path) / "losses.csv", usecols=["step", "q"])
+        logged = pd.read_csv(root / str(run.path) / "losses.csv", usecols=["step", "q"])
+        config = json.loads((root / str(run.path) / "config.json").read_text())
+        start = pd.DataFrame({"step": [0], "q": [config["q"]]})  # where the member started
+        losses = pd.concat([start, logged], ignore_index=True)
         frames.append(
             losses.assign(env=run.env, method=run.method, population=run.population, seed=run.seed)
         )
