@@ -19,6 +19,7 @@ from tacbench import trainers
 from tacbench.envs import paper_task
 from tacbench.regress.manifest import without_wall_clock
 from tacbench.runs import Outcome
+from tacbench.tac.maths import Batch
 
 if TYPE_CHECKING:
     from tacbench.trainers import AnyConfig
@@ -45,6 +46,25 @@ TINY_HP = {
 }
 # every learner: TAC (both critic targets) and each baseline, as (algo, TAC settings) ids
 LEARNERS = ("tac", "tac-twinq", "ddpg", "td3", "sac-sb3", "ppo", "trpo")
+
+
+def random_batch(
+    k: int, b: int, obs: int, act: int, *, seed: int = 0, terminal: float = 0.0
+) -> tuple[Batch, torch.Tensor]:
+    """A minibatch ``(k, b, ...)`` of standard-normal observations and rewards, uniform actions
+    in [-1, 1] and a ``terminal`` fraction of terminal transitions, and reparameterisation noise
+    ``(k, b, act)``, all from one generator seeded with ``seed``."""
+    g = torch.Generator().manual_seed(seed)
+    batch = Batch(
+        obs=torch.randn(k, b, obs, generator=g),
+        action=torch.rand(k, b, act, generator=g) * 2 - 1,
+        reward=torch.randn(k, b, generator=g),
+        next_obs=torch.randn(k, b, obs, generator=g),
+        terminated=(torch.rand(k, b, generator=g) < terminal).float()
+        if terminal
+        else torch.zeros(k, b),
+    )
+    return batch, torch.randn(k, b, act, generator=g)
 
 
 def tiny_configs(

@@ -22,6 +22,7 @@ from tacbench.config import RunConfig
 from tacbench.errors import TacbenchError
 from tacbench.tac.agent import TacAgent
 from tacbench.tac.maths import ALPHA_METRICS, METRICS, Batch, coefficients, default_lnq_target
+from tests.helpers import random_batch
 
 pytestmark = pytest.mark.unit
 
@@ -41,15 +42,7 @@ def _agent(seeds: list[int], alphas: list[float] | None, **settings: Any) -> Tac
 
 
 def _batch(k: int, b: int = 256, seed: int = 0) -> tuple[Batch, torch.Tensor]:
-    g = torch.Generator().manual_seed(seed)
-    batch = Batch(
-        obs=torch.randn(k, b, OBS, generator=g),
-        action=torch.rand(k, b, ACT, generator=g) * 2 - 1,
-        reward=torch.randn(k, b, generator=g),
-        next_obs=torch.randn(k, b, OBS, generator=g),
-        terminated=torch.zeros(k, b),
-    )
-    return batch, torch.randn(k, b, ACT, generator=g)
+    return random_batch(k, b, OBS, ACT, seed=seed)
 
 
 @pytest.mark.parametrize("lnq", ["per-dim", "joint"])

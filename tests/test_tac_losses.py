@@ -20,6 +20,7 @@ from tacbench.tac.maths import (
 from tacbench.tac.networks import Layers, mlp, policy_head
 from tacbench.tac.parameters import Networks, TacParameters
 from tacbench.tsallis import log_q
+from tests.helpers import random_batch
 
 pytestmark = pytest.mark.unit
 
@@ -55,15 +56,7 @@ class Nets:
 
 
 def _batch(k: int, b: int, seed: int = 0) -> tuple[Batch, torch.Tensor]:
-    g = torch.Generator().manual_seed(seed)
-    batch = Batch(
-        obs=torch.randn(k, b, OBS, generator=g),
-        action=torch.rand(k, b, ACT, generator=g) * 2 - 1,
-        reward=torch.randn(k, b, generator=g),
-        next_obs=torch.randn(k, b, OBS, generator=g),
-        terminated=(torch.rand(k, b, generator=g) < 0.3).float(),
-    )
-    return batch, torch.randn(k, b, ACT, generator=g)
+    return random_batch(k, b, OBS, ACT, seed=seed, terminal=0.3)
 
 
 def _losses(
