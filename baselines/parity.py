@@ -66,16 +66,17 @@ def commands(
     return lines
 
 
-def load(results: Path) -> pd.DataFrame:
+def load(results: Path, by_variant: bool = False) -> pd.DataFrame:
     """Evaluation returns of the study's runs (TAC at q = 1, with either critic target or in the
     reference profile, and sac-sb3), complete runs only. Columns: method (one of
-    :data:`METHODS`), env, seed, step, return."""
+    :data:`METHODS`; with ``by_variant``, TAC runs are named ``TAC <variant>`` instead, for an
+    ablation's variants of one method), env, seed, step, return."""
     runset = load_runs(results, "eval")
     runs = runset.runs
     chosen = runs[((runs["algo"] == "tac") & (runs["q"] == 1.0)) | (runs["algo"] == "sac-sb3")]
     chosen = chosen[chosen["state"] == "complete"].copy()
     pairs = zip(chosen["algo"], chosen["variant"], strict=True)
-    chosen["method"] = [_method(algo, variant) for algo, variant in pairs]
+    chosen["method"] = [_method(algo, variant, by_variant) for algo, variant in pairs]
     several = chosen.groupby(["method", "env"])["variant"].nunique()
     if (several > 1).any():
         raise TacbenchError(
@@ -86,10 +87,13 @@ def load(results: Path) -> pd.DataFrame:
     return data[["method", "env", "seed", "step", "return"]].reset_index(drop=True)
 
 
-def _method(algo: str, variant: str) -> str:
-    """The study's name of a run: SB3, or TAC by its profile and critic target."""
+def _method(algo: str, variant: str, by_variant: bool = False) -> str:
+    """The study's name of a run: SB3, or TAC by its profile and critic target (or, with
+    ``by_variant``, by its whole variant)."""
     if algo == "sac-sb3":
         return SB3
+    if by_variant:
+        return f"TAC {variant}"
     parts = variant.split("-")
     if "ref" in parts:
         return TAC_REFERENCE
@@ -146,9 +150,10 @@ def summary(finals: pd.DataFrame, reps: int = REPS) -> pd.DataFrame:
     """Per task and TAC method present: its final return and SB3's (mean, std, seeds), and
     TAC minus SB3 with its 95% bootstrap interval."""
     rows = []
+    others = sorted(set(finals["method"]) - set(METHODS))
     for env, group in finals.groupby("env"):
         sb3 = group.loc[group["method"] == SB3, "return"].to_numpy()
-        for method in TAC_METHODS:
+        for method in (*TAC_METHODS, *others):
             tac = group.loc[group["method"] == method, "return"].to_numpy()
             if not len(tac):
                 continue
@@ -173,11 +178,12 @@ def plot(table: pd.DataFrame, path: Path) -> None:
     import matplotlib.pyplot as plt
 
     envs = sorted(table["env"].unique())
+    methods = [m for m in METHODS if m in set(table["method"])]
+    methods += sorted(set(table["method"]) - set(METHODS))
     fig, axes = plt.subplots(1, len(envs), figsize=(5 * len(envs), 3.6), squeeze=False)
     for ax, env in zip(axes[0], envs, strict=True):
-        for method, color in zip(
-            METHODS, ("tab:blue", "tab:green", "tab:purple", "tab:orange"), strict=True
-        ):
+        for i, method in enumerate(methods):
+            color = f"C{i % 10}"  # matplotlib's default colour cycle
             rows = table[(table["env"] == env) & (table["method"] == method)]
             if rows.empty:
                 continue
@@ -208,14 +214,25 @@ def main(argv: Sequence[str] | None = None) -> None:
     )
     analyse.add_argument("--reps", type=int, default=REPS)
     analyse.add_argument(
+        "--fraction",
+        type=float,
+        default=FRACTION,
+        help="final return: the evaluations in this last fraction of the steps (default 0.1)",
+    )
+    analyse.add_argument(
+        "--by-variant", action="store_true", help="name TAC runs by variant (an ablation)"
+    )
+    analyse.add_argument(
         "--finals", type=Path, action="append", default=[], help="recorded finals CSV; repeatable"
     )
     args = parser.parse_args(argv)
     if args.action == "commands":
         print("\n".join(commands(args.env or ENVS, args.seed or SEEDS, args.steps, args.out)))
         return
-    data = load(args.results)
-    table, finals = curves(data), final_returns(data)
+    if not 0 < args.fraction <= 1:
+        parser.error(f"--fraction must be in (0, 1] (got {args.fraction}).")
+    data = load(args.results, args.by_variant)
+    table, finals = curves(data), final_returns(data, args.fraction)
     for path in args.finals:
         finals = recorded_finals(path, finals)
     pd.set_option("display.width", 200)

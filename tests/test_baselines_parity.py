@@ -12,6 +12,7 @@ import pytest
 
 from baselines import parity
 from tacbench.errors import TacbenchError
+from tests.report_fixtures import write_run
 
 pytestmark = pytest.mark.unit
 
@@ -115,3 +116,41 @@ def test_recorded_finals_refuse_bad_files(tmp_path: Path, rows: str, message: st
     path.write_text(rows)
     with pytest.raises(TacbenchError, match=re.escape(message)):
         parity.recorded_finals(path, parity.final_returns(_frame()))
+
+
+def _write_study(root: Path) -> None:
+    """Two TAC variants and SB3 on Hopper, 3 seeds, evaluations at 10k..40k; the returns are
+    the variant's level plus the seed."""
+    levels = {("tac", "q1-a0.2"): 100.0, ("tac", "q1-a0.2-warmupon"): 300.0}
+    levels[("sac-sb3", "default")] = 200.0
+    for (algo, variant), level in levels.items():
+        for seed in (0, 10, 20):
+            write_run(
+                root,
+                algo=algo,
+                env="Hopper-v4",
+                variant=variant,
+                seed=seed,
+                steps=[10_000.0, 20_000.0, 30_000.0, 40_000.0],
+                returns=[0.0, 0.0, level + seed, level + seed],
+                q=1.0 if algo == "tac" else None,
+                alpha=0.2 if algo == "tac" else None,
+            )
+
+
+def test_an_ablation_names_tac_runs_by_variant_and_scores_a_window(tmp_path: Path) -> None:
+    """analyse --by-variant --fraction 0.25: each TAC variant is its own method, scored by the
+    evaluations in the last quarter of the steps (30k and 40k), against SB3."""
+    _write_study(tmp_path / "study")
+    with pytest.raises(TacbenchError, match="several variants of one method"):
+        parity.load(tmp_path / "study")
+    out = tmp_path / "analysis"
+    study = ["--results", str(tmp_path / "study"), "--out", str(out), "--reps", "200"]
+    parity.main(["analyse", *study, "--by-variant", "--fraction", "0.25"])
+    summary = pd.read_csv(out / "summary.csv").set_index("method")
+    assert list(summary.index) == ["TAC q1-a0.2", "TAC q1-a0.2-warmupon"]
+    assert summary.loc["TAC q1-a0.2", "TAC - SB3"] == pytest.approx(-100.0)
+    assert summary.loc["TAC q1-a0.2-warmupon", "TAC - SB3"] == pytest.approx(100.0)
+    assert (out / "curves.png").exists()
+    with pytest.raises(SystemExit):
+        parity.main(["analyse", "--results", str(tmp_path / "study"), "--fraction", "0"])
