@@ -183,10 +183,19 @@ def test_twin_q_member_state_round_trip_continues_identically() -> None:
             assert torch.equal(value, _params(restored, k)[name]), name
 
 
-def test_a_member_without_an_update_is_bit_identical_after_the_groups_update() -> None:
-    """The episode schedule: only the members whose episode ended update; the others' weights,
-    Adam state, targets and generators are exactly as before."""
-    agent = _agent([3, 4, 5], update_schedule="episode")
+@pytest.mark.parametrize(
+    ("settings", "chunks"),
+    [({"update_schedule": "episode"}, 3), ({"warmup_updates": "on"}, 1)],
+    ids=["episode-schedule", "warmup-updates"],
+)
+def test_a_member_without_an_update_is_bit_identical_after_the_groups_update(
+    settings: dict[str, str], chunks: int
+) -> None:
+    """Only the members due update (the episode schedule: a chunk per member, the others'
+    skipped; updates during warm-up in the step schedule: one chunk, masked); the others'
+    weights, Adam state, targets and generators are exactly as before."""
+    agent = _agent([3, 4, 5], **settings)
+    assert len(agent.chunks) == chunks
     batch = _batch(3)
     agent.update(batch, _c(3))  # everyone once, so the moments are not zero
     before = [agent.member_state(k) for k in range(3)]

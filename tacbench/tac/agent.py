@@ -12,11 +12,12 @@ large group's activations then stay in the caches (docs/performance.md: per memb
 compiled update took 0.41 ms at 10 members and 0.73 ms at 90). Members never interact, so
 this is the same computation in another order. On a GPU all members are one chunk.
 
-When members update at their own times (the episode schedule, updates during warm-up:
-``config.per_member_updates``), a CPU agent holds each member in its own chunk and an update
-round skips the chunks of the members that are not due: on Hopper, whose members' episodes end
-at different steps, a round then costs one member's update instead of the whole group's
-(docs/performance.md). Every member's numbers are the same either way.
+An update round skips the chunks with no member due. In the episode schedule a CPU agent holds
+each member in its own chunk: on Hopper, whose members' episodes end at different steps, a
+burst then costs one member's updates instead of the whole group's. Otherwise (the step
+schedule, where all members are due at every step after the warm-up) the members stay grouped,
+which is cheaper when all are due (docs/performance.md). Every member's numbers are the same
+either way.
 """
 
 from __future__ import annotations
@@ -76,8 +77,8 @@ class TacAgent:
         )
         k = len(seeds)
         most = k if device.type == "cuda" else CPU_MEMBERS_PER_CHUNK
-        if device.type == "cpu" and config.per_member_updates:
-            most = 1  # a round trains only the chunks of the members that are due
+        if device.type == "cpu" and config.update_schedule == "episode":
+            most = 1  # a burst trains only the chunks of the members whose episode ended
         size = math.ceil(k / math.ceil(k / most))  # near-equal chunks: 45 members are 5 x 9
         chunks = [slice(first, min(first + size, k)) for first in range(0, k, size)]
         params = [
