@@ -3,6 +3,7 @@ lock, the cost estimate and the worker's helpers, on hand-made run directories."
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import socket
@@ -130,6 +131,25 @@ def test_grouping_makes_member_units_at_equal_resume_steps(tmp_path: Path) -> No
     assert "  tac Hopper-v4: 2 units of 1-3 members, up to 0.1 GiB each" in text
     alone = driver.load_plan(tac, tmp_path, driver.Options(group="none"), save=False)[0]
     assert [u.key for u in alone.units] == [r.key for r in all_runs]
+
+
+def test_the_reference_profile_groups_its_seeds_too(tmp_path: Path) -> None:
+    """Members update at their own episode ends (issue 21), so --profile reference runs are
+    grouped like any other TAC runs."""
+    tac = narrow(SMOKE, Narrowing(algos=("tac",)))
+    reference = dataclasses.replace(
+        tac,
+        entries=tuple(
+            dataclasses.replace(e, settings={**e.settings, "profile": "reference"})
+            for e in tac.entries
+        ),
+    )
+    units = driver.load_plan(reference, tmp_path, driver.Options(group="seeds"), save=False)[0]
+    assert [u.key for u in units.units] == [
+        "runs/tac/Hopper-v4/q1-a0.2-ref-ls500-bs32/seeds0,10",
+        "runs/tac/Hopper-v4/q2-a0.2-ref-ls500-bs32/seeds0,10",
+    ]
+    assert all(r.config.update_schedule == "episode" for u in units.units for r in u.runs)
 
 
 def test_a_q_by_seed_grid_is_split_into_near_equal_units_of_at_most_members(

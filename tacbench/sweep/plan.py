@@ -214,8 +214,7 @@ def make_units(planned: Sequence[PlannedRun], group: str, unit_size: UnitSize) -
     """One unit per run to train, or (``group`` "seeds" or "task") TAC runs equal but for the
     seed, or for q, alpha and the seed, at the same resume step, as members of units of at most
     ``unit_size(runs of the group, number of groups)`` runs (a larger group is split into units of
-    near-equal size). Failed runs are retried alone; the episode schedule trains one member per
-    process."""
+    near-equal size). Failed runs are retried alone."""
     units: list[Unit | tuple[str, int]] = []  # a tuple marks where a group goes
     groups: dict[tuple[str, int], list[Run]] = {}
     for p in planned:
@@ -224,11 +223,7 @@ def make_units(planned: Sequence[PlannedRun], group: str, unit_size: UnitSize) -
             units.append(Unit((p.run,), retry=(p.run.key,)))
         elif p.action != "train":
             continue
-        elif (
-            group in _MEMBER_FIELDS
-            and isinstance(config, RunConfig)
-            and (config.update_schedule == "step")
-        ):
+        elif group in _MEMBER_FIELDS and isinstance(config, RunConfig):
             ignored = _MEMBER_FIELDS[group]
             shared = {k: v for k, v in config.to_dict().items() if k not in ignored}
             key = (json.dumps(shared, sort_keys=True), p.status.step)
