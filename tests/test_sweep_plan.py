@@ -199,6 +199,28 @@ def test_measured_throughput_replaces_the_default(tmp_path: Path) -> None:
     assert rates[("trpo", "Hopper-v4")].seconds_per_step > 0
 
 
+def test_the_reference_profile_is_priced_on_its_own(tmp_path: Path) -> None:
+    """TAC in --profile reference costs several times the paper profile per step: its runs are
+    measured apart from the paper profile's, and its default is its own."""
+    paper, reference = plan.build_runs(narrow(SMOKE, Narrowing(algos=("tac",))))[:2]
+    reference = plan.Run(dataclasses.replace(reference.config, profile="reference"))
+    for run, wall in ((paper, 1.0), (reference, 8.0)):
+        directory = _fake_run(tmp_path, run, {"state": "complete", "step": 1000})
+        (directory / "eval.csv").write_text(
+            "step,wall_s,return_mean,return_std,length_mean\n"
+            f"500,{wall},1,0,1\n1000,{2 * wall},1,0,1\n"
+        )
+    assert cost.cost_algo("tac", "reference") == cost.REFERENCE_TAC
+    assert cost.cost_algo("ppo", None) == "ppo"
+    measured = cost.rates(tmp_path, [("tac", "Hopper-v4"), (cost.REFERENCE_TAC, "Hopper-v4")])
+    assert measured[("tac", "Hopper-v4")].seconds_per_step == pytest.approx(0.002)
+    assert measured[(cost.REFERENCE_TAC, "Hopper-v4")].seconds_per_step == pytest.approx(0.016)
+    defaults = cost.rates(tmp_path / "empty", [("tac", "Ant-v4"), (cost.REFERENCE_TAC, "Ant-v4")])
+    assert defaults[(cost.REFERENCE_TAC, "Ant-v4")].seconds_per_step > 5 * (
+        defaults[("tac", "Ant-v4")].seconds_per_step
+    )
+
+
 def test_defaults_cover_every_paper_pair() -> None:
     pairs = {(r.config.algo, r.config.env) for r in plan.build_runs(get_preset("paper-comparison"))}
     assert pairs <= set(cost.DEFAULT_SECONDS_PER_STEP)

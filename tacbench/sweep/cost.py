@@ -65,7 +65,22 @@ DEFAULT_SECONDS_PER_STEP: dict[tuple[str, str], float] = {
     ("trpo", "Pusher-v5"): 0.75e-3,
     ("trpo", "Humanoid-v4"): 0.92e-3,
 }
+# TAC in --profile reference ((400, 300) networks, updates during warm-up, episode bursts), a
+# cost of its own: 5 members of one process, compiled, 100,000 steps, wall time (eval.csv) of the
+# second half with the other core busy, AMD EPYC class, 2026-12-02 (docs/parity.md). Other tasks
+# get the mean of these.
+REFERENCE_TAC = "tac-ref"
+DEFAULT_SECONDS_PER_STEP |= {
+    (REFERENCE_TAC, "HalfCheetah-v4"): 7.93e-3,
+    (REFERENCE_TAC, "Hopper-v4"): 8.19e-3,
+}
 DEFAULT_SOURCE = "default*"  # the plan explains the asterisk
+
+
+def cost_algo(algo: str, profile: str | None) -> str:
+    """The name a run's cost is kept under: its algorithm, or :data:`REFERENCE_TAC` for TAC in
+    the reference profile, which costs several times the paper profile per step."""
+    return REFERENCE_TAC if algo == "tac" and profile == "reference" else algo
 
 
 @dataclass(frozen=True)
@@ -96,14 +111,15 @@ def run_seconds_per_step(directory: Path) -> float | None:
 
 
 def rates(out: Path, pairs: Iterable[tuple[str, str]]) -> dict[tuple[str, str], Rate]:
-    """A :class:`Rate` for each (algo, env) in ``pairs``: measured under ``out`` when a run there
-    has two evaluations, else the default (None-free: an unmeasured pair gets the mean default
-    of its algorithm, or of everything)."""
+    """A :class:`Rate` for each (algo, env) in ``pairs`` (algo as :func:`cost_algo` names it):
+    measured under ``out`` when a run there has two evaluations, else the default (None-free: an
+    unmeasured pair gets the mean default of its algorithm, or of everything)."""
     measured: dict[tuple[str, str], list[float]] = defaultdict(list)
     for config_json in Path(out).glob("runs/*/*/*/seed*/config.json"):
         value = run_seconds_per_step(config_json.parent)
         if value is not None:
-            algo, env = config_json.parts[-5], config_json.parts[-4]
+            profile = runs.read_json(config_json).get("config", {}).get("profile")
+            algo, env = cost_algo(config_json.parts[-5], profile), config_json.parts[-4]
             measured[(algo, env)].append(value)
     result = {}
     for pair in set(pairs):
