@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import re
 import shlex
 from pathlib import Path
@@ -154,3 +155,37 @@ def test_an_ablation_names_tac_runs_by_variant_and_scores_a_window(tmp_path: Pat
     assert (out / "curves.png").exists()
     with pytest.raises(SystemExit):
         parity.main(["analyse", "--results", str(tmp_path / "study"), "--fraction", "0"])
+
+
+STUDY = Path(__file__).resolve().parents[1] / "results" / "studies" / "parity-100k"
+SB3_FINALS = STUDY / "recorded-finals-sb3.csv"
+TWIN_Q_FINALS = STUDY / "recorded-finals-twinq.csv"
+
+
+@pytest.mark.smoke
+@pytest.mark.parametrize(
+    ("folder", "options", "runs"),
+    [
+        (
+            "",
+            ["--finals", str(SB3_FINALS), "--finals", str(STUDY / "recorded-finals-twinq.csv")],
+            20,
+        ),
+        ("ablation-40k", ["--by-variant", "--fraction", "0.375"], 25),
+        ("ablation-100k", ["--by-variant", "--finals", str(SB3_FINALS)], 10),
+    ],
+    ids=["study", "ablation-40k", "ablation-100k"],
+)
+def test_the_published_study_is_complete_and_its_tables_regenerate(
+    tmp_path: Path, folder: str, options: list[str], runs: int
+) -> None:
+    """docs/parity.md's numbers: every run complete, no checkpoints, and ``analyse`` with the
+    options the study used writes the committed tables again, byte for byte."""
+    results = STUDY / folder
+    statuses = [json.loads(p.read_text()) for p in results.glob("runs/*/*/*/seed*/status.json")]
+    assert len(statuses) == runs
+    assert {s["state"] for s in statuses} == {"complete"}
+    assert not list(results.glob("runs/**/checkpoint"))
+    parity.main(["analyse", "--results", str(results), *options, "--out", str(tmp_path)])
+    for table in sorted((results / "analysis").glob("*.csv")):
+        assert (tmp_path / table.name).read_text() == table.read_text(), table.name
