@@ -63,7 +63,8 @@ def make_run_configs(
         notes.append(f"q = {paper_q:g}: {q_source}")
     if not alphas:
         notes.append(f"alpha = {paper_alpha:g}: {alpha_source}")
-    if overrides.get("q_mode") == "auto":
+    learned_q = overrides.get("q_mode") == "auto"  # q changes during training
+    if learned_q:
         configs = _population(env, seeds, qs, alphas or (paper_alpha,), overrides)
         notes[:1] = [
             f"q = auto: {len(seeds)} members start at q = "
@@ -76,7 +77,6 @@ def make_run_configs(
             for alpha in alphas or (paper_alpha,)
             for seed in seeds
         ]
-    learned_q = overrides.get("q_mode") == "auto"  # q changes during training
     if learned_q and max(c.q_range[1] for c in configs) >= 2:
         notes.append(
             "q = auto: while a member's q is 2 or more, its policy density is capped at "
