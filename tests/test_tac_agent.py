@@ -10,7 +10,7 @@ import torch
 
 from tacbench.config import RunConfig
 from tacbench.tac import METRICS, TacAgent, coefficients
-from tacbench.tac.maths import Coefficients
+from tacbench.tac.maths import ALPHA_METRICS, Coefficients
 from tacbench.tac.networks import glorot_uniform, init_layers, mlp, policy_head
 
 pytestmark = pytest.mark.unit
@@ -241,3 +241,26 @@ def test_members_updating_at_their_own_times_each_train_as_if_alone() -> None:
                 mine, theirs = mine[name], theirs[name]
             assert mine.keys() == theirs.keys()
             assert all(torch.equal(mine[n], theirs[n]) for n in theirs), (k, part, name)
+
+
+@pytest.mark.parametrize("learned_alpha", [False, True])
+def test_a_round_with_no_member_due_changes_nothing(learned_alpha: bool) -> None:
+    """Zeros of the usual width (with the alpha metrics when alpha is learned); no weight moves."""
+    config = RunConfig(
+        env="Hopper-v4",
+        q=1.5,
+        alpha=0.2,
+        hidden_sizes=(16,),
+        compile="off",
+        update_schedule="episode",
+        alpha_mode="auto" if learned_alpha else "fixed",
+    )
+    alphas = [0.2, 0.2] if learned_alpha else None
+    agent = TacAgent(OBS, ACT, config, [3, 4], torch.device("cpu"), initial_alphas=alphas)
+    before = [agent.member_state(k)["params"] for k in range(2)]
+    metrics = agent.update(_batch(2), _c(2), members=[False, False])
+    assert metrics.shape[0] == 2 and (metrics == 0).all()
+    assert metrics.shape[1] == len(METRICS) + (len(ALPHA_METRICS) if learned_alpha else 0)
+    for k in range(2):
+        after = agent.member_state(k)["params"]
+        assert all(torch.equal(v, before[k][n]) for n, v in after.items())

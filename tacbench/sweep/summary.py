@@ -54,9 +54,8 @@ def describe_plan(plan: SweepPlan, workers: int, group: str) -> str:
     groups: dict[tuple[str, str], list[PlannedRun]] = defaultdict(list)
     for p in plan.runs:
         config = p.run.config
-        groups[(cost.cost_algo(config.algo, getattr(config, "profile", None)), config.env)].append(
-            p
-        )
+        algo = cost.cost_algo(config.algo, getattr(config, "profile", None))
+        groups[(algo, config.env)].append(p)
     rates = cost.rates(plan.out, groups)
     core_s = 0.0
     for (algo, env), members in groups.items():

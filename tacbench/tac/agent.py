@@ -32,7 +32,7 @@ import torch
 
 from tacbench.config import RunConfig
 from tacbench.tac.losses import LossSettings
-from tacbench.tac.maths import Batch, Coefficients
+from tacbench.tac.maths import ALPHA_METRICS, METRICS, Batch, Coefficients
 from tacbench.tac.networks import mlp, policy_head
 from tacbench.tac.parameters import TacParameters
 from tacbench.tac.update import TacUpdate, compiled_gradient, eager_gradient
@@ -207,7 +207,8 @@ class TacAgent:
             if active is not None:
                 args.append(active[m])
             metrics.append(getattr(chunk.update, method)(*args))
-        width = next(x for x in metrics if x is not None).shape[1]
+        learns_alpha = self.chunks[0].params.networks.log_alpha is not None
+        width = len(METRICS) + (len(ALPHA_METRICS) if learns_alpha else 0)
         return torch.cat(
             [
                 torch.zeros(chunk.members.stop - chunk.members.start, width, device=self.device)
