@@ -17,6 +17,7 @@ from collections import defaultdict
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from tacbench import runs
 
@@ -97,6 +98,11 @@ def run_seconds_per_step(directory: Path) -> float | None:
     eval_csv, config_json = directory / "eval.csv", directory / "config.json"
     if not eval_csv.exists() or not config_json.exists():
         return None
+    return _seconds_per_step(eval_csv, runs.read_json(config_json))
+
+
+def _seconds_per_step(eval_csv: Path, metadata: dict[str, Any]) -> float | None:
+    """:func:`run_seconds_per_step` from the run's eval.csv and its config.json's contents."""
     with eval_csv.open(newline="") as handle:
         rows = [(int(r["step"]), float(r["wall_s"])) for r in csv.DictReader(handle)]
     if len(rows) < 2:
@@ -104,7 +110,6 @@ def run_seconds_per_step(directory: Path) -> float | None:
     (step_a, wall_a), (step_b, wall_b) = rows[(len(rows) - 1) // 2], rows[-1]
     if step_b <= step_a or wall_b <= wall_a:
         return None
-    metadata = runs.read_json(config_json)
     threads = int(metadata.get("config", {}).get("threads", 1))
     members = len(metadata.get("members", [0])) or 1
     return (wall_b - wall_a) / (step_b - step_a) * threads / members
@@ -116,9 +121,13 @@ def rates(out: Path, pairs: Iterable[tuple[str, str]]) -> dict[tuple[str, str], 
     unmeasured pair gets the mean default of its algorithm, or of everything)."""
     measured: dict[tuple[str, str], list[float]] = defaultdict(list)
     for config_json in Path(out).glob("runs/*/*/*/seed*/config.json"):
-        value = run_seconds_per_step(config_json.parent)
+        eval_csv = config_json.parent / "eval.csv"
+        if not eval_csv.exists():
+            continue
+        metadata = runs.read_json(config_json)  # once: the rate's divisors and the profile
+        value = _seconds_per_step(eval_csv, metadata)
         if value is not None:
-            profile = runs.read_json(config_json).get("config", {}).get("profile")
+            profile = metadata.get("config", {}).get("profile")
             algo, env = cost_algo(config_json.parts[-5], profile), config_json.parts[-4]
             measured[(algo, env)].append(value)
     result = {}
