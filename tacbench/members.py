@@ -77,16 +77,19 @@ def make_run_configs(
             for alpha in alphas or (paper_alpha,)
             for seed in seeds
         ]
-    if learned_q and max(c.q_range[1] for c in configs) >= 2:
-        notes.append(
-            "q = auto: while a member's q is 2 or more, its policy density is capped at "
-            "10^(8/(q-1)) (paper, Numerical Issue)"
-        )
-    for q in sorted({c.q for c in configs if c.q >= 2 and c.q_mode == "fixed"}):
-        cap = 10 ** (8 / (q - 1))
-        notes.append(
-            f"q = {q:g} >= 2: the policy density is capped at {cap:.3g} (paper, Numerical Issue)"
-        )
+    if learned_q:
+        if max(c.q_range[1] for c in configs) >= 2:
+            notes.append(
+                "q = auto: while a member's q is 2 or more, its policy density is capped at "
+                "10^(8/(q-1)) (paper, Numerical Issue)"
+            )
+    else:
+        for q in sorted({c.q for c in configs if c.q >= 2}):
+            cap = 10 ** (8 / (q - 1))
+            notes.append(
+                f"q = {q:g} >= 2: the policy density is capped at {cap:.3g} "
+                "(paper, Numerical Issue)"
+            )
     notes.append(compile_note(configs[0], overrides.get("compile", "auto")))
     return configs, notes
 
