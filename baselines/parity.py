@@ -27,14 +27,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from tacbench import paper
 from tacbench.bootstrap import mean_difference
-from tacbench.config import PAPER_ALPHA
-from tacbench.envs import paper_task
 from tacbench.errors import TacbenchError
 from tacbench.report.load import load_runs
 
 ENVS = ("Hopper-v4", "HalfCheetah-v4")
-SEEDS = (0, 10, 20, 30, 40)  # the first five of the paper's seeds (0, 10, ..., 90)
+SEEDS = paper.SEEDS[:5]
 STEPS = 100_000
 FRACTION = 0.1  # final return: the evaluations in the last 10% of the steps
 REPS = 10_000
@@ -56,7 +55,8 @@ def commands(
     seed_flags = [flag for seed in seeds for flag in ("--seed", str(seed))]
     lines = []
     for env in envs:
-        alpha = PAPER_ALPHA[paper_task(env) or ""]
+        facts = paper.task_facts(env)
+        alpha = paper.DEFAULT_ALPHA if facts is None else facts.alpha
         common = ["--env", env, *seed_flags, "--steps", str(steps), "--out", out, "--quiet"]
         tac = ["tacbench", "run", "--q", "1", "--alpha", f"{alpha:g}"]
         lines.append(shlex.join([*tac, *common]))

@@ -20,7 +20,7 @@ from stable_baselines3.common.vec_env import VecNormalize
 from baselines import algos, checkpoint, hyperparams
 from baselines.callbacks import Diverged, Interrupted, LossLogger, RunCallback
 from baselines.config import BaselineConfig
-from tacbench import envs, runs
+from tacbench import envs, paper, runs
 from tacbench.checkpoints import disk_errors
 from tacbench.errors import TacbenchError
 from tacbench.hardware import configure_process
@@ -32,7 +32,7 @@ from tacbench.runs import Outcome, plan_runs
 def metadata(config: BaselineConfig, command: str) -> dict[str, Any]:
     """config.json's content for ``config``; ``hp_overrides`` lists where its hyperparameters
     differ from the table's values for its environment."""
-    table, _ = hyperparams.resolve(config.algo, config.env, envs.paper_task(config.env))
+    table, _ = hyperparams.resolve(config.algo, config.env, paper.paper_task(config.env))
     overrides = {k: v for k, v in config.hyperparams.items() if table.get(k) != v}
     return runs.run_metadata(
         config.to_dict(),

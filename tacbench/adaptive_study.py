@@ -23,11 +23,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from tacbench import paper
 from tacbench.bootstrap import mean_difference
 from tacbench.report.load import load_runs
 from tacbench.report.tables import DEFAULT_LAST, run_scores
 
-BEST_Q = {"HalfCheetah-v4": 1.5, "Hopper-v4": 2.0}  # the paper's per-task table
+ENVS = ("HalfCheetah-v4", "Hopper-v4")
+BEST_Q = {env: paper.TASK_FACTS[paper.task_name(env)].best_q for env in ENVS}
 POPULATIONS = (tuple(range(0, 80, 10)), tuple(range(80, 160, 10)))
 ALPHA_SEEDS = tuple(range(0, 50, 10))  # the paper-q-grid study's seeds (results/studies/)
 STEPS = 100_000

@@ -29,8 +29,8 @@ from typing import Any
 
 import torch
 
-from tacbench import envs, training
-from tacbench.config import PAPER_Q_GRID, PAPER_SEEDS, RunConfig
+from tacbench import envs, paper, training
+from tacbench.config import RunConfig
 from tacbench.errors import TacbenchError
 from tacbench.hardware import configure_process, cpu_class, cpu_name
 from tacbench.members import make_run_configs
@@ -111,8 +111,8 @@ def contestants(options: BenchOptions) -> list[Contestant]:
         if options.compile:
             rows.append(Contestant("TAC compiled", k, tac=True, compile=True))
     if options.grid:  # the paper's q grid of one task in one process: 9 q x 10 seeds
-        members = len(PAPER_Q_GRID) * len(PAPER_SEEDS)
-        rows.append(Contestant("TAC q grid compiled", members, True, True, PAPER_Q_GRID))
+        members = len(paper.Q_GRID) * len(paper.SEEDS)
+        rows.append(Contestant("TAC q grid compiled", members, True, True, paper.Q_GRID))
     return rows
 
 
@@ -120,7 +120,7 @@ def _tac_configs(options: BenchOptions, contestant: Contestant) -> list[RunConfi
     n_seeds = contestant.members // max(1, len(contestant.qs))
     configs, _ = make_run_configs(
         options.env,
-        envs.paper_task(options.env),
+        paper.paper_task(options.env),
         list(range(0, 10 * n_seeds, 10)),  # the paper's seeds 0, 10, 20, ...
         contestant.qs,
         learning_starts=options.learning_starts,
@@ -140,7 +140,7 @@ def _sb3_sac(options: BenchOptions) -> Iterator[Advance]:
 
     from stable_baselines3 import SAC
 
-    q_alpha = make_run_configs(options.env, envs.paper_task(options.env), [0])[0][0]
+    q_alpha = make_run_configs(options.env, paper.paper_task(options.env), [0])[0][0]
     env = envs.make_env(options.env)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # SB3's notes on the env wrapper and on v4 tasks

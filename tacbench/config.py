@@ -11,7 +11,9 @@ Every default names its source next to the value:
   entropy coefficient alpha and the best entropic index q for each task;
 - "reference code": the authors' TensorFlow implementation, as summarised in
   ``shared/REFERENCE.md``;
-- "issue N": the issue that specified it; "ours": a choice of this project, with its reason.
+- "ours": a choice of this project, with its reason.
+
+The paper's values themselves live in :mod:`tacbench.paper`.
 
 A config is validated once, when it is built (``__post_init__``); everything downstream trusts
 it. Error messages name the command-line flag of the offending setting.
@@ -25,68 +27,12 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
+from tacbench import paper
 from tacbench.errors import TacbenchError
 from tacbench.settings import flag_of, neutral_fields, setting, settings_of
 
-TOTAL_STEPS = 1_000_000  # reference code: 200 epochs x 5,000 steps; paper figures span 1M steps
-PAPER_SEEDS = (0, 10, 20, 30, 40, 50, 60, 70, 80, 90)  # paper, Hyperparameter Settings table
-PAPER_Q_GRID = (0.5, 0.7, 1.0, 1.2, 1.5, 1.7, 2.0, 3.0, 5.0)  # paper, section 7.1 (tex line 797)
-
-# paper, per-task table (lines 2059-2067): alpha 0.05 for Humanoid, 0.2 for every other task.
-PAPER_ALPHA: dict[str, float] = {
-    "HalfCheetah": 0.2,
-    "Ant": 0.2,
-    "Hopper": 0.2,
-    "Swimmer": 0.2,
-    "Pusher": 0.2,
-    "Humanoid": 0.05,
-}
-DEFAULT_ALPHA = 0.2  # for tasks outside the paper: the paper's value for all but Humanoid
-
-# paper, per-task table, column "(Best) Entropic Index" (lines 2059-2067). Section 7.1 (line 822)
-# agrees for HalfCheetah/Ant (1.5) and Humanoid (1.2); Hopper, Swimmer and Pusher are marked
-# "slightly better" there, i.e. the differences between q values were small.
-PAPER_BEST_Q: dict[str, float] = {
-    "HalfCheetah": 1.5,
-    "Ant": 1.5,
-    "Hopper": 2.0,
-    "Swimmer": 2.0,
-    "Pusher": 1.2,
-    "Humanoid": 1.2,
-}
-DEFAULT_Q = 1.0  # tasks the paper did not run have no best q: q = 1 (Shannon entropy, i.e. SAC)
-
-UPDATE_SCHEDULES = ("step", "episode")
-LNQ_MODES = ("joint", "per-dim")
-CRITIC_TARGETS = ("v", "twin-q")
-Q_SCHEDULES = ("constant", "linear")
-DEVICES = ("cpu", "cuda")
-COMPILE_CHOICES = ("auto", "on", "off")
-PROFILES = ("paper", "reference")
-TIME_LIMITS = ("not-terminal", "terminal-below-1000")
-ACTION_SCALES = ("unit", "bound")
 ON_OFF = ("on", "off")
-ALPHA_MODES = ("fixed", "auto")
-Q_MODES = ("fixed", "auto")
 PBT_FIELDS = ("pbt_every", "q_range")  # in the variant only with --q auto
-# --profile: the settings where the authors' code (REFERENCE.md; docs/tac.md, "Profiles") did
-# otherwise than the paper's table; each is also a setting of its own, for ablations
-PROFILE_VALUES: dict[str, dict[str, Any]] = {
-    "paper": {
-        "update_schedule": "step",  # issue 3: one update per step
-        "warmup_updates": "off",  # the paper's table: no updates before learning starts
-        "hidden_sizes": (300,),  # paper, Hyperparameter Settings table
-        "time_limits": "not-terminal",  # a time-limit end is never terminal (SB3, CleanRL)
-        "action_scale": "unit",  # the critics and the buffer see actions in [-1, 1]
-    },
-    "reference": {
-        "update_schedule": "episode",  # tac.py main loop: bursts at episode ends (Algorithm 1)
-        "warmup_updates": "on",  # tac.py: updates from the first episode end, during warm-up
-        "hidden_sizes": (400, 300),  # core.py's default, never overridden by the run scripts
-        "time_limits": "terminal-below-1000",  # tac.py: d = False only if ep_len == 1000
-        "action_scale": "bound",  # core.py: tanh output times action_space.high[0]
-    },
-}
 # --compile auto compiles runs with at least this many learning steps: compiling TAC's update
 # took 18-23 s with a cold cache and saved 2.8 ms per step at K = 1 (5.8 ms at K = 10), so it
 # pays after about 8,000 steps; 20,000 leaves a margin (docs/performance.md, AMD EPYC class)
@@ -101,7 +47,7 @@ class RunSettings:
 
     seed: int = setting(0, "Random seed.", source="ours", cli=False)
     total_steps: int = setting(
-        TOTAL_STEPS,
+        paper.TOTAL_STEPS,
         "Environment steps per run.",
         source="reference code: 200 epochs x 5,000 steps",
         flag="--steps",
@@ -117,7 +63,7 @@ class RunSettings:
     checkpoint_every: int = setting(
         50_000,
         "Steps between checkpoints (also at the end and on Ctrl-C); 0: only then.",
-        source="issue 3",
+        source="ours: a 1M-step run checkpoints 20 times",
         neutral=True,
     )
     log_every: int = setting(
@@ -128,14 +74,14 @@ class RunSettings:
     tensorboard: bool = setting(
         True,
         "Also write TensorBoard event files (<run>/tensorboard/) of the rows the CSVs get.",
-        source="issue 20",
+        source="ours",
         neutral=True,
     )
     device: str = setting(
         "cpu",
         "Where the networks run (auto: cuda when available).",
         source="ours",
-        choices=(*DEVICES, "auto"),
+        choices=("cpu", "cuda", "auto"),
         neutral=True,
         sweep=False,
     )
@@ -153,7 +99,7 @@ class RunSettings:
 
     def __post_init__(self) -> None:
         check_integers(self, **self._MINIMUMS)
-        _check_choice(self, "device", self.device, DEVICES)
+        check_choices(self)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -169,16 +115,16 @@ class RunConfig(RunSettings):
         "paper: the paper's table; reference: everything the authors' code did otherwise "
         "(updates during warm-up, episode bursts, 400x300 networks, Pusher's time limit "
         "terminal, actions scaled by the bound; docs/tac.md, Profiles). Each is its own setting.",
-        source="issue 21",
-        choices=PROFILES,
+        source="ours: the paper's table is the default",
+        choices=tuple(paper.PROFILES),
         variant={"reference": "ref"},
     )
     lnq: str = setting(
         "per-dim",
-        "per-dim: sum of per-dimension ln_q (what produced the paper's curves); joint: ln_q of "
-        "the joint density (paper appendix; overflows in high action dimensions, docs/tac.md).",
+        "per-dim: sum of per-dimension ln_q (the authors' final commit); joint: ln_q of the "
+        "joint density (paper appendix; overflows in high action dimensions, docs/tac.md).",
         source="reference code",
-        choices=LNQ_MODES,
+        choices=("joint", "per-dim"),
         variant={"joint": "joint"},
     )
     critic_target: str = setting(
@@ -186,7 +132,7 @@ class RunConfig(RunSettings):
         "v: the Q target bootstraps from a target V (SAC v1); twin-q: from target Q1, Q2 at "
         "a' ~ pi(s') without V (SAC v2, as stable-baselines3; docs/parity.md).",
         source="paper eqn:q_obj and reference code",
-        choices=CRITIC_TARGETS,
+        choices=("v", "twin-q"),
         variant={"twin-q": "twinq"},
     )
     alpha_mode: str = setting(
@@ -194,23 +140,24 @@ class RunConfig(RunSettings):
         "fixed: alpha stays --alpha; auto (also --alpha auto): each member learns its alpha, "
         "starting from --alpha, to hold its E[-ln_q pi] at --target-entropy (SAC v2's rule "
         "with ln_q; docs/tac.md).",
-        source="paper: fixed per task; auto: issue 18, after SAC v2 (Haarnoja et al. 2018b)",
-        choices=ALPHA_MODES,
+        source="paper: fixed per task; auto: after SAC v2 (Haarnoja et al. 2018b)",
+        choices=("fixed", "auto"),
     )  # in the variant's alpha part: q1.5-aauto0.2 (learned, from 0.2)
     target_entropy: float | None = setting(
         None,
-        "--alpha auto: the target of E[-ln_q pi]. Default: -A ln_q(e) (--lnq per-dim) or "
-        "-ln_q(e^A) (joint), A the action size; -A at q = 1, as SAC v2 and stable-baselines3.",
-        source="issue 18: the per-dimension density that SAC's target implies",
+        "--alpha auto: the target of E[-ln_q pi]; the default is -A at q = 1, as SAC v2 and "
+        "stable-baselines3.",
+        source="ours: the per-dimension density that SAC's target implies",
         variant="te",
         metavar="FLOAT",
+        shown_default="-A ln_q(e) (--lnq per-dim) or -ln_q(e^A) (joint), A the action size",
     )
     update_schedule: str = setting(
         None,
         "step: one update per env step; episode: at each episode end, one update per step of "
         "that episode (paper Algorithm 1; each member at its own episode ends).",
-        source="paper: step (issue 3); reference: episode (the authors' code)",
-        choices=UPDATE_SCHEDULES,
+        source="paper: Algorithm 1 read as one update per step; reference: tac.py's main loop",
+        choices=("step", "episode"),
         variant={"episode": "episode", "step": "step"},
         profile=True,
     )
@@ -218,7 +165,7 @@ class RunConfig(RunSettings):
         None,
         "on: updates start at each member's first episode end, during the random warm-up, as "
         "the authors' code did; off: at --learning-starts.",
-        source="paper: off (its table); reference: on (tac.py's main loop)",
+        source="paper: its table's minimum samples; reference: tac.py's main loop",
         choices=ON_OFF,
         variant={"on": "wu", "off": "nowu"},
         profile=True,
@@ -227,8 +174,8 @@ class RunConfig(RunSettings):
         None,
         "not-terminal: a time-limit end bootstraps; terminal-below-1000: only an episode of "
         "1,000 steps does (the authors' code: Pusher's 100-step limit is stored as terminal).",
-        source="paper: not-terminal; reference: terminal-below-1000 (tac.py)",
-        choices=TIME_LIMITS,
+        source="paper: as SB3 and CleanRL; reference: tac.py",
+        choices=("not-terminal", "terminal-below-1000"),
         variant={"terminal-below-1000": "tl1000", "not-terminal": "tlnever"},
         profile=True,
     )
@@ -237,8 +184,8 @@ class RunConfig(RunSettings):
         "unit: the critics and the replay buffer see actions in [-1, 1]; bound: scaled by the "
         "action bound first (the authors' code; Humanoid's 0.4, Pusher's 2). The policy's "
         "density is that of the unscaled action either way.",
-        source="paper: unit; reference: bound (core.py)",
-        choices=ACTION_SCALES,
+        source="paper: the policy's range; reference: core.py",
+        choices=("unit", "bound"),
         variant={"bound": "abound", "unit": "aunit"},
         profile=True,
     )
@@ -248,15 +195,14 @@ class RunConfig(RunSettings):
         "are a population that learns q by population-based training: every --pbt-every steps "
         "the bottom quarter by recent training return copy a top-quarter member and perturb its "
         "q within --q-range (tacbench/training/pbt.py, docs/tac.md).",
-        source="paper: a grid search (its future work: learn q); auto: issue 18, after "
-        "Jaderberg et al. 2017",
-        choices=Q_MODES,
+        source="paper: a grid search (its future work: learn q); auto: after Jaderberg et al. 2017",
+        choices=("fixed", "auto"),
         sweep=False,  # a population is one process's members: tacbench run
     )  # in the variant's q part: qauto
     pbt_every: int = setting(
         10_000,
         "--q auto: steps between exploit/explore rounds, counted from --learning-starts.",
-        source="ours (issue 18): 8 rounds in a 100,000-step run (at 20,000, ..., 90,000)",
+        source="ours: 8 rounds in a 100,000-step run (at 20,000, ..., 90,000)",
         variant="pbt",
         sweep=False,
     )
@@ -272,7 +218,7 @@ class RunConfig(RunSettings):
         "constant",
         "linear: q goes from 1 to --q between --q-schedule-start and --q-schedule-end.",
         source="paper; linear: the authors' later curricula code",
-        choices=Q_SCHEDULES,
+        choices=("constant", "linear"),
         variant={"linear": "qlinear"},
     )
     q_schedule_start: float = setting(
@@ -289,36 +235,45 @@ class RunConfig(RunSettings):
     )
     learning_starts: int = setting(
         10_000,
-        "Steps of uniform random actions before learning (the paper's table says 100000).",
+        "Steps of uniform random actions before learning (the paper's table says "
+        f"{paper.HYPERPARAMETERS.min_samples:,}).",
         source="reference code",
         variant="ls",
     )
     hidden_sizes: tuple[int, ...] = setting(
         None,
         "Hidden layer widths of every network, comma-separated (400,300).",
-        source="paper: 300 (Hyperparameter Settings table: 1 hidden layer of 300 ReLU units); "
-        "reference: 400,300 (core.py's default)",
+        source="paper: Hyperparameter Settings table; reference: core.py's default",
         variant="h",
         metavar="W1,W2,...",
         profile=True,
     )
     learning_rate: float = setting(
-        1e-3, "Adam's learning rate.", source="paper, Hyperparameter Settings table", variant="lr"
+        paper.HYPERPARAMETERS.learning_rate,
+        "Adam's learning rate.",
+        source="paper, Hyperparameter Settings table",
+        variant="lr",
     )
     batch_size: int = setting(
-        100, "Minibatch size.", source="paper, Hyperparameter Settings table", variant="bs"
+        paper.HYPERPARAMETERS.batch_size,
+        "Minibatch size.",
+        source="paper, Hyperparameter Settings table",
+        variant="bs",
     )
     buffer_size: int = setting(
-        1_000_000,
+        paper.HYPERPARAMETERS.buffer_size,
         "Replay buffer capacity (transitions).",
         source="paper, Hyperparameter Settings table",
         variant="buf",
     )
     gamma: float = setting(
-        0.99, "Discount factor.", source="paper, Hyperparameter Settings table", variant="gamma"
+        paper.HYPERPARAMETERS.gamma,
+        "Discount factor.",
+        source="paper, Hyperparameter Settings table",
+        variant="gamma",
     )
     tau: float = setting(
-        0.005,
+        paper.HYPERPARAMETERS.tau,
         "Polyak rate of the target networks.",
         source="paper, Hyperparameter Settings table (moving average ratio)",
         variant="tau",
@@ -337,35 +292,21 @@ class RunConfig(RunSettings):
         "torch.compile TAC's update: the same maths, 3-4x faster on a CPU, after a compilation "
         "of 10-25 s (a CPU needs a C++ compiler). auto: on when the run has at least "
         f"{COMPILE_AUTO_LEARNING_STEPS:,} learning steps and a C++ compiler is found.",
-        source="issue 17: the break-even measured in docs/performance.md",
-        choices=COMPILE_CHOICES,
+        source="ours: the break-even measured in docs/performance.md",
+        choices=("auto", "on", "off"),
     )
 
     def __post_init__(self) -> None:
         from tacbench.tsallis import check_alpha, check_q  # imports torch: not at CLI start-up
 
-        super().__post_init__()
-        _check_choice(self, "profile", self.profile, PROFILES)
-        for name, value in PROFILE_VALUES[self.profile].items():  # unset: the profile's value
+        check_choice(self, "profile")
+        for name, value in paper.PROFILES[self.profile].items():  # unset: the profile's value
             if getattr(self, name) is None:
                 object.__setattr__(self, name, value)
+        super().__post_init__()
         object.__setattr__(self, "q", check_q(self.q))
         object.__setattr__(self, "alpha", check_alpha(self.alpha))
         object.__setattr__(self, "hidden_sizes", tuple(int(h) for h in self.hidden_sizes))
-        for name, choices in (
-            ("update_schedule", UPDATE_SCHEDULES),
-            ("lnq", LNQ_MODES),
-            ("critic_target", CRITIC_TARGETS),
-            ("q_schedule", Q_SCHEDULES),
-            ("warmup_updates", ON_OFF),
-            ("time_limits", TIME_LIMITS),
-            ("action_scale", ACTION_SCALES),
-            ("alpha_mode", ALPHA_MODES),
-        ):
-            _check_choice(self, name, getattr(self, name), choices)
-        _check_choice(self, "compile", self.compile, COMPILE_CHOICES)
-        if self.compile == "auto":  # what is used is recorded: a resumed run keeps it
-            object.__setattr__(self, "compile", self._auto_compile())
         if self.algo != "tac":
             raise TacbenchError(f"RunConfig is TAC's config; got algo={self.algo!r}.")
         check_integers(self, learning_starts=0, batch_size=1, buffer_size=1)
@@ -390,7 +331,6 @@ class RunConfig(RunSettings):
         self._check_pbt()
 
     def _check_pbt(self) -> None:
-        _check_choice(self, "q_mode", self.q_mode, Q_MODES)
         low_high = check_q_range(self.q_range)
         object.__setattr__(self, "q_range", low_high)
         if self.pbt_every < 1:
@@ -416,14 +356,6 @@ class RunConfig(RunSettings):
         """Environment steps after the random warm-up."""
         return max(0, self.total_steps - self.learning_starts)
 
-    def _auto_compile(self) -> str:
-        """``--compile auto``: on for a run long enough to repay the compilation, where a C++
-        compiler is found (the note of :func:`compile_note` says which applied)."""
-        from tacbench.hardware import cpp_compiler  # torch's Inductor: only when it matters
-
-        long_enough = self.learning_steps >= COMPILE_AUTO_LEARNING_STEPS
-        return "on" if long_enough and cpp_compiler() is not None else "off"
-
     @property
     def variant(self) -> str:
         """The run directory's variant: ``q1.5-a0.2`` (``q1.5-aauto0.2``: alpha learned from 0.2)
@@ -435,7 +367,7 @@ class RunConfig(RunSettings):
         name = f"q{q_part}-a{learned}{self.alpha:g}"
         for key, declared in settings_of(RunConfig).items():
             part, value = declared.info.variant, getattr(self, key)
-            default = PROFILE_VALUES[self.profile].get(key, declared.default)
+            default = paper.PROFILES[self.profile].get(key, declared.default)
             if part is None or value == default or (key in PBT_FIELDS and self.q_mode != "auto"):
                 continue
             if isinstance(part, Mapping):
@@ -496,10 +428,21 @@ def check_integers(config: object, **minimums: int) -> None:
             raise TacbenchError(f"{name} must be an integer >= {minimum} (got {value!r}); {flag}.")
 
 
-def _check_choice(config: object, name: str, value: str, choices: Sequence[str]) -> None:
+def check_choice(config: object, name: str) -> None:
+    """Field ``name`` of ``config`` is one of its declared choices; else a TacbenchError names
+    the flag and the choices."""
+    choices = settings_of(type(config))[name].info.choices
+    value = getattr(config, name)
     if value not in choices:
         flag = flag_of(type(config), name)
         raise TacbenchError(f"{flag} must be one of {', '.join(choices)} (got {value!r}).")
+
+
+def check_choices(config: object) -> None:
+    """Every setting of ``config`` that declares choices holds one of them."""
+    for name, declared in settings_of(type(config)).items():
+        if declared.info.choices:
+            check_choice(config, name)
 
 
 def check_q_range(values: Sequence[float]) -> tuple[float, float]:

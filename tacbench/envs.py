@@ -1,9 +1,7 @@
 """The task suite, environment creation and checks, exact env state for resume, and evaluation.
 
-The paper ran six MuJoCo tasks (v2, mujoco-py). Their Gymnasium ids here are v4, the closest to
-v2 that runs on mujoco >= 3, except Pusher: ``Pusher-v4`` only loads with mujoco < 3 (Gymnasium
-issue 950), so Pusher is v5. Any other registered Gymnasium environment with a bounded, flat
-``Box`` action space works too.
+The paper's six MuJoCo tasks and their Gymnasium ids are :data:`tacbench.paper.ENV_IDS`; any
+other registered Gymnasium environment with a bounded, flat ``Box`` action space works too.
 
 No torch here: the evaluation protocol (:func:`evaluate`) takes any policy callable, so the
 baselines use it as TAC does.
@@ -24,16 +22,7 @@ import numpy.typing as npt
 from gymnasium.envs.mujoco.mujoco_env import MujocoEnv
 
 from tacbench.errors import TacbenchError
-
-# paper name -> Gymnasium id (issue 3: v4 by default, Pusher on v5)
-SUITE: dict[str, str] = {
-    "HalfCheetah": "HalfCheetah-v4",
-    "Ant": "Ant-v4",
-    "Hopper": "Hopper-v4",
-    "Swimmer": "Swimmer-v4",
-    "Humanoid": "Humanoid-v4",
-    "Pusher": "Pusher-v5",
-}
+from tacbench.paper import ENV_IDS, paper_task, suite_task
 
 FloatArray = npt.NDArray[np.float64]
 Policy = Callable[[FloatArray], FloatArray]
@@ -52,24 +41,18 @@ class EnvInfo:
     max_episode_steps: int
 
 
-def paper_task(env_id: str) -> str | None:
-    """The paper's task name for a Gymnasium id of any version (``Hopper-v5`` -> ``Hopper``)."""
-    name = env_id.split("-v")[0]
-    return name if name in SUITE else None
-
-
 def resolve_env_id(name: str) -> str:
     """A Gymnasium id for ``name``: a paper task name (``Ant``) or any registered id.
 
     Unknown names raise :class:`TacbenchError` listing the suite and the closest registered ids.
     """
-    by_lower = {task.lower(): env_id for task, env_id in SUITE.items()}
-    if name.lower() in by_lower:
-        return by_lower[name.lower()]
+    task = suite_task(name)
+    if task is not None:
+        return ENV_IDS[task]
     if name in gym.registry:
         return name
-    close = difflib.get_close_matches(name, [*SUITE, *gym.registry], n=4, cutoff=0.5)
-    suite = ", ".join(f"{task} ({env_id})" for task, env_id in SUITE.items())
+    close = difflib.get_close_matches(name, [*ENV_IDS, *gym.registry], n=4, cutoff=0.5)
+    suite = ", ".join(f"{task} ({env_id})" for task, env_id in ENV_IDS.items())
     hint = f" Closest registered names: {', '.join(close)}." if close else ""
     raise TacbenchError(
         f"unknown environment {name!r}.{hint} The paper's suite: {suite}. "
@@ -106,7 +89,7 @@ def make_env(env_id: str, **make_kwargs: Any) -> gym.Env[Any, Any]:
             warnings.filterwarnings("ignore", message=".*is out of date.*")
             env = gym.make(env_id, **make_kwargs)
     except (ImportError, gym.error.Error) as err:
-        alternative = SUITE.get(paper_task(env_id) or "", "")
+        alternative = ENV_IDS.get(paper_task(env_id) or "", "")
         hint = f" Use {alternative} instead." if alternative and alternative != env_id else ""
         raise TacbenchError(f"cannot create {env_id}: {err}.{hint}") from None
     action_space, obs_space = env.action_space, env.observation_space
@@ -159,7 +142,7 @@ def to_env_action(squashed: npt.ArrayLike, info: EnvInfo) -> FloatArray:
 def suite_table() -> list[dict[str, Any]]:
     """One row per paper task: its id, sizes, episode limit and whether it loads here."""
     rows = []
-    for task, env_id in SUITE.items():
+    for task, env_id in ENV_IDS.items():
         row: dict[str, Any] = {"task": task, "env": env_id}
         try:
             info = env_info(env_id)

@@ -4,18 +4,12 @@ default came from and what ``--compile auto`` chose."""
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from tacbench.config import (
-    COMPILE_AUTO_LEARNING_STEPS,
-    DEFAULT_ALPHA,
-    DEFAULT_Q,
-    PAPER_ALPHA,
-    PAPER_BEST_Q,
-    RunConfig,
-    check_q_range,
-)
+from tacbench import paper
+from tacbench.config import COMPILE_AUTO_LEARNING_STEPS, RunConfig, check_q_range
 from tacbench.errors import TacbenchError
 from tacbench.settings import settings_of
 
@@ -25,15 +19,17 @@ def paper_defaults(task: str | None) -> tuple[float, float, str, str]:
     task the paper did not run)."""
     if task is None:
         return (
-            DEFAULT_Q,
-            DEFAULT_ALPHA,
+            paper.DEFAULT_Q,
+            paper.DEFAULT_ALPHA,
             "the paper reports no best q for this task; q = 1 is Shannon entropy, i.e. SAC",
             "the paper's alpha for every task but Humanoid",
         )
+    facts = paper.TASK_FACTS[task]
+    qualifier = f", {facts.qualifier}" if facts.qualifier else ""
     return (
-        PAPER_BEST_Q[task],
-        PAPER_ALPHA[task],
-        f"the paper's best q for {task} (appendix, per-task table)",
+        facts.best_q,
+        facts.alpha,
+        f"the paper's best q for {task} (appendix, per-task table{qualifier})",
         f"the paper's alpha for {task} (appendix, per-task table)",
     )
 
@@ -90,6 +86,7 @@ def make_run_configs(
                 f"q = {q:g} >= 2: the policy density is capped at {cap:.3g} "
                 "(paper, Numerical Issue)"
             )
+    configs = [resolve_compile(c) for c in configs]
     notes.append(compile_note(configs[0], overrides.get("compile", "auto")))
     return configs, notes
 
@@ -119,6 +116,19 @@ def _population(
         RunConfig(env=env, q=q, alpha=alphas[0], seed=seed, **overrides)
         for q, seed in zip(starts, seeds, strict=True)
     ]
+
+
+def resolve_compile(config: RunConfig) -> RunConfig:
+    """``config`` with ``--compile auto`` resolved for this machine: on for a run long enough to
+    repay the compilation, where a C++ compiler is found (which torch.compile needs on a CPU).
+    The resolved value is what ``config.json`` records, so a resumed run keeps it."""
+    if config.compile != "auto":
+        return config
+    from tacbench.hardware import cpp_compiler  # torch's Inductor: only when it matters
+
+    long_enough = config.learning_steps >= COMPILE_AUTO_LEARNING_STEPS
+    chosen = "on" if long_enough and cpp_compiler() is not None else "off"
+    return dataclasses.replace(config, compile=chosen)
 
 
 def compile_note(config: RunConfig, asked: str) -> str:

@@ -29,7 +29,8 @@ class SettingInfo:
     learned, or has its own path component). ``neutral``: the field cannot change any number a
     run writes, so a resumed run may differ in it. ``cli``: offered by ``tacbench run`` (and
     ``sweep``, unless ``sweep`` is False). ``profile``: the default, None, stands for the value
-    that the config's profile sets.
+    that the config's profile sets. ``shown_default``: how a computed default (None) is
+    computed, for ``--help``.
     """
 
     help: str
@@ -42,6 +43,7 @@ class SettingInfo:
     sweep: bool = True
     metavar: str | None = None
     profile: bool = False  # the default (None) is the value of the config's --profile
+    shown_default: str = ""
 
 
 def setting(
@@ -57,9 +59,22 @@ def setting(
     sweep: bool = True,
     metavar: str | None = None,
     profile: bool = False,
+    shown_default: str = "",
 ) -> Any:
     """A dataclass field with a default and its :class:`SettingInfo` (see there)."""
-    info = SettingInfo(help, source, flag, tuple(choices), variant, neutral, cli, sweep, metavar)
+    info = SettingInfo(
+        help,
+        source,
+        flag,
+        tuple(choices),
+        variant,
+        neutral,
+        cli,
+        sweep,
+        metavar,
+        profile,
+        shown_default,
+    )
     return field(default=default, metadata={_KEY: info})
 
 

@@ -1,4 +1,4 @@
-"""TensorBoard event files beside a run's CSVs, written from the same rows (issue 20).
+"""TensorBoard event files beside a run's CSVs, written from the same rows.
 
 The CSVs stay the contract that reports read (docs/results-schema.md); the event files are a
 view of the same numbers for ``tensorboard --logdir results/runs``, which names each run by its

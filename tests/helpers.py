@@ -16,7 +16,7 @@ import pandas as pd
 import torch
 
 from tacbench import trainers
-from tacbench.envs import paper_task
+from tacbench.paper import paper_task
 from tacbench.regress.manifest import without_wall_clock
 from tacbench.runs import Outcome
 from tacbench.tac.maths import Batch

@@ -12,7 +12,6 @@ from pathlib import Path
 
 import numpy as np
 
-PAPER_QS = (0.5, 0.7, 1.0, 1.2, 1.5, 1.7, 2.0, 3.0, 5.0)
 BASELINES = ("ddpg", "td3", "ppo", "trpo", "sac-sb3")
 
 

@@ -11,8 +11,8 @@ import yaml
 from baselines import hyperparams
 from baselines.config import BaselineConfig, flags_as_overrides, make_configs
 from tacbench import config as tac_config
-from tacbench.envs import SUITE, paper_task
 from tacbench.errors import TacbenchError
+from tacbench.paper import ENV_IDS, TASK_FACTS, paper_task
 
 pytestmark = pytest.mark.unit
 
@@ -31,13 +31,13 @@ def test_every_value_in_a_table_names_its_source(algo: str) -> None:
 
 
 @pytest.mark.parametrize("algo", hyperparams.ALGOS)
-@pytest.mark.parametrize("env", sorted(SUITE.values()))
+@pytest.mark.parametrize("env", sorted(ENV_IDS.values()))
 def test_tables_resolve_to_every_key_for_every_suite_task(algo: str, env: str) -> None:
     values, sections = hyperparams.resolve(algo, env, paper_task(env))
     assert set(values) == set(hyperparams.ALGO_KEYS[algo])
     assert sections[0] == "default"
     table = yaml.safe_load(_table_text(algo))
-    assert set(table) - {"default"} <= {*SUITE, *SUITE.values()}  # no misspelt section names
+    assert set(table) - {"default"} <= {*ENV_IDS, *ENV_IDS.values()}  # no misspelt section names
 
 
 def test_networks_are_the_papers() -> None:
@@ -52,10 +52,10 @@ def test_networks_are_the_papers() -> None:
     assert net("trpo") == ([64, 64], "tanh")
 
 
-@pytest.mark.parametrize("env", sorted(SUITE.values()))
+@pytest.mark.parametrize("env", sorted(ENV_IDS.values()))
 def test_sac_sb3_is_configured_like_tac_at_q1(env: str) -> None:
     values, _ = hyperparams.resolve("sac-sb3", env, paper_task(env))
-    tac = tac_config.RunConfig(env=env, q=1.0, alpha=tac_config.PAPER_ALPHA[paper_task(env)])
+    tac = tac_config.RunConfig(env=env, q=1.0, alpha=TASK_FACTS[paper_task(env)].alpha)
     assert values["net_arch"] == list(tac.hidden_sizes)
     assert values["learning_rate"] == tac.learning_rate
     assert values["batch_size"] == tac.batch_size

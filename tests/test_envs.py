@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from tacbench import envs
+from tacbench import envs, paper
 from tacbench.cli import cli
 from tacbench.errors import TacbenchError
 
@@ -38,7 +38,7 @@ def test_unknown_env_lists_the_suite_and_the_closest_names() -> None:
         envs.resolve_env_id("Hoper-v4")
     message = str(err.value)
     assert "Closest registered names: Hopper-v4" in message
-    for env_id in envs.SUITE.values():
+    for env_id in paper.ENV_IDS.values():
         assert env_id in message
 
 
@@ -50,12 +50,6 @@ def test_discrete_action_env_is_refused() -> None:
 def test_pusher_v4_points_to_pusher_v5() -> None:
     with pytest.raises(TacbenchError, match="Use Pusher-v5 instead"):
         envs.make_env("Pusher-v4")
-
-
-def test_paper_task_names() -> None:
-    assert envs.paper_task("Hopper-v5") == "Hopper"
-    assert envs.paper_task("HalfCheetah-v4") == "HalfCheetah"
-    assert envs.paper_task("Pendulum-v1") is None
 
 
 def test_env_info_and_action_scaling() -> None:
@@ -125,10 +119,11 @@ def test_envs_command_lists_the_suite_with_the_papers_values() -> None:
     result = CliRunner().invoke(cli, ["envs"])
     assert result.exit_code == 0, result.output
     rows = {line.split()[0]: line.split() for line in result.output.splitlines()[1:7]}
-    assert set(rows) == set(envs.SUITE)
+    assert set(rows) == set(paper.ENV_IDS)
     assert rows["Humanoid"][1:7] == ["Humanoid-v4", "376", "17", "1000", "0.05", "1.2"]
     assert rows["Pusher"][1:7] == ["Pusher-v5", "23", "7", "100", "0.2", "1.2"]
-    assert all(row[7] == "yes" for row in rows.values())
+    assert rows["Hopper"][6:9] == ["2", "(slightly", "better)"]
+    assert all(row[-1] == "yes" for row in rows.values())
 
 
 def test_mujoco_is_quiet_and_leaves_no_log_file_in_the_working_folder(tmp_path: Path) -> None:

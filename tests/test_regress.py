@@ -140,10 +140,10 @@ def test_score_is_the_mean_of_the_last_evaluations(tmp_path: Path) -> None:
 
 def test_specs_cover_every_task_q_and_baseline() -> None:
     args = [dict(zip(s.args[::2], s.args[1::2], strict=False)) for s in EXACT_RUNS]
-    from tacbench.envs import SUITE
+    from tacbench.paper import ENV_IDS
 
-    assert {a["--env"] for a in args} == set(SUITE.values())
-    assert {a["--env"] for a in args if "--algo" not in a} == set(SUITE.values())
+    assert {a["--env"] for a in args} == set(ENV_IDS.values())
+    assert {a["--env"] for a in args if "--algo" not in a} == set(ENV_IDS.values())
     assert {a["--q"] for a in args if "--q" in a} == {"1", "1.5", "2"}
     assert {a["--algo"] for a in args if "--algo" in a} == {"ddpg", "td3", "sac-sb3", "ppo", "trpo"}
     assert len({s.name for s in EXACT_RUNS}) == len(EXACT_RUNS)

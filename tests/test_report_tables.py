@@ -9,6 +9,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from tacbench.paper import task_name, task_sort_key
 from tacbench.report import Report, ReportOptions, analyse
 from tacbench.report.curves import on_grid, seed_curves, task_grid
 from tacbench.report.load import load_runs
@@ -19,7 +20,6 @@ from tacbench.report.methods import (
     method_sort_key,
     style_of,
 )
-from tacbench.report.paper import task_name, task_sort_key
 from tacbench.report.tables import normalise, run_scores
 from tests.report_fixtures import synthetic_tree, write_run
 

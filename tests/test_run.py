@@ -16,9 +16,9 @@ import pytest
 from click.testing import CliRunner
 
 from tacbench.cli import cli
-from tacbench.config import PAPER_ALPHA, PAPER_BEST_Q, RunConfig
-from tacbench.envs import SUITE
+from tacbench.config import RunConfig
 from tacbench.errors import TacbenchError
+from tacbench.paper import ENV_IDS, TASK_FACTS
 from tacbench.runs import Outcome
 from tests.helpers import checkpoint_state, tiny_configs, train
 
@@ -40,16 +40,18 @@ def _train(out: Path, *configs: RunConfig, **kw: Any) -> list[Outcome]:
 
 
 @pytest.mark.parametrize(
-    ("task", "lnq"), [(task, "per-dim") for task in SUITE] + [(t, "joint") for t in JOINT_FINITE]
+    ("task", "lnq"), [(task, "per-dim") for task in ENV_IDS] + [(t, "joint") for t in JOINT_FINITE]
 )
 def test_every_suite_task_trains_into_a_run_directory(tmp_path: Path, task: str, lnq: str) -> None:
-    config = _config(SUITE[task], q=PAPER_BEST_Q[task], alpha=PAPER_ALPHA[task], lnq=lnq)
+    config = _config(
+        ENV_IDS[task], q=TASK_FACTS[task].best_q, alpha=TASK_FACTS[task].alpha, lnq=lnq
+    )
     (outcome,) = _train(tmp_path, config)
-    assert outcome.directory == tmp_path / "runs" / "tac" / SUITE[task] / config.variant / "seed0"
+    assert outcome.directory == tmp_path / "runs" / "tac" / ENV_IDS[task] / config.variant / "seed0"
     assert (outcome.state, outcome.step) == ("complete", 1500)
     metadata = json.loads((outcome.directory / "config.json").read_text())
     assert (metadata["env"], metadata["q"], metadata["alpha"]) == (
-        SUITE[task],
+        ENV_IDS[task],
         config.q,
         config.alpha,
     )

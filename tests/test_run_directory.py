@@ -16,7 +16,7 @@ import pytest
 import torch
 
 from baselines import OFF_POLICY, algos, hyperparams
-from tacbench.envs import paper_task
+from tacbench.paper import paper_task
 from tacbench.runs import EVAL_COLUMNS, TRAIN_COLUMNS
 from tacbench.training import LOSS_COLUMNS
 from tests.helpers import LEARNERS, assert_tensorboard_matches_csvs, tiny_configs, train

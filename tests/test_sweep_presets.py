@@ -6,9 +6,8 @@ from collections import Counter
 
 import pytest
 
-from tacbench.config import PAPER_ALPHA, PAPER_BEST_Q, PAPER_SEEDS, TOTAL_STEPS
-from tacbench.envs import SUITE
 from tacbench.errors import TacbenchError
+from tacbench.paper import ENV_IDS, SEEDS, TASK_FACTS, TOTAL_STEPS
 from tacbench.sweep.plan import build_runs
 from tacbench.sweep.presets import PRESETS, Narrowing, get_preset, narrow
 
@@ -29,12 +28,12 @@ def test_paper_q_grid_is_9_q_by_6_tasks_by_10_seeds() -> None:
     configs = [r.config for r in runs]
     assert {c.algo for c in configs} == {"tac"}
     assert {c.q for c in configs} == Q_GRID
-    assert {c.env for c in configs} == set(SUITE.values())
-    assert Counter(c.seed for c in configs) == dict.fromkeys(PAPER_SEEDS, 54)
+    assert {c.env for c in configs} == set(ENV_IDS.values())
+    assert Counter(c.seed for c in configs) == dict.fromkeys(SEEDS, 54)
     assert {c.total_steps for c in configs} == {TOTAL_STEPS} == {1_000_000}
     for c in configs:
         task = c.env.split("-v")[0]
-        assert c.alpha == PAPER_ALPHA[task] == (0.05 if task == "Humanoid" else 0.2)
+        assert c.alpha == TASK_FACTS[task].alpha == (0.05 if task == "Humanoid" else 0.2)
     assert runs[0].key == "runs/tac/HalfCheetah-v4/q0.5-a0.2/seed0"
 
 
@@ -48,9 +47,9 @@ def test_paper_comparison_is_tac_best_q_sac_and_four_baselines() -> None:
     assert len(sac) == 60 and {r.config.q for r in sac} == {1.0}
     for r in tac:
         if r.label == "TAC":
-            assert r.config.q == PAPER_BEST_Q[r.config.env.split("-v")[0]]
+            assert r.config.q == TASK_FACTS[r.config.env.split("-v")[0]].best_q
     assert {r.config.total_steps for r in runs} == {1_000_000}
-    assert {r.config.seed for r in runs} == set(PAPER_SEEDS)
+    assert {r.config.seed for r in runs} == set(SEEDS)
 
 
 def test_smoke_preset_is_small() -> None:
@@ -68,7 +67,7 @@ def test_narrowing() -> None:
     best = _runs("paper-comparison", q=(1.5,))  # HalfCheetah's and Ant's best q
     assert {r.config.env for r in best} == {"HalfCheetah-v4", "Ant-v4"} and len(best) == 20
     ppo = _runs("paper-comparison", algos=("ppo",), seeds=(0,))
-    assert len(ppo) == 6 and {r.config.env for r in ppo} == set(SUITE.values())
+    assert len(ppo) == 6 and {r.config.env for r in ppo} == set(ENV_IDS.values())
     assert {r.config.algo for r in ppo} == {"ppo"} and {r.config.seed for r in ppo} == {0}
     short = _runs("smoke", algos=("tac",), settings={"total_steps": 400, "checkpoint_every": 100})
     assert {(r.config.total_steps, r.config.checkpoint_every) for r in short} == {(400, 100)}

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from tacbench import config
+from tacbench import paper
 
 
 @click.command(name="envs")
@@ -13,14 +13,15 @@ def envs_command() -> None:
     from tacbench.envs import suite_table
 
     header = (
-        f"{'task':<12} {'env':<16} {'obs':>4} {'act':>4} {'limit':>6} {'alpha':>6} {'best q':>7}"
+        f"{'task':<12} {'env':<16} {'obs':>4} {'act':>4} {'limit':>6} {'alpha':>6}  "
+        f"{'best q':<20} loads"
     )
-    click.echo(header + "  loads")
+    click.echo(header)
     for row in suite_table():
+        facts = paper.TASK_FACTS[row["task"]]
         click.echo(
             f"{row['task']:<12} {row['env']:<16} {row['obs']!s:>4} {row['act']!s:>4} "
-            f"{row['limit']!s:>6} {config.PAPER_ALPHA[row['task']]:>6g} "
-            f"{config.PAPER_BEST_Q[row['task']]:>7g}  {row['ok']}"
+            f"{row['limit']!s:>6} {facts.alpha:>6g}  {facts.best_q_label:<20} {row['ok']}"
         )
     click.echo(
         "alpha and best q: paper appendix, per-task table. Any other registered Gymnasium id "

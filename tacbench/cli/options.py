@@ -13,6 +13,7 @@ from typing import Any, TypeVar
 
 import click
 
+from tacbench.paper import PROFILES
 from tacbench.settings import Setting, settings_of
 
 F = TypeVar("F", bound=Callable[..., Any])
@@ -61,12 +62,25 @@ def _shown(value: Any) -> str:
     return f"{value:g}" if isinstance(value, float) else str(value)
 
 
+def default_text(declared: Setting) -> str:
+    """A setting's default as ``--help`` shows it: its value, each profile's value where the
+    profile sets it (``paper: 300; reference: 400,300``), or how a computed default is
+    computed."""
+    info = declared.info
+    if info.profile:
+        return "; ".join(
+            f"{name}: {_shown(values[declared.name])}" for name, values in PROFILES.items()
+        )
+    if info.shown_default:
+        return info.shown_default
+    return _shown(declared.default)
+
+
 def _option(declared: Setting, *, sweep: bool) -> Callable[[F], F]:
     info = declared.info
-    default = "the profile's" if info.profile else _shown(declared.default)
-    default_text = "the preset's" if sweep else f"{default}; {info.source}"
+    default_text_ = "the preset's" if sweep else f"{default_text(declared)} ({info.source})"
     kwargs: dict[str, Any] = {
-        "help": f"{info.help}  [default: {default_text}]",
+        "help": f"{info.help}  [default: {default_text_}]",
         "default": None if sweep else declared.default,
     }
     if declared.type is bool:  # --name/--no-name

@@ -12,7 +12,7 @@ from typing import Any
 
 import click
 
-from tacbench import trainers
+from tacbench import paper, trainers
 from tacbench.cli.common import command_line, report_outcomes
 from tacbench.cli.options import NumberOrAuto, cli_settings, setting_options
 from tacbench.config import RunConfig, RunSettings
@@ -137,7 +137,7 @@ def run(
         configs, notes = trainers.make_configs(
             algo,
             env_id,
-            envs.paper_task(env_id),
+            paper.paper_task(env_id),
             seeds,
             settings,
             qs=[float(q) for q in qs],
@@ -161,7 +161,7 @@ def run(
         configs, notes = trainers.make_configs(
             algo,
             env_id,
-            envs.paper_task(env_id),
+            paper.paper_task(env_id),
             seeds,
             run_settings,
             tac_settings_given=given,

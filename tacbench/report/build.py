@@ -16,6 +16,7 @@ import pandas as pd
 from matplotlib.figure import Figure
 
 from tacbench.errors import TacbenchError
+from tacbench.paper import task_sort_key
 from tacbench.report import plots
 from tacbench.report.curves import run_matrix, seed_curves
 from tacbench.report.load import METRIC_SOURCES, Metric, RunSet, load_runs
@@ -26,7 +27,6 @@ from tacbench.report.methods import (
     assign_methods,
     method_sort_key,
 )
-from tacbench.report.paper import task_sort_key
 from tacbench.report.population import one_per_population, q_trajectories
 from tacbench.report.ranges import q_range_table
 from tacbench.report.stats import (

@@ -19,7 +19,7 @@ from matplotlib import colormaps
 from matplotlib.colors import to_hex
 from matplotlib.typing import LineStyleType
 
-from tacbench.config import PAPER_Q_GRID
+from tacbench.paper import Q_GRID
 
 SAC_LABEL = "SAC (TAC q=1)"
 BEST_Q_LABEL = "TAC (best q)"
@@ -115,7 +115,7 @@ def method_sort_key(method: str, q: float) -> tuple[int, float, str]:
 def _q_color(q: float) -> str:
     """A fixed colour per q: turbo from indigo to orange (red is SAC's), evenly over the paper
     grid without q = 1, log-interpolated between grid values."""
-    others = [g for g in PAPER_Q_GRID if g != 1.0]
+    others = [g for g in Q_GRID if g != 1.0]
     position = np.interp(np.log(q), np.log(others), np.arange(len(others)))
     return to_hex(colormaps["turbo"](0.05 + 0.7 * position / (len(others) - 1)))
 

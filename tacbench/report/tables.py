@@ -18,7 +18,7 @@ import math
 import numpy as np
 import pandas as pd
 
-from tacbench.report.paper import paper_alpha, paper_best_q
+from tacbench.paper import task_facts
 
 DEFAULT_LAST = 10
 BEST_Q_COLUMNS = (
@@ -123,10 +123,6 @@ def best_q_rows(summary: pd.DataFrame) -> pd.DataFrame:
     return best.reset_index(drop=True)
 
 
-def _format_q(q: float | None) -> str:
-    return "none named" if q is None or math.isnan(q) else f"{q:g}"
-
-
 def best_q_table(summary: pd.DataFrame, improvement: pd.DataFrame) -> pd.DataFrame:
     """The best q per task from the data, and how its ranking compares with the paper's.
 
@@ -140,8 +136,8 @@ def best_q_table(summary: pd.DataFrame, improvement: pd.DataFrame) -> pd.DataFra
         ranked = group.sort_values("final_mean", ascending=False)
         top = ranked.iloc[0]
         others = ranked[ranked["q"] != 1.0]
-        paper = paper_best_q(str(env))
-        paper_q = None if paper is None else paper.q
+        paper = task_facts(str(env))
+        paper_q = None if paper is None else paper.best_q
         rank = "n/a"
         agrees = "n/a"
         if paper_q is not None:
@@ -155,13 +151,13 @@ def best_q_table(summary: pd.DataFrame, improvement: pd.DataFrame) -> pd.DataFra
             "best_final_std": top["final_std"],
             "best_q_not_1": others.iloc[0]["q"] if len(others) else math.nan,
             "ranking": " > ".join(f"{q:g}" for q in ranked["q"]),
-            "paper_q": "task not in the paper" if paper is None else _format_q(paper_q),
+            "paper_q": "task not in the paper" if paper is None else paper.best_q_label,
             "paper_q_rank": rank,
             "agrees": agrees,
             "best_in_1_2": "yes" if 1.0 <= top["q"] < 2.0 else "no",
             "alpha": _joined(group["alpha"].str.split(", ").explode()),
-            "paper_alpha": paper_alpha(str(env)),
-            "paper_note": "" if paper is None else paper.note,
+            "paper_alpha": None if paper is None else paper.alpha,
+            "paper_note": "" if paper is None else paper.says,
         }
         best_method = str(others.iloc[0]["method"]) if len(others) else ""
         row.update(_improvement_of_best(improvement, str(env), best_method))

@@ -25,7 +25,7 @@ from tacbench import runs
 # :func:`measure`: learning from step 1,000, CPU time (time.process_time, not inflated by other
 # jobs) from step 1,001 to 3,000, 4 evaluation episodes every 1,000 steps (the paper's ratio, 10
 # per 5,000; early episodes are short on Hopper, Ant and Humanoid, so later evaluations cost
-# more). TAC: as the paper's grid trains by default since issue 17, compiled, in units of as
+# more). TAC: as the paper's grid trains by default, compiled, in units of as
 # many members as tacbench sweep --dry-run plans on the development machine (2 cores, 23 GiB:
 # 45 members, Ant 30, Humanoid 5), AMD EPYC class, torch 2.13 CPU, 2026-12-02. The baselines: one
 # run per process (K = 1), 2026-11-22. TD3's table uses a (400, 300) network, DDPG's one of 300.
@@ -165,7 +165,7 @@ def measure(
     import torch
 
     from tacbench import trainers
-    from tacbench.envs import paper_task
+    from tacbench.paper import paper_task
 
     torch.set_num_threads(1)
     settings = {"total_steps": 3000, "eval_every": 1000, "eval_episodes": 4}

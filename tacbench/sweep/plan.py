@@ -19,8 +19,8 @@ from typing import TYPE_CHECKING, Any, Literal
 
 from tacbench import runs, trainers
 from tacbench.config import RESULT_NEUTRAL_FIELDS, RunConfig
-from tacbench.envs import SUITE
 from tacbench.errors import TacbenchError
+from tacbench.paper import ENV_IDS
 from tacbench.sweep.presets import Preset
 
 if TYPE_CHECKING:
@@ -128,7 +128,7 @@ def build_runs(preset: Preset, *, device: str = "cpu", threads: int = 1) -> list
     for entry in preset.entries:
         settings = {**entry.settings, "device": device, "threads": threads}
         for task in entry.tasks:
-            env_id = SUITE[task]
+            env_id = ENV_IDS[task]
             configs = [
                 config
                 for config in trainers.make_configs(

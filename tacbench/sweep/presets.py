@@ -1,19 +1,10 @@
-"""The sweep presets, each value with its source, and how a preset is narrowed.
+"""The sweep presets, and how a preset is narrowed.
 
-Line numbers refer to ``shared/paper/tsallis-rl-paper.tex``:
-
-- tasks: the six MuJoCo tasks of section 7 (line 767) and of the per-task table (lines
-  2059-2067), as Gymnasium ids from :data:`tacbench.envs.SUITE`;
-- q grid: section 7.1, "Effect of Entropic Index" (line 797);
-- alpha: 0.05 for Humanoid, 0.2 otherwise (line 799; per-task table), i.e.
-  :data:`tacbench.config.PAPER_ALPHA`;
-- seeds: 0, 10, ..., 90 (Hyperparameter Settings table, line 2054; "ten different random
-  seeds", lines 800 and 867), i.e. :data:`tacbench.config.PAPER_SEEDS`;
-- comparison: section 7.2, "Comparative Evaluation": TAC at the best q of section 7.1 (line 857;
-  per-task table, :data:`tacbench.config.PAPER_BEST_Q`), TAC with q = 1 "denoted as SAC" (lines
-  786-788), DDPG and TD3 (lines 780-784), TRPO and PPO (lines 773-778);
-- steps: 1M per run (:data:`tacbench.config.TOTAL_STEPS`: the reference code's 200 epochs x
-  5,000 steps; the paper's figures span 1M steps).
+The paper's values come from :mod:`tacbench.paper`, which cites the paper for each: the six tasks
+(:data:`~tacbench.paper.TASKS`, as the Gymnasium ids of :data:`~tacbench.paper.ENV_IDS`), the q
+grid of section 7.1, each task's alpha and best q (per-task table), the seeds (Hyperparameter
+Settings table), the compared methods of section 7.2 (:data:`~tacbench.paper.BASELINES`; TAC with
+q = 1 "denoted as SAC") and 1M steps per run (:data:`~tacbench.paper.TOTAL_STEPS`).
 
 Every other setting is the trainer's default (docs/tac.md, baselines/hyperparams/*.yaml).
 """
@@ -25,15 +16,11 @@ from dataclasses import dataclass, field, replace
 from types import MappingProxyType
 from typing import Any
 
-from tacbench import config
+from tacbench import config, paper
 from tacbench.errors import TacbenchError
 from tacbench.settings import settings_of
 
-PAPER_TASKS = ("HalfCheetah", "Ant", "Hopper", "Swimmer", "Pusher", "Humanoid")  # line 767
-PAPER_Q_GRID = config.PAPER_Q_GRID  # section 7.1, line 797
-PAPER_BASELINES = ("ddpg", "td3", "ppo", "trpo")  # section 7, lines 773-784 (SAC is TAC q=1)
-
-# smoke: ours (issue 5), the budgets of the trainers' own smoke tests, halved: 1,000 steps,
+# smoke: ours, the budgets of the trainers' own smoke tests, halved: 1,000 steps,
 # learning from step 500 with minibatches of 32, two evaluation episodes at 500 and 1,000.
 SMOKE_STEPS = 1000
 SMOKE_TAC = {
@@ -69,7 +56,7 @@ class Entry:
         """The q values this entry trains on ``task`` (TAC only; empty for a baseline)."""
         if self.algo != "tac":
             return ()
-        return self.q or (config.PAPER_BEST_Q[task],)
+        return self.q or (paper.TASK_FACTS[task].best_q,)
 
 
 @dataclass(frozen=True)
@@ -85,7 +72,7 @@ def _frozen(values: Mapping[str, Any]) -> Mapping[str, Any]:
     return MappingProxyType(dict(values))
 
 
-PAPER_STEPS = _frozen({"total_steps": config.TOTAL_STEPS})
+PAPER_STEPS = _frozen({"total_steps": paper.TOTAL_STEPS})
 
 PRESETS: dict[str, Preset] = {
     preset.name: preset
@@ -95,7 +82,7 @@ PRESETS: dict[str, Preset] = {
             "TAC at q in {0.5, 0.7, 1, 1.2, 1.5, 1.7, 2, 3, 5} (paper section 7.1, line 797) on "
             "the six tasks (line 767), the paper's alpha per task (line 799), seeds 0..90 step "
             "10 (line 2054), 1M steps each",
-            (Entry("tac", PAPER_TASKS, config.PAPER_SEEDS, PAPER_Q_GRID, PAPER_STEPS),),
+            (Entry("tac", paper.TASKS, paper.SEEDS, paper.Q_GRID, PAPER_STEPS),),
         ),
         Preset(
             "paper-comparison",
@@ -103,12 +90,9 @@ PRESETS: dict[str, Preset] = {
             "(lines 786-788), DDPG, TD3, PPO, TRPO (lines 773-784) on the six tasks, seeds "
             "0..90 step 10 (line 2054), 1M steps each",
             (
-                Entry("tac", PAPER_TASKS, config.PAPER_SEEDS, (), PAPER_STEPS, label="TAC"),
-                Entry("tac", PAPER_TASKS, config.PAPER_SEEDS, (1.0,), PAPER_STEPS, label="SAC"),
-                *(
-                    Entry(a, PAPER_TASKS, config.PAPER_SEEDS, (), PAPER_STEPS)
-                    for a in PAPER_BASELINES
-                ),
+                Entry("tac", paper.TASKS, paper.SEEDS, (), PAPER_STEPS, label="TAC"),
+                Entry("tac", paper.TASKS, paper.SEEDS, (1.0,), PAPER_STEPS, label="SAC"),
+                *(Entry(a, paper.TASKS, paper.SEEDS, (), PAPER_STEPS) for a in paper.BASELINES),
             ),
         ),
         Preset(
@@ -204,13 +188,11 @@ def narrow(preset: Preset, by: Narrowing) -> Preset:
 def task_of(name: str) -> str:
     """The paper task for ``name``: a task name in any case (``hopper``) or its suite id
     (``Hopper-v4``). Another version of a task is refused: the presets train the suite's."""
-    from tacbench.envs import SUITE
-
-    for task, env_id in SUITE.items():
-        if name.lower() in (task.lower(), env_id.lower()):
-            return task
-    suite = ", ".join(f"{task} ({env_id})" for task, env_id in SUITE.items())
-    raise TacbenchError(f"--env {name}: the presets train the paper's tasks: {suite}.")
+    task = paper.suite_task(name)
+    if task is None:
+        suite = ", ".join(f"{task} ({env_id})" for task, env_id in paper.ENV_IDS.items())
+        raise TacbenchError(f"--env {name}: the presets train the paper's tasks: {suite}.")
+    return task
 
 
 def _check_subset(flag: str, given: Sequence[Any], available: set[Any]) -> None:

@@ -21,6 +21,7 @@ from tacbench.config import RunConfig
 from tacbench.errors import TacbenchError
 from tacbench.hardware import configure_process
 from tacbench.interrupts import StopCheck, stop_signals
+from tacbench.members import resolve_compile
 from tacbench.runs import Outcome, plan_runs
 from tacbench.training.loop import LOSS_COLUMNS, GroupTrainer
 
@@ -78,6 +79,7 @@ def train(
     unwritable folder raises :class:`tacbench.checkpoints.DiskError`; what was written up to
     the last checkpoint stays resumable.
     """
+    configs = [resolve_compile(c) for c in configs]
     check_members(configs)
     envs.env_info(configs[0].env)  # an unusable task fails before any directory is touched
     with disk_errors("the run's files"):
@@ -97,6 +99,7 @@ def stepper(configs: Sequence[RunConfig], out: Path) -> Iterator[Callable[[int],
     """For benchmarks and profiles: fresh members ``configs`` (run directories under ``out``)
     and a function that advances them by n steps (fewer at the end or when all have failed)
     and returns the step reached. No signal handling; everything is closed on exit."""
+    configs = [resolve_compile(c) for c in configs]
     directories = [runs.run_directory(out, c.algo, c.env, c.variant, c.seed) for c in configs]
     configure_process(configs[0].threads)
     trainer = GroupTrainer(list(configs), directories, "", quiet=True)

@@ -16,7 +16,8 @@ import torch
 from pytest_benchmark.fixture import BenchmarkFixture
 
 from tacbench import envs
-from tacbench.config import PAPER_Q_GRID, PAPER_SEEDS, RunConfig
+from tacbench.config import RunConfig
+from tacbench.paper import Q_GRID, SEEDS
 from tacbench.tac import METRICS, ReplayBuffer, TacAgent, coefficients
 
 pytestmark = pytest.mark.bench
@@ -102,7 +103,7 @@ def test_evaluation_round(benchmark: BenchmarkFixture) -> None:
 def test_q_grid_update(benchmark: BenchmarkFixture) -> None:
     """One compiled update of the paper's q grid of one task as one process: 9 q x 10 seeds,
     90 members in chunks of 10 (docs/performance.md, "Grid members")."""
-    qs = [q for q in PAPER_Q_GRID for _ in PAPER_SEEDS]
+    qs = [q for q in Q_GRID for _ in SEEDS]
     k = len(qs)
     agent = _agent(k, compile=True)
     buffer, rngs = _buffer(k)
