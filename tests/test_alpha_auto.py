@@ -22,6 +22,7 @@ from tacbench.config import RunConfig
 from tacbench.errors import TacbenchError
 from tacbench.tac.agent import TacAgent
 from tacbench.tac.maths import ALPHA_METRICS, METRICS, Batch, coefficients, default_lnq_target
+from tacbench.tac.update import gradients, update
 from tests.helpers import random_batch
 
 pytestmark = pytest.mark.unit
@@ -49,7 +50,7 @@ def _batch(k: int, b: int = 256, seed: int = 0) -> tuple[Batch, torch.Tensor]:
 def test_at_q_one_the_alpha_loss_and_gradient_are_stable_baselines3s(lnq: str) -> None:
     agent = _agent([0], [0.3], lnq=lnq)
     batch, eps = _batch(1)
-    metrics, grads = agent.gradients(batch, eps, coefficients([1.0], [0.2], CPU))
+    metrics, grads = gradients(agent, batch, eps, coefficients([1.0], [0.2], CPU))
     mean_log_pi = metrics[0, METRICS.index("lnq_pi")]  # ln_1 = log: E[log pi] of the batch
     # stable-baselines3 (sac.py, SAC.train) on the same log-probabilities, its own target
     # entropy (-dim(A)) and log ent_coef
@@ -82,7 +83,7 @@ def test_alpha_moves_toward_its_target(target: float, direction: float) -> None:
     alphas = []
     for step in range(30):
         batch, _ = _batch(2, seed=step)
-        metrics = agent.update({name: getattr(batch, name) for name in Batch._fields}, c)
+        metrics = update(agent, {name: getattr(batch, name) for name in Batch._fields}, c)
         alphas.append(metrics[:, ALPHA_COLUMN])
     moves = torch.stack(alphas).diff(dim=0) * direction
     assert (moves > 0).all()  # every update, each member from its own start
@@ -93,10 +94,10 @@ def test_a_fixed_alpha_group_has_no_alpha_parameter_and_the_same_update() -> Non
     fixed = _agent([0], None)
     assert fixed.chunks[0].params.networks.log_alpha is None
     batch, eps = _batch(1)
-    metrics, grads = fixed.gradients(batch, eps, coefficients([1.5], [0.2], CPU))
+    metrics, grads = gradients(fixed, batch, eps, coefficients([1.5], [0.2], CPU))
     assert metrics.shape == (1, len(METRICS)) and "log_alpha" not in grads
     learned = _agent([0], [0.2])  # same start: the same losses, one more metric pair
-    auto_metrics, auto_grads = learned.gradients(batch, eps, coefficients([1.5], [0.2], CPU))
+    auto_metrics, auto_grads = gradients(learned, batch, eps, coefficients([1.5], [0.2], CPU))
     # to rounding: exp(log(0.2)) is not 0.2 in float32
     torch.testing.assert_close(auto_metrics[:, : len(METRICS)], metrics, rtol=1e-6, atol=0)
     for name, grad in grads.items():
@@ -107,7 +108,7 @@ def test_alpha_and_its_adam_state_are_in_the_member_state() -> None:
     agent = _agent([0, 1], [0.2, 0.1])
     c = coefficients([1.0, 1.0], [0.2, 0.2], CPU)
     batch, _ = _batch(2)
-    agent.update({name: getattr(batch, name) for name in Batch._fields}, c)
+    update(agent, {name: getattr(batch, name) for name in Batch._fields}, c)
     state = agent.member_state(1)
     assert state["params"]["log_alpha"].item() != pytest.approx(math.log(0.1))  # it trained
     assert state["adam"]["exp_avg"]["log_alpha"].item() != 0.0
@@ -125,8 +126,8 @@ def test_the_compiled_update_learns_alpha_as_the_eager_one() -> None:
     c = coefficients([1.0, 2.0], [0.2, 0.2], CPU)
     with warnings.catch_warnings():
         warnings.simplefilter("error", RuntimeWarning)  # no fallback to eager
-        got, got_grads = compiled.gradients(batch, eps, c)
-    expected, expected_grads = plain.gradients(batch, eps, c)
+        got, got_grads = gradients(compiled, batch, eps, c)
+    expected, expected_grads = gradients(plain, batch, eps, c)
     torch.testing.assert_close(got, expected, rtol=1e-5, atol=1e-6)
     torch.testing.assert_close(
         got_grads["log_alpha"], expected_grads["log_alpha"], rtol=1e-5, atol=1e-7

@@ -12,6 +12,7 @@ from tacbench.config import RunConfig
 from tacbench.tac import METRICS, TacAgent, coefficients
 from tacbench.tac.maths import ALPHA_METRICS, Coefficients
 from tacbench.tac.networks import glorot_uniform, init_layers, mlp, policy_head
+from tacbench.tac.update import update
 
 pytestmark = pytest.mark.unit
 
@@ -108,7 +109,7 @@ def test_actions_are_bounded_and_deterministic_action_is_tanh_mu() -> None:
 def test_update_changes_weights_and_moves_target_v_by_tau() -> None:
     agent = _agent([0], tau=0.005)
     before = _params(agent, 0)
-    metrics = agent.update(_batch(1), _c(1))
+    metrics = update(agent, _batch(1), _c(1))
     after = _params(agent, 0)
     assert metrics.shape == (1, len(METRICS))
     assert torch.isfinite(metrics).all()
@@ -125,8 +126,8 @@ def test_members_train_independently() -> None:
         batch = _batch(2, seed=step)
         batch["reward"][0] = np.nan  # member 0 diverges at once
         pair.alive &= torch.tensor([step == 0, True])  # the trainer retires it after step 0
-        pair.update(batch, _c(2))
-        alone.update({key: value[1:] for key, value in batch.items()}, _c(1))
+        update(pair, batch, _c(2))
+        update(alone, {key: value[1:] for key, value in batch.items()}, _c(1))
     for name, value in _params(alone, 0).items():
         torch.testing.assert_close(_params(pair, 1)[name], value, rtol=1e-6, atol=1e-7)
 
@@ -134,12 +135,12 @@ def test_members_train_independently() -> None:
 def test_member_state_round_trip_continues_identically() -> None:
     agent = _agent([7, 8])
     for step in range(2):
-        agent.update(_batch(2, seed=step), _c(2))
+        update(agent, _batch(2, seed=step), _c(2))
     restored = _agent([0, 1])
     restored.load_member_states([agent.member_state(0), agent.member_state(1)])
     batch = _batch(2, seed=5)
     torch.testing.assert_close(
-        agent.update(batch, _c(2)), restored.update(batch, _c(2)), rtol=0, atol=0
+        update(agent, batch, _c(2)), update(restored, batch, _c(2)), rtol=0, atol=0
     )
     np.testing.assert_array_equal(agent.act(batch["obs"][:, 0]), restored.act(batch["obs"][:, 0]))
     for k in range(2):
@@ -153,7 +154,7 @@ def test_twin_q_moves_the_target_critics_by_tau_and_leaves_v_alone() -> None:
     for name in ("weights.0", "biases.0", "weights.1"):
         for net in ("q1", "q2"):  # the targets start as copies
             assert torch.equal(before[f"{net}_target.{name}"], before[f"{net}.{name}"])
-    metrics = agent.update(_batch(1), _c(1))
+    metrics = update(agent, _batch(1), _c(1))
     after = _params(agent, 0)
     assert metrics[0, METRICS.index("loss_v")] == 0.0
     for net in ("q1", "q2"):
@@ -170,13 +171,13 @@ def test_twin_q_moves_the_target_critics_by_tau_and_leaves_v_alone() -> None:
 def test_twin_q_member_state_round_trip_continues_identically() -> None:
     agent = _agent([7, 8], critic_target="twin-q")
     for step in range(2):
-        agent.update(_batch(2, seed=step), _c(2))
+        update(agent, _batch(2, seed=step), _c(2))
     restored = _agent([0, 1], critic_target="twin-q")
     restored.load_member_states([agent.member_state(0), agent.member_state(1)])
     assert "q1_target.weights.0" in agent.member_state(0)["params"]
     batch = _batch(2, seed=5)
     torch.testing.assert_close(
-        agent.update(batch, _c(2)), restored.update(batch, _c(2)), rtol=0, atol=0
+        update(agent, batch, _c(2)), update(restored, batch, _c(2)), rtol=0, atol=0
     )
     for k in range(2):
         for name, value in _params(agent, k).items():
@@ -197,9 +198,9 @@ def test_a_member_without_an_update_is_bit_identical_after_the_groups_update(
     agent = _agent([3, 4, 5], **settings)
     assert len(agent.chunks) == chunks
     batch = _batch(3)
-    agent.update(batch, _c(3))  # everyone once, so the moments are not zero
+    update(agent, batch, _c(3))  # everyone once, so the moments are not zero
     before = [agent.member_state(k) for k in range(3)]
-    agent.update(_batch(3, seed=1), _c(3), members=[True, False, True])
+    update(agent, _batch(3, seed=1), _c(3), members=[True, False, True])
     after = [agent.member_state(k) for k in range(3)]
     assert torch.equal(after[1]["generator"], before[1]["generator"])
     for part in ("exp_avg", "exp_avg_sq", "step"):
@@ -227,9 +228,9 @@ def test_members_updating_at_their_own_times_each_train_as_if_alone() -> None:
     alone = [_agent([seed], update_schedule="episode") for seed in seeds]
     for r, members in enumerate(due):
         batch = _batch(3, seed=r)
-        metrics = group.update(batch, _c(3), members=members)
+        metrics = update(group, batch, _c(3), members=members)
         for k in np.flatnonzero(members):
-            own = alone[k].update({n: v[k : k + 1] for n, v in batch.items()}, _c(1))
+            own = update(alone[k], {n: v[k : k + 1] for n, v in batch.items()}, _c(1))
             assert torch.equal(metrics[k], own[0])
         assert (metrics[~torch.as_tensor(members)] == 0).all()
     for k, single in enumerate(alone):
@@ -258,7 +259,7 @@ def test_a_round_with_no_member_due_changes_nothing(learned_alpha: bool) -> None
     alphas = [0.2, 0.2] if learned_alpha else None
     agent = TacAgent(OBS, ACT, config, [3, 4], torch.device("cpu"), initial_alphas=alphas)
     before = [agent.member_state(k)["params"] for k in range(2)]
-    metrics = agent.update(_batch(2), _c(2), members=[False, False])
+    metrics = update(agent, _batch(2), _c(2), members=[False, False])
     assert metrics.shape[0] == 2 and (metrics == 0).all()
     assert metrics.shape[1] == len(METRICS) + (len(ALPHA_METRICS) if learned_alpha else 0)
     for k in range(2):

@@ -1,9 +1,10 @@
 """Tsallis Actor-Critic: the algorithm, nothing else (no I/O, no environments).
 
-``maths`` the formulas below the losses; ``networks`` member-batched MLPs; ``parameters`` the
-flat parameter buffers, Adam and the targets; ``losses`` all losses in one function; ``update``
-their gradient by autograd (optionally compiled), Adam and the targets; ``agent`` act, update and
-per-member state; ``buffer`` the member-batched replay buffer.
+Start reading at ``update``: one update, top to bottom. Below it: ``losses`` all losses in one
+function; ``gradient`` their gradient by autograd (optionally compiled); ``parameters`` the flat
+parameter buffers, Adam and the targets; ``agent`` the members, acting and per-member state;
+``maths`` the formulas below the losses; ``networks`` member-batched MLPs; ``buffer`` the
+member-batched replay buffer.
 """
 
 from tacbench.tac.agent import TacAgent

@@ -4,7 +4,8 @@ Member k has its own ``torch.Generator`` seeded with its seed alone. It draws me
 weights (:mod:`tacbench.tac.parameters`), its exploration noise and its reparameterisation noise,
 so none of these depend on the other members. The noise is drawn on the CPU and moved to the
 device, so a seed draws the same numbers on every device. The update itself is
-:class:`tacbench.tac.update.TacUpdate` (``config.compile``).
+:func:`tacbench.tac.update.update`; the agent holds what it needs (the chunks, the gradient,
+eager or compiled by ``config.compile``, the losses' constants, the learning rate and tau).
 
 On a CPU the members are held in chunks of at most :data:`CPU_MEMBERS_PER_CHUNK`, each with its
 own parameter buffers, updated one after the other through one shared (compiled) gradient: a
@@ -31,26 +32,21 @@ import numpy.typing as npt
 import torch
 
 from tacbench.config import RunConfig
+from tacbench.tac.gradient import Gradient, compiled_gradient, eager_gradient
 from tacbench.tac.losses import LossSettings
-from tacbench.tac.maths import ALPHA_METRICS, METRICS, Batch, Coefficients
+from tacbench.tac.maths import ALPHA_METRICS, METRICS
 from tacbench.tac.networks import mlp, policy_head
 from tacbench.tac.parameters import TacParameters
-from tacbench.tac.update import TacUpdate, compiled_gradient, eager_gradient
 
 # HalfCheetah, compiled, AMD EPYC: 0.40-0.41 ms per member at 5 and 10 members, 0.48 at 20-45
 CPU_MEMBERS_PER_CHUNK = 10
 
 
-class _Chunk(NamedTuple):
-    """Some members: which ones, their parameters and their update."""
+class Chunk(NamedTuple):
+    """Some members: which ones, and their parameters."""
 
     members: slice
     params: TacParameters
-    update: TacUpdate
-
-
-def _chunked(tensor: torch.Tensor | None, members: slice) -> torch.Tensor | None:
-    return None if tensor is None else tensor[members]
 
 
 class TacAgent:
@@ -72,9 +68,10 @@ class TacAgent:
         self.act_dim = act_dim
         self.generators = [torch.Generator().manual_seed(int(seed)) for seed in seeds]
         c = config
-        settings = LossSettings(
+        self.settings = LossSettings(
             c.gamma, c.lnq, c.log_std_min, c.log_std_max, action_scale, c.target_entropy
         )
+        self.learning_rate, self.tau = c.learning_rate, c.tau
         k = len(seeds)
         most = k if device.type == "cuda" else CPU_MEMBERS_PER_CHUNK
         if device.type == "cpu" and config.update_schedule == "episode":
@@ -94,16 +91,14 @@ class TacAgent:
             )
             for members in chunks
         ]
-        gradient = eager_gradient
+        self.gradient: Gradient = eager_gradient  # one (compiled) gradient for every chunk
         if config.compile == "on":
             static = [t for p in params for t in (p.data, p.grad, p.target)]
-            gradient = compiled_gradient(device, static)
-        lr, tau = config.learning_rate, config.tau
-        self.chunks = [
-            _Chunk(members, p, TacUpdate(p, settings, gradient, learning_rate=lr, tau=tau))
-            for members, p in zip(chunks, params, strict=True)
-        ]
+            self.gradient = compiled_gradient(device, static)
+        self.chunks = [Chunk(members, p) for members, p in zip(chunks, params, strict=True)]
         self.alive = torch.ones(k, dtype=torch.bool, device=device)
+        learns_alpha = initial_alphas is not None
+        self.metric_names = METRICS + ALPHA_METRICS if learns_alpha else METRICS
 
     def _noise(self, *shape: int, members: Sequence[bool] | None = None) -> torch.Tensor:
         """Standard normal ``(K, *shape)``, member k's slice from member k's generator; zeros,
@@ -116,7 +111,7 @@ class TacAgent:
         ]
         return torch.stack(draws).to(self.device, non_blocking=True)
 
-    def _tensor(self, array: npt.ArrayLike) -> torch.Tensor:
+    def tensor(self, array: npt.ArrayLike) -> torch.Tensor:
         """float32 on the device. The upload does not wait for the device (a blocking one
         synchronises the stream); from pageable memory it is staged before the call returns."""
         host = torch.as_tensor(np.asarray(array, dtype=np.float32))
@@ -124,7 +119,7 @@ class TacAgent:
 
     def _policy(self, obs: npt.ArrayLike) -> tuple[torch.Tensor, torch.Tensor]:
         """The policy's ``mu`` and ``log_std``: ``(K, n, obs_dim) -> 2 x (K, n, act_dim)``."""
-        x, c = self._tensor(obs), self.config
+        x, c = self.tensor(obs), self.config
         heads = [
             policy_head(
                 mlp(chunk.params.networks.policy, x[chunk.members]),
@@ -157,68 +152,7 @@ class TacAgent:
         twin_q = self.config.critic_target == "twin-q"
         return eps, self._noise(batch_size, self.act_dim, members=members) if twin_q else None
 
-    def update(
-        self,
-        batch: Mapping[str, npt.ArrayLike],
-        c: Coefficients,
-        members: Sequence[bool] | None = None,
-    ) -> torch.Tensor:
-        """One gradient step for every live member on its own minibatch ``(K, B, ...)``, with
-        each member's q and alpha from ``c``; with ``members`` (the episode schedule, updates
-        during warm-up) only for those, the others' weights, Adam state, targets and generators
-        left exactly as they are (their rows of ``batch`` are ignored).
-
-        Returns the detached metrics ``(K, len(METRICS))``. A member marked dead (``alive``
-        False) contributes nothing to the step of the others.
-        """
-        tensors = Batch(*(self._tensor(batch[name]) for name in Batch._fields))
-        eps, eps_next = self.draw_noise(tensors.action.shape[1], members)
-        active = None if members is None else np.asarray(members, dtype=bool)
-        return self._each_chunk("__call__", tensors, eps, c, eps_next, active)
-
-    def gradients(
-        self, batch: Batch, eps: torch.Tensor, c: Coefficients, eps_next: torch.Tensor | None = None
-    ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-        """The metrics of :meth:`update` and the gradient of every trained parameter (named as
-        in :meth:`member_state`) for one minibatch and noise, compiled if this agent's
-        update is, without changing any weight. For comparing the paths."""
-        metrics = self._each_chunk("gradients", batch, eps, c, eps_next, None)
-        named = [chunk.params.named_gradients() for chunk in self.chunks]
-        return metrics, {name: torch.cat([g[name] for g in named]) for name in named[0]}
-
-    def _each_chunk(
-        self,
-        method: str,
-        batch: Batch,
-        eps: torch.Tensor,
-        c: Coefficients,
-        eps_next: torch.Tensor | None,
-        active: npt.NDArray[np.bool_] | None,
-    ) -> torch.Tensor:
-        """``TacUpdate.<method>`` on each chunk's members; their metrics, in member order."""
-        metrics: list[torch.Tensor | None] = []
-        for chunk in self.chunks:
-            m = chunk.members
-            if active is not None and not active[m].any():
-                metrics.append(None)  # nothing to train: the chunk is not touched at all
-                continue
-            args = [Batch(*(t[m] for t in batch)), eps[m], self.alive[m]]
-            args += [Coefficients(*(t[m] for t in c)), _chunked(eps_next, m)]
-            if active is not None:
-                args.append(active[m])
-            metrics.append(getattr(chunk.update, method)(*args))
-        learns_alpha = self.chunks[0].params.networks.log_alpha is not None
-        width = len(METRICS) + (len(ALPHA_METRICS) if learns_alpha else 0)
-        return torch.cat(
-            [
-                torch.zeros(chunk.members.stop - chunk.members.start, width, device=self.device)
-                if x is None
-                else x
-                for chunk, x in zip(self.chunks, metrics, strict=True)
-            ]
-        )
-
-    def _chunk_of(self, k: int) -> tuple[_Chunk, int]:
+    def _chunk_of(self, k: int) -> tuple[Chunk, int]:
         chunk = self.chunks[k // self.chunks[0].params.n_members]
         return chunk, k - chunk.members.start
 

@@ -1,5 +1,5 @@
 """All TAC losses in one pure function, commented with the paper's equation labels; autograd
-differentiates it on every path (:mod:`tacbench.tac.update`).
+differentiates it on every path (:mod:`tacbench.tac.gradient`).
 
 Shapes: K members, B samples, A action dimensions. Every loss is per member, shape ``(K,)``; the
 members never mix, so summing the losses over members gives each member exactly the gradient it

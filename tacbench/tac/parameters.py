@@ -21,6 +21,7 @@ from typing import Any, NamedTuple
 import numpy as np
 import numpy.typing as npt
 import torch
+from torch.optim.adam import adam
 
 from tacbench.tac.networks import Layers, init_layers
 
@@ -150,7 +151,10 @@ class TacParameters:
         self.target_networks = self.target_layout.layers(self.target)
         # the member of each row of each block: 0..K-1, and twice over for the critic pair
         members = torch.arange(self.n_members, device=device)
-        self._rows = [members.repeat(shape[0] // self.n_members) for shape in self.layout.shapes]
+        self._host_rows = [
+            np.tile(np.arange(self.n_members), shape[0] // self.n_members)
+            for shape in self.layout.shapes
+        ]
         self._target_rows = [
             members.repeat(shape[0] // self.n_members) for shape in self.target_layout.shapes
         ]
@@ -161,55 +165,53 @@ class TacParameters:
         the members where ``active`` is True (the others, their moments and step counts are left
         exactly as they are).
 
-        When every member steps and all have made the same number of steps: PyTorch's fused
-        kernel on the whole buffer, called directly (``torch.optim.adam(..., fused=True)``
-        regroups its tensor lists at every call, a tenth of a one-member update's time).
-        Otherwise each member's own step count sets its bias correction
-        (:meth:`_masked_adam_step`); the choice depends on the step counts only, so a resumed
-        run makes it as the uninterrupted one did."""
+        Both run PyTorch's fused Adam (:func:`torch.optim.adam.adam`). When every member steps
+        and all have made the same number of steps, one call updates the whole buffer;
+        otherwise one call updates each stepping member's rows of every block, each with its own
+        step count. A member's numbers are the same either way, and as if it trained alone, to
+        float32 rounding."""
         if active is not None and not self.per_member_steps:
             raise ValueError("an update of some members needs per_member_steps")
         everyone = active is None or bool(active.all())
-        if not everyone or self._host_steps.min() != self._host_steps.max():
-            self._masked_adam_step(lr, active)
-            return
-        self.steps += 1
-        self._host_steps += 1
-        torch._fused_adam_(
-            [self.data],
-            [self.grad],
-            [self.exp_avg],
-            [self.exp_avg_sq],
+        if everyone and self._host_steps.min() == self._host_steps.max():
+            tensors = [[t] for t in (self.data, self.grad, self.exp_avg, self.exp_avg_sq)]
+            steps = [self.steps[0].clone()]
+        else:
+            members = np.ones(self.n_members, dtype=bool) if active is None else active
+            rows = [
+                (block, row)
+                for block, block_rows in enumerate(self._host_rows)
+                for row, k in enumerate(block_rows)
+                if members[k]
+            ]
+            views = [
+                self.layout.views(t) for t in (self.data, self.grad, self.exp_avg, self.exp_avg_sq)
+            ]
+            tensors = [[v[block][row] for block, row in rows] for v in views]
+            index = torch.as_tensor(
+                [self._host_rows[b][r] for b, r in rows], device=self.steps.device
+            )
+            steps = list(self.steps[index].unbind())
+        data, grad, exp_avg, exp_avg_sq = tensors
+        adam(
+            data,
+            grad,
+            exp_avg,
+            exp_avg_sq,
             [],
-            [self.steps[0]],
+            steps,
+            fused=True,
             amsgrad=False,
-            lr=lr,
             beta1=ADAM_BETAS[0],
             beta2=ADAM_BETAS[1],
+            lr=lr,
             weight_decay=0.0,
             eps=ADAM_EPS,
             maximize=False,
         )
-
-    def _masked_adam_step(self, lr: float, members: npt.NDArray[np.bool_] | None) -> None:
-        """Adam, block by block, for the ``members`` (all if None), each with its own step
-        count; the same update as ``torch.optim.Adam``'s (to float32 rounding)."""
-        on_host = np.ones(self.n_members, dtype=bool) if members is None else members
-        self._host_steps += on_host
-        active = torch.as_tensor(on_host, device=self.steps.device)
-        self.steps += active
-        beta1, beta2 = ADAM_BETAS
-        views = [
-            self.layout.views(t) for t in (self.data, self.grad, self.exp_avg, self.exp_avg_sq)
-        ]
-        for rows, p, g, m, v in zip(self._rows, *views, strict=True):
-            shape = (-1,) + (1,) * (p.dim() - 1)
-            on = active[rows].view(shape)
-            step = self.steps[rows].clamp(min=1).view(shape)
-            m.copy_(torch.where(on, m.lerp(g, 1 - beta1), m))
-            v.copy_(torch.where(on, v * beta2 + (1 - beta2) * g * g, v))
-            denom = v.sqrt() / (1 - beta2**step).sqrt() + ADAM_EPS
-            p.copy_(torch.where(on, p - lr / (1 - beta1**step) * m / denom, p))
+        stepped = np.ones(self.n_members, dtype=bool) if active is None else active
+        self.steps += torch.as_tensor(stepped, device=self.steps.device)
+        self._host_steps += stepped
 
     def update_target(self, tau: float, members: npt.NDArray[np.bool_] | None = None) -> None:
         """Polyak average of the target networks: ``target <- (1 - tau) target + tau source``

@@ -1,178 +1,125 @@
-"""One TAC update for K members: the gradient of :func:`tacbench.tac.losses.tac_losses` by
-autograd, optionally under ``torch.compile``, then one fused Adam step and the target average.
+"""One TAC update, top to bottom: the front door to the algorithm.
 
-The losses are written once, with the paper's equation labels, and differentiated by autograd
-on every path: adding a loss term is one edit in ``losses.py``. Eager, the gradient is
-``torch.autograd.grad``; compiled, it is ``torch.func.grad`` of the same function, which
-``torch.compile`` traces into one graph of the forward and backward pass (Dynamo cannot trace
-``torch.autograd.grad``; eagerly, ``torch.func.grad`` is the slower of the two). On a CPU,
-Inductor turns the elementwise chains into a few C++ loops and, with its C++ wrapper, calls them
-from C++ (it needs a C++ compiler; the first update compiles for seconds to tens of seconds,
-cached on disk afterwards). q and alpha enter as per-member tensors, so one graph serves every
-q, a group of members with different q, and a q schedule, without recompiling. On a GPU it uses
-mode ``reduce-overhead`` (CUDA graphs) with the persistent buffers marked static. Where
-compilation fails, a warning says so and the eager gradient runs instead.
+``tacbench run`` reaches :func:`update` in four hops (``cli/run.py`` -> ``trainers.py`` ->
+``training/__init__.py`` -> ``training/loop.py``), once per environment step (or, in the episode
+schedule, once per step of an episode that ended). Everything it calls is one level down:
 
-Adam and the target average stay outside the compiled graph: inside it they made the update
-slower (docs/performance.md, "One source for the maths").
+- :mod:`tacbench.tac.losses`: every loss, once, with the paper's equation labels;
+- :mod:`tacbench.tac.gradient`: their gradient by autograd, eager or compiled (``--compile``);
+- :mod:`tacbench.tac.parameters`: the flat parameter buffers, Adam and the target average;
+- :mod:`tacbench.tac.agent`: the members, their generators and how they are chunked.
+
+K members update together, each on its own minibatch with its own noise, q and alpha; their
+numbers never mix (each member's gradient is its own losses').
 """
 
 from __future__ import annotations
 
-import warnings
-from collections.abc import Callable, Sequence
-from typing import Any
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 import numpy.typing as npt
 import torch
 
-from tacbench.tac.losses import LossSettings, tac_losses
+from tacbench.tac.agent import Chunk, TacAgent
 from tacbench.tac.maths import Batch, Coefficients
-from tacbench.tac.parameters import FlatLayout, TacParameters
-
-CPU_COMPILE_OPTIONS: dict[str, str | int | bool | Callable[..., Any]] = {
-    # the C++ wrapper: 7% off the K = 1 update (HalfCheetah, Intel Xeon, in-process A/B)
-    "cpp_wrapper": True,
-    # Inductor unrolls reductions over at most 8 elements into scalar code by default; the sums
-    # over the action dimensions (ln_q pi, log pi) then ran libm's scalar expm1 element by
-    # element. Vectorised instead: 7% off the K = 10 compiled update, K = 1 unchanged (Intel
-    # Xeon, in-process A/B, median of 40 paired rounds)
-    "unroll_reductions_threshold": 1,
-    # one planned pool for the intermediate buffers instead of an allocation for each, and no
-    # re-check of the input sizes and strides, which Dynamo's guards have checked already: 13%
-    # off the K = 1 compiled update, 11% off K = 10 (Intel Xeon, in-process A/B, median of 30
-    # paired rounds)
-    "memory_planning": True,
-    "size_asserts": False,
-    "alignment_asserts": False,
-}
-
-Gradient = Callable[..., tuple[torch.Tensor, torch.Tensor]]  # -> (gradient, metrics)
 
 
-def total_loss(
-    theta: torch.Tensor,
-    target: torch.Tensor,
-    layout: FlatLayout,
-    target_layout: FlatLayout,
+def update(
+    agent: TacAgent,
+    minibatch: Mapping[str, npt.ArrayLike],
+    c: Coefficients,
+    members: Sequence[bool] | None = None,
+) -> torch.Tensor:
+    """One gradient step of every live member on its own minibatch ``(K, B, ...)`` (drawn from
+    its replay buffer, :meth:`ReplayBuffer.sample`) with its q and alpha from ``c``; with
+    ``members`` (the episode schedule, updates during warm-up) only of those, the others'
+    weights, Adam state, targets and generators left exactly as they are (their rows of
+    ``minibatch`` are ignored).
+
+    Returns the detached metrics ``(K, len(METRICS))`` (zeros for members not trained). A member
+    marked dead (``agent.alive`` False) contributes nothing to the step of the others.
+    """
+    # the minibatch, as float32 tensors on the agent's device
+    batch = Batch(*(agent.tensor(minibatch[name]) for name in Batch._fields))
+    # the reparameterisation noise of a~ ~ pi(.|s), and with twin-q of a' ~ pi(.|s'), each
+    # member's from its own generator
+    eps, eps_next = agent.draw_noise(batch.action.shape[1], members)
+    active = None if members is None else np.asarray(members, dtype=bool)
+    metrics: list[torch.Tensor | None] = []
+    for chunk in agent.chunks:  # members in chunks, one after the other (agent.py)
+        m, params = chunk.members, chunk.params
+        if active is not None and not active[m].any():
+            metrics.append(None)  # nobody to train: the chunk is not touched at all
+            continue
+        trained = agent.alive[m]
+        if active is not None:
+            trained = trained & torch.as_tensor(active[m], device=trained.device)
+        # the losses of losses.tac_losses (eqn:q_obj, eqn:v_obj, eqn:pol_obj) and their gradient
+        metrics.append(_gradient(agent, chunk, batch, eps, trained, c, eps_next))
+        with torch.no_grad():
+            # Adam, then the Polyak average of the target networks
+            params.adam_step(agent.learning_rate, None if active is None else active[m])
+            params.update_target(agent.tau, None if active is None else active[m])
+    return _in_member_order(agent, metrics)
+
+
+def gradients(
+    agent: TacAgent,
     batch: Batch,
     eps: torch.Tensor,
-    alive: torch.Tensor,
     c: Coefficients,
-    s: LossSettings,
+    eps_next: torch.Tensor | None = None,
+) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+    """The metrics of :func:`update` and the gradient of every trained parameter (named as in
+    :meth:`TacAgent.member_state`) for one minibatch and noise, by the agent's gradient (compiled
+    if its update is), without changing any weight. For comparing the paths."""
+    metrics = [
+        _gradient(agent, chunk, batch, eps, agent.alive[chunk.members], c, eps_next)
+        for chunk in agent.chunks
+    ]
+    named = [chunk.params.named_gradients() for chunk in agent.chunks]
+    grads = {name: torch.cat([g[name] for g in named]) for name in named[0]}
+    return _in_member_order(agent, list(metrics)), grads
+
+
+def _gradient(
+    agent: TacAgent,
+    chunk: Chunk,
+    batch: Batch,
+    eps: torch.Tensor,
+    trained: torch.Tensor,
+    c: Coefficients,
     eps_next: torch.Tensor | None,
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """The sum of the live members' four losses (five with a learned alpha) at parameters
-    ``theta`` (flat, of ``layout``; the target networks' ``target`` of ``target_layout``), which
-    autograd differentiates, and the detached metrics ``(K, len(METRICS))`` (plus
-    ``ALPHA_METRICS`` with a learned alpha). Members never mix, so each member's gradient is
-    its own losses'."""
-    nets, target_net = layout.networks(theta), target_layout.layers(target)
-    losses = tac_losses(nets, target_net, batch, eps, c, s, eps_next)
-    per_member = torch.stack([losses.q1, losses.q2, losses.v, losses.pi], dim=-1)
-    metrics = [per_member.detach(), losses.diagnostics]
-    if losses.alpha is not None:  # --alpha auto: the temperature loss joins the sum
-        assert losses.alpha_in_force is not None
-        per_member = torch.cat([per_member, losses.alpha[:, None]], dim=-1)
-        metrics.append(torch.stack([losses.alpha_in_force, losses.alpha.detach()], dim=-1))
-    total = torch.where(alive, per_member.sum(dim=-1), 0.0).sum()
-    return total, torch.cat(metrics, dim=-1)
+) -> torch.Tensor:
+    """The chunk's members' losses and their gradient, written into ``chunk.params.grad`` (zero
+    for members not ``trained``); returns their metrics."""
+    m, p = chunk.members, chunk.params
+    with torch.no_grad():
+        grad, metrics = agent.gradient(
+            p.data,
+            p.target,
+            p.layout,
+            p.target_layout,
+            Batch(*(t[m] for t in batch)),
+            eps[m],
+            trained,
+            Coefficients(*(t[m] for t in c)),
+            agent.settings,
+            None if eps_next is None else eps_next[m],
+        )
+        p.grad.copy_(grad)
+    return metrics
 
 
-def eager_gradient(theta: torch.Tensor, *args: Any) -> tuple[torch.Tensor, torch.Tensor]:
-    """:func:`total_loss`'s gradient with respect to ``theta`` by ``torch.autograd.grad``, and
-    the metrics."""
-    with torch.enable_grad():
-        leaf = theta.detach().requires_grad_()
-        total, metrics = total_loss(leaf, *args)
-        (grad,) = torch.autograd.grad(total, leaf)
-    return grad, metrics
-
-
-traceable_gradient: Gradient = torch.func.grad(total_loss, has_aux=True)
-""":func:`eager_gradient` by ``torch.func.grad``, which ``torch.compile`` can trace."""
-
-
-def compiled_gradient(device: torch.device, static: Sequence[torch.Tensor] = ()) -> Gradient:
-    """:data:`traceable_gradient` compiled for ``device`` on first use, or, where compilation
-    fails, :func:`eager_gradient` (with one warning). One compiled graph serves every call with
-    the same shapes and layouts, whatever the parameter tensors. On a GPU the ``static``
-    tensors are marked as static addresses, which CUDA graphs need."""
-    if device.type == "cuda":
-        for tensor in static:
-            torch._dynamo.mark_static_address(tensor)
-        current = [torch.compile(traceable_gradient, mode="reduce-overhead")]
-    else:
-        current = [torch.compile(traceable_gradient, options=CPU_COMPILE_OPTIONS)]
-
-    def gradient(*args: Any) -> tuple[torch.Tensor, torch.Tensor]:
-        try:
-            return current[0](*args)
-        except Exception as err:  # compilation failed: the same gradient, uncompiled
-            if current[0] is eager_gradient:
-                raise
-            warnings.warn(
-                f"torch.compile of TAC's update failed ({type(err).__name__}: {err}); "
-                "continuing without it",
-                RuntimeWarning,
-                stacklevel=2,
-            )
-            current[0] = eager_gradient
-            return eager_gradient(*args)
-
-    return gradient
-
-
-class TacUpdate:
-    """One update of a set of members: the gradient, one Adam step, the target average."""
-
-    def __init__(
-        self,
-        params: TacParameters,
-        settings: LossSettings,
-        gradient: Gradient,
-        *,
-        learning_rate: float,
-        tau: float,
-    ) -> None:
-        self.params, self.settings, self.gradient = params, settings, gradient
-        self.learning_rate, self.tau = learning_rate, tau
-
-    def gradients(
-        self,
-        batch: Batch,
-        eps: torch.Tensor,
-        alive: torch.Tensor,
-        c: Coefficients,
-        eps_next: torch.Tensor | None = None,
-    ) -> torch.Tensor:
-        """The metrics ``(K, len(METRICS))`` of one minibatch, the gradient of every trained
-        parameter written into ``params.grad`` (zero for members not ``alive``); no weight
-        changes."""
-        p = self.params
-        with torch.no_grad():
-            grad, metrics = self.gradient(
-                p.data, p.target, p.layout, p.target_layout, batch, eps, alive, c, self.settings,
-                eps_next,
-            )  # fmt: skip
-            p.grad.copy_(grad)
-        return metrics
-
-    def __call__(
-        self,
-        batch: Batch,
-        eps: torch.Tensor,
-        alive: torch.Tensor,
-        c: Coefficients,
-        eps_next: torch.Tensor | None = None,
-        active: npt.NDArray[np.bool_] | None = None,
-    ) -> torch.Tensor:
-        """One update of every member, or of the ``active`` ones only (the others are left
-        exactly as they are): :meth:`gradients`, Adam, the target average."""
-        trained = alive if active is None else alive & torch.as_tensor(active, device=alive.device)
-        metrics = self.gradients(batch, eps, trained, c, eps_next)
-        with torch.no_grad():
-            self.params.adam_step(self.learning_rate, active)
-            self.params.update_target(self.tau, active)
-        return metrics
+def _in_member_order(agent: TacAgent, metrics: list[torch.Tensor | None]) -> torch.Tensor:
+    """The chunks' metrics as one ``(K, width)`` tensor, zeros for a chunk not trained."""
+    width = len(agent.metric_names)
+    return torch.cat(
+        [
+            torch.zeros(chunk.members.stop - chunk.members.start, width, device=agent.device)
+            if x is None
+            else x
+            for chunk, x in zip(agent.chunks, metrics, strict=True)
+        ]
+    )

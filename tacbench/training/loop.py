@@ -22,7 +22,7 @@ from tacbench.progress import Progress
 from tacbench.runs import Outcome
 from tacbench.seeding import run_streams
 from tacbench.tac import METRICS, Coefficients, ReplayBuffer, TacAgent, coefficients
-from tacbench.tac.maths import ALPHA_METRICS
+from tacbench.tac.update import update
 from tacbench.training.checkpoint import load_replay, read, write_checkpoint
 from tacbench.training.pbt import PBT_COLUMNS, Population
 from tacbench.training.schedule import rounds, updates_due
@@ -57,7 +57,7 @@ class GroupTrainer:
             self.action_scale,
             [c.alpha for c in configs] if learns_alpha else None,
         )
-        self.metrics = METRICS + ALPHA_METRICS if learns_alpha else METRICS
+        self.metrics = self.agent.metric_names
         self.buffer = ReplayBuffer(k, obs_dim, act_dim, min(config.buffer_size, config.total_steps))
         self.rngs = [np.random.default_rng(s.numpy) for s in streams]
         self.envs = [envs.make_env(config.env) for _ in range(k)]
@@ -271,7 +271,7 @@ class GroupTrainer:
             for members in rounds(due):
                 subset = members.tolist() if config.per_member_updates else None
                 sample = self.buffer.sample(self.rngs, config.batch_size, subset)
-                metrics = self.agent.update(sample, c, subset)
+                metrics = update(self.agent, sample, c, subset)
                 if subset is None:
                     self.loss_sum += metrics
                 else:
