@@ -297,7 +297,10 @@ class RunConfig(RunSettings):
     )
 
     def __post_init__(self) -> None:
-        from tacbench.tsallis import check_alpha, check_q  # imports torch: not at CLI start-up
+        from tacbench.theory.tsallis import (  # imports torch: not at CLI start-up
+            check_alpha,
+            check_q,
+        )
 
         check_choice(self, "profile")
         for name, value in paper.PROFILES[self.profile].items():  # unset: the profile's value

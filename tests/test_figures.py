@@ -10,7 +10,7 @@ import pytest
 from scipy.special import softmax
 
 from tacbench.errors import TacbenchError
-from tacbench.figures import (
+from tacbench.theory.figures import (
     BANDIT_GRID_ALPHAS,
     BANDIT_GRID_QS,
     BANDIT_QS,
@@ -22,7 +22,7 @@ from tacbench.figures import (
     qexp_qlog_entropy_table,
     write_figures,
 )
-from tacbench.mdp import GRID_QS
+from tacbench.theory.mdp import GRID_QS
 
 pytestmark = pytest.mark.unit
 

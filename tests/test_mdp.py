@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 from scipy.special import logsumexp, softmax
 
 from tacbench.errors import TacbenchError
-from tacbench.mdp import (
+from tacbench.theory.mdp import (
     GRID_ALPHA,
     GRID_QS,
     TabularMDP,
@@ -24,7 +24,7 @@ from tacbench.mdp import (
     tsallis_value_iteration,
     value_iteration,
 )
-from tacbench.tsallis import log_q, q_max, q_softmax
+from tacbench.theory.tsallis import log_q, q_max, q_softmax
 
 pytestmark = pytest.mark.unit
 

@@ -19,7 +19,7 @@ from tacbench.tac.maths import (
 )
 from tacbench.tac.networks import Layers, mlp, policy_head
 from tacbench.tac.parameters import Networks, TacParameters
-from tacbench.tsallis import log_q
+from tacbench.theory.tsallis import log_q
 from tests.helpers import random_batch
 
 pytestmark = pytest.mark.unit

@@ -11,7 +11,7 @@ from scipy.optimize import brentq
 from scipy.special import logsumexp, softmax
 
 from tacbench.errors import TacbenchError
-from tacbench.tsallis import (
+from tacbench.theory.tsallis import (
     exp_q,
     log_q,
     q_max,

@@ -1,8 +1,8 @@
 """The ``tacbench`` command line: parse flags, build a config, call the library. No logic here.
 
 One module per command (``run``, ``sweep``, ``report``, ``figures``, ``envs``, ``bench``,
-``regress``, ``video``); ``common`` holds what they share and ``options`` generates the options
-of the declared settings.
+``regress``, ``video``, ``study``); ``common`` holds what they share and ``options`` generates
+the options of the declared settings.
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ from tacbench.cli.figures import figures
 from tacbench.cli.regress import regress
 from tacbench.cli.report import report
 from tacbench.cli.run import run
+from tacbench.cli.study import study
 from tacbench.cli.sweep import sweep
 from tacbench.cli.video import video
 
@@ -29,7 +30,7 @@ def cli() -> None:
     """tacbench: train, sweep and report Tsallis Actor-Critic and its baselines."""
 
 
-for command in (figures, report, run, sweep, bench, regress, envs_command, video):
+for command in (figures, report, run, sweep, bench, regress, envs_command, video, study):
     cli.add_command(command)
 
 

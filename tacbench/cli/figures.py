@@ -17,7 +17,7 @@ import click
 )
 def figures(out: Path) -> None:
     """Write the paper's theory figures (PNG) and the numbers they plot (CSV)."""
-    from tacbench.figures import write_figures  # matplotlib only when this command runs
+    from tacbench.theory.figures import write_figures  # matplotlib only when this command runs
 
     for path in write_figures(out):
         click.echo(f"wrote {path}")

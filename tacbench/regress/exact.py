@@ -224,7 +224,7 @@ def _status_row(name: str, entry: dict[str, Any], status: dict[str, Any]) -> Row
 
 
 def _theory_csvs(work: Path) -> dict[str, str]:
-    from tacbench.figures import write_figures  # matplotlib only when this runs
+    from tacbench.theory.figures import write_figures  # matplotlib only when this runs
 
     return {p.name: p.read_text() for p in write_figures(work / "figures") if p.suffix == ".csv"}
 

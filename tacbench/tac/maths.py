@@ -108,9 +108,9 @@ def squashed_gaussian(
 def log_q_of_log(log_p: torch.Tensor, q_minus_one: torch.Tensor) -> torch.Tensor:
     """``ln_q(p)`` from ``log p``, differentiably, per member.
 
-    ``ln_q(p) = expm1((q-1) log p) / (q-1)`` (:func:`tacbench.tsallis.log_q`), ``log p`` itself
-    where q = 1; ``q_minus_one`` broadcasts against ``log_p``. The density is never formed, only
-    its log (it over- or underflows for peaked or many-dimensional policies).
+    ``ln_q(p) = expm1((q-1) log p) / (q-1)`` (:func:`tacbench.theory.tsallis.log_q`), ``log p``
+    itself where q = 1; ``q_minus_one`` broadcasts against ``log_p``. The density is never
+    formed, only its log (it over- or underflows for peaked or many-dimensional policies).
     """
     is_one = q_minus_one == 0.0
     # the branch that q = 1 does not take gets finite inputs, so that autograd's zero gradient

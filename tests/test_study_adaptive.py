@@ -1,4 +1,4 @@
-"""The adaptive study's commands and tables (tacbench/adaptive_study.py, docs/adaptive.md)."""
+"""The adaptive study's commands and tables (tacbench/studies/adaptive.py, docs/adaptive.md)."""
 
 from __future__ import annotations
 
@@ -8,8 +8,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from click.testing import CliRunner
 
-from tacbench import adaptive_study as study
+from tacbench.cli import cli
+from tacbench.studies import adaptive as study
 
 
 @pytest.mark.unit
@@ -65,6 +67,8 @@ def test_the_published_study_is_complete_and_its_tables_regenerate(tmp_path: Pat
     assert len(statuses) == 116  # 32 population members, 64 fixed, 20 learned alpha
     assert {(s["state"], s["step"]) for s in statuses} == {("complete", 100_000)}
     assert not list(STUDY.glob("runs/**/checkpoint"))
-    study.main(["analyse", "--results", str(STUDY), "--out", str(tmp_path)])
+    args = ["study", "adaptive", "analyse", "--results", str(STUDY), "--out", str(tmp_path)]
+    result = CliRunner().invoke(cli, args)
+    assert result.exit_code == 0, result.output
     for table in sorted((STUDY / "analysis").glob("*.csv")):
         assert (tmp_path / table.name).read_text() == table.read_text(), table.name

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tacbench.errors import TacbenchError
-from tacbench.tsallis import (
+from tacbench.theory.tsallis import (
     Array,
     ArrayLike,
     check_alpha,

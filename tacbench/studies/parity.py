@@ -11,15 +11,14 @@ module prints those commands and analyses their run directories:
   bootstrap confidence interval (rliable's), seeds resampled independently within each
   algorithm.
 
-``python -m baselines.parity commands`` prints the study's commands;
-``python -m baselines.parity analyse --results DIR`` prints the tables and writes the figure;
-``--finals CSV`` adds final returns recorded by an earlier study whose runs are not kept (one
-row per run: env, method, seed, return), so a new method can be compared with them.
+``tacbench study parity commands`` prints the study's commands; ``tacbench study parity
+analyse --results DIR`` prints the tables and writes the figure; ``--finals CSV`` adds final
+returns recorded by an earlier study whose runs are not kept (one row per run: env, method,
+seed, return), so a new method can be compared with them.
 """
 
 from __future__ import annotations
 
-import argparse
 import shlex
 from collections.abc import Sequence
 from pathlib import Path
@@ -198,56 +197,27 @@ def plot(table: pd.DataFrame, path: Path) -> None:
     plt.close(fig)
 
 
-def main(argv: Sequence[str] | None = None) -> None:
-    """``commands`` or ``analyse`` (see the module docstring)."""
-    parser = argparse.ArgumentParser(prog="python -m baselines.parity", description=__doc__)
-    sub = parser.add_subparsers(dest="action", required=True)
-    show = sub.add_parser("commands", help="print the study's tacbench run commands")
-    show.add_argument("--env", action="append", help="repeatable (default: the study's)")
-    show.add_argument("--seed", type=int, action="append", help="repeatable")
-    show.add_argument("--steps", type=int, default=STEPS)
-    show.add_argument("--out", default="results/parity")
-    analyse = sub.add_parser("analyse", help="curves and final-return difference")
-    analyse.add_argument("--results", type=Path, default=Path("results/parity"))
-    analyse.add_argument(
-        "--out", type=Path, help="folder for curves.csv, finals.csv, summary.csv, curves.png"
-    )
-    analyse.add_argument("--reps", type=int, default=REPS)
-    analyse.add_argument(
-        "--fraction",
-        type=float,
-        default=FRACTION,
-        help="final return: the evaluations in this last fraction of the steps (default 0.1)",
-    )
-    analyse.add_argument(
-        "--by-variant", action="store_true", help="name TAC runs by variant (an ablation)"
-    )
-    analyse.add_argument(
-        "--finals", type=Path, action="append", default=[], help="recorded finals CSV; repeatable"
-    )
-    args = parser.parse_args(argv)
-    if args.action == "commands":
-        print("\n".join(commands(args.env or ENVS, args.seed or SEEDS, args.steps, args.out)))
-        return
-    if not 0 < args.fraction <= 1:
-        parser.error(f"--fraction must be in (0, 1] (got {args.fraction}).")
-    data = load(args.results, args.by_variant)
-    table, finals = curves(data), final_returns(data, args.fraction)
-    for path in args.finals:
-        finals = recorded_finals(path, finals)
-    pd.set_option("display.width", 200)
-    print(table.to_string(index=False, float_format=lambda x: f"{x:.1f}"))
-    print(finals.to_string(index=False, float_format=lambda x: f"{x:.1f}"))
-    differences = summary(finals, args.reps)
-    print(differences.to_string(index=False, float_format=lambda x: f"{x:.1f}"))
-    if args.out is not None:
-        args.out.mkdir(parents=True, exist_ok=True)
-        table.to_csv(args.out / "curves.csv", index=False)
-        finals.to_csv(args.out / "finals.csv", index=False)
-        differences.to_csv(args.out / "summary.csv", index=False)
-        plot(table, args.out / "curves.png")
-        print(f"wrote {args.out / 'curves.csv'}, finals.csv, summary.csv and curves.png")
+def analyse(
+    results: Path,
+    *,
+    by_variant: bool = False,
+    fraction: float = FRACTION,
+    finals: Sequence[Path] = (),
+    reps: int = REPS,
+) -> dict[str, pd.DataFrame]:
+    """Every table of the study, by name: curves, finals (with the recorded ``finals`` CSVs
+    added) and summary (the differences to SB3)."""
+    if not 0 < fraction <= 1:
+        raise TacbenchError(f"--fraction must be in (0, 1] (got {fraction}).")
+    data = load(results, by_variant)
+    table, final = curves(data), final_returns(data, fraction)
+    for path in finals:
+        final = recorded_finals(path, final)
+    return {"curves": table, "finals": final, "summary": summary(final, reps)}
 
 
-if __name__ == "__main__":
-    main()
+def figure(tables: dict[str, pd.DataFrame], out: Path) -> Path:
+    """The learning curves of :func:`analyse`'s tables as ``out/curves.png``."""
+    path = out / "curves.png"
+    plot(tables["curves"], path)
+    return path

@@ -26,8 +26,15 @@ from matplotlib.colors import ListedColormap
 from matplotlib.figure import Figure
 
 from tacbench.errors import TacbenchError
-from tacbench.mdp import GRID_ACTIONS, GRID_ALPHA, GRID_MAP, GRID_QS, error_bounds, grid_world
-from tacbench.tsallis import exp_q, log_q, q_max, q_softmax, tsallis_entropy
+from tacbench.theory.mdp import (
+    GRID_ACTIONS,
+    GRID_ALPHA,
+    GRID_MAP,
+    GRID_QS,
+    error_bounds,
+    grid_world,
+)
+from tacbench.theory.tsallis import exp_q, log_q, q_max, q_softmax, tsallis_entropy
 
 ENTROPY_QS: tuple[float, ...] = (0.5, 1.0, 1.5, 2.0, 3.0, 5.0)
 """q values of the exp_q / ln_q / S_q figure (ours: the paper's image is not in its source)."""

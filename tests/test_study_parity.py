@@ -1,4 +1,4 @@
-"""The parity study's commands and statistics (baselines/parity.py)."""
+"""The parity study's commands and statistics (tacbench/studies/parity.py)."""
 
 from __future__ import annotations
 
@@ -10,9 +10,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from click.testing import CliRunner, Result
 
-from baselines import parity
+from tacbench.cli import cli
 from tacbench.errors import TacbenchError
+from tacbench.studies import parity
 from tests.report_fixtures import write_run
 
 pytestmark = pytest.mark.unit
@@ -147,14 +149,19 @@ def test_an_ablation_names_tac_runs_by_variant_and_scores_a_window(tmp_path: Pat
         parity.load(tmp_path / "study")
     out = tmp_path / "analysis"
     study = ["--results", str(tmp_path / "study"), "--out", str(out), "--reps", "200"]
-    parity.main(["analyse", *study, "--by-variant", "--fraction", "0.25"])
+    result = _analyse([*study, "--by-variant", "--fraction", "0.25"])
+    assert result.exit_code == 0, result.output
     summary = pd.read_csv(out / "summary.csv").set_index("method")
     assert list(summary.index) == ["TAC q1-a0.2", "TAC q1-a0.2-warmupon"]
     assert summary.loc["TAC q1-a0.2", "TAC - SB3"] == pytest.approx(-100.0)
     assert summary.loc["TAC q1-a0.2-warmupon", "TAC - SB3"] == pytest.approx(100.0)
     assert (out / "curves.png").exists()
-    with pytest.raises(SystemExit):
-        parity.main(["analyse", "--results", str(tmp_path / "study"), "--fraction", "0"])
+    refused = _analyse(["--results", str(tmp_path / "study"), "--fraction", "0"])
+    assert refused.exit_code == 2 and "--fraction must be in (0, 1]" in refused.output
+
+
+def _analyse(args: list[str]) -> Result:
+    return CliRunner().invoke(cli, ["study", "parity", "analyse", *args])
 
 
 STUDY = Path(__file__).resolve().parents[1] / "results" / "studies" / "parity-100k"
@@ -186,6 +193,7 @@ def test_the_published_study_is_complete_and_its_tables_regenerate(
     assert len(statuses) == runs
     assert {s["state"] for s in statuses} == {"complete"}
     assert not list(results.glob("runs/**/checkpoint"))
-    parity.main(["analyse", "--results", str(results), *options, "--out", str(tmp_path)])
+    result = _analyse(["--results", str(results), *options, "--out", str(tmp_path)])
+    assert result.exit_code == 0, result.output
     for table in sorted((results / "analysis").glob("*.csv")):
         assert (tmp_path / table.name).read_text() == table.read_text(), table.name

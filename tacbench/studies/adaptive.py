@@ -3,8 +3,8 @@ auto``) beat the fixed values, on the same seeds?
 
 Per task: two ``--q auto`` populations of eight (seeds 0-70 and 80-150), fixed q = 1 and the
 paper's best fixed q on those 16 seeds, and ``--alpha auto`` at q = 1 and at the best q on seeds
-0-40 (against the fixed runs of the same seeds). ``python -m tacbench.adaptive_study commands``
-prints the commands; ``python -m tacbench.adaptive_study analyse --results DIR`` the tables.
+0-40 (against the fixed runs of the same seeds). ``tacbench study adaptive commands`` prints
+the commands; ``tacbench study adaptive analyse --results DIR`` the tables.
 
 A run's final return is the report's: the mean of its last 10 evaluations. A population is one
 unit (its members copy each other): it is compared with the mean of the fixed runs of its own
@@ -15,7 +15,6 @@ mean difference.
 
 from __future__ import annotations
 
-import argparse
 import shlex
 from collections.abc import Sequence
 from pathlib import Path
@@ -123,25 +122,7 @@ def final_q(results: Path) -> pd.DataFrame:
     return pd.DataFrame(rows).sort_values(["env", "population", "seed"], ignore_index=True)
 
 
-def main(argv: Sequence[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog="python -m tacbench.adaptive_study")
-    sub = parser.add_subparsers(dest="action", required=True)
-    sub.add_parser("commands").add_argument("--out", default="results/adaptive")
-    analyse = sub.add_parser("analyse")
-    analyse.add_argument("--results", type=Path, required=True)
-    analyse.add_argument("--out", type=Path, help="also write the tables here as CSV")
-    args = parser.parse_args(argv)
-    if args.action == "commands":
-        print("\n".join(commands(args.out)))
-        return
-    for name, frame in tables(args.results).items():
-        print(f"{name}:\n{frame.round(2).to_string(index=False)}\n")
-        if args.out:
-            args.out.mkdir(parents=True, exist_ok=True)
-            frame.to_csv(args.out / f"{name}.csv", index=False)
-
-
-def tables(results: Path) -> dict[str, pd.DataFrame]:
+def analyse(results: Path) -> dict[str, pd.DataFrame]:
     """Every table of the study, by name: populations, alpha, final_q, final_q_summary."""
     table = finals(results)
     ends = final_q(results)
@@ -152,7 +133,3 @@ def tables(results: Path) -> dict[str, pd.DataFrame]:
         "final_q": ends,
         "final_q_summary": summary[["min", "50%", "max"]].reset_index(),
     }
-
-
-if __name__ == "__main__":
-    main()
