@@ -1,4 +1,4 @@
-"""A baseline's ``checkpoint/``: generations (:mod:`tacbench.checkpoints`) of everything its
+"""A baseline's ``checkpoint/``: generations (:mod:`tacbench.runs.checkpoints`) of everything its
 exact continuation depends on.
 
 - ``model-<step>.zip``: ``model.save`` (weights, optimiser states, counters, last observation,
@@ -33,7 +33,8 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecNormalize
 from baselines import algos
 from baselines.callbacks import LossLogger
 from baselines.config import BaselineConfig
-from tacbench import checkpoints, envs
+from tacbench import envs
+from tacbench.runs import checkpoints
 from tacbench.seeding import run_streams
 
 REPLAY_FIELDS = ("observations", "next_observations", "actions", "rewards", "dones", "timeouts")

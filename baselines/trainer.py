@@ -21,12 +21,12 @@ from baselines import algos, checkpoint, hyperparams
 from baselines.callbacks import Diverged, Interrupted, LossLogger, RunCallback
 from baselines.config import BaselineConfig
 from tacbench import envs, paper, runs
-from tacbench.checkpoints import disk_errors
 from tacbench.errors import TacbenchError
 from tacbench.hardware import configure_process
 from tacbench.interrupts import StopCheck, stop_signals
 from tacbench.progress import Progress
 from tacbench.runs import Outcome, plan_runs
+from tacbench.runs.checkpoints import disk_errors
 
 
 def metadata(config: BaselineConfig, command: str) -> dict[str, Any]:
@@ -65,7 +65,7 @@ def train(
     it, Ctrl-C or SIGTERM says stop, the run is checkpointed and left "running" for
     ``resume=True``, and later seeds are not started. Complete and failed runs are skipped
     unless ``force``. A full disk or an unwritable folder raises
-    :class:`tacbench.checkpoints.DiskError`; what was written up to the last checkpoint stays
+    :class:`tacbench.runs.checkpoints.DiskError`; what was written up to the last checkpoint stays
     resumable.
     """
     if not configs or len({c.seed for c in configs}) != len(configs):

@@ -23,9 +23,9 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from tacbench import checkpoints, envs
+from tacbench import envs
 from tacbench.errors import TacbenchError
-from tacbench.runs import read_json
+from tacbench.runs import checkpoints, read_json
 
 GL_BACKENDS = ("egl", "osmesa")  # MuJoCo's offscreen backends, GPU-capable first
 FORMATS = (".mp4", ".gif")

@@ -1,4 +1,4 @@
-"""Checkpoint generations (``tacbench.checkpoints``) on real files: manifests, pruning to two,
+"""Checkpoint generations (``tacbench.runs.checkpoints``) on real files: manifests, pruning to two,
 choosing what a group resumes from, forgetting later generations, disk errors as messages."""
 
 from __future__ import annotations
@@ -9,9 +9,9 @@ from pathlib import Path
 
 import pytest
 
-from tacbench import checkpoints
-from tacbench.checkpoints import DiskError
 from tacbench.errors import TacbenchError
+from tacbench.runs import checkpoints
+from tacbench.runs.checkpoints import DiskError
 
 
 def _generation(folder: Path, step: int, *shared: str) -> None:

@@ -23,9 +23,9 @@ from pathlib import Path
 from typing import IO, Any
 
 from tacbench import envs, hardware, runs
-from tacbench.checkpoints import DiskError, disk_errors
 from tacbench.errors import TacbenchError
 from tacbench.interrupts import stop_signals
+from tacbench.runs.checkpoints import DiskError, disk_errors
 from tacbench.sweep import EXECUTORS, GROUPS, cost, executors, plan, slurm, state, summary
 from tacbench.sweep.presets import Preset
 from tacbench.sweep.progress import SweepProgress

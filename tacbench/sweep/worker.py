@@ -28,8 +28,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from tacbench import runs, trainers
-from tacbench.checkpoints import FULL_ERRNOS, DiskError
 from tacbench.errors import TacbenchError
+from tacbench.runs.checkpoints import FULL_ERRNOS, DiskError
 from tacbench.sweep.plan import Unit
 
 if TYPE_CHECKING:

@@ -16,13 +16,13 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from tacbench import envs, runs
-from tacbench.checkpoints import disk_errors
 from tacbench.config import RunConfig
 from tacbench.errors import TacbenchError
 from tacbench.hardware import configure_process
 from tacbench.interrupts import StopCheck, stop_signals
 from tacbench.members import resolve_compile
 from tacbench.runs import Outcome, plan_runs
+from tacbench.runs.checkpoints import disk_errors
 from tacbench.training.loop import LOSS_COLUMNS, GroupTrainer
 
 __all__ = ["LOSS_COLUMNS", "resolve_device", "stepper", "train"]
@@ -76,7 +76,7 @@ def train(
     ``stop`` is polled before every step with the step count; when it (or Ctrl-C / SIGTERM)
     says stop, every member is checkpointed and left "running", to be continued with
     ``resume=True``. Complete and failed runs are skipped unless ``force``. A full disk or an
-    unwritable folder raises :class:`tacbench.checkpoints.DiskError`; what was written up to
+    unwritable folder raises :class:`tacbench.runs.checkpoints.DiskError`; what was written up to
     the last checkpoint stays resumable.
     """
     configs = [resolve_compile(c) for c in configs]

@@ -1,5 +1,5 @@
 """A TAC member's checkpoint on disk: generations of ``checkpoint/state-<step>.pt`` and
-``checkpoint/replay/*.npz``, each recorded by a manifest (:mod:`tacbench.checkpoints`).
+``checkpoint/replay/*.npz``, each recorded by a manifest (:mod:`tacbench.runs.checkpoints`).
 
 ``state-<step>.pt`` holds everything the member's continuation depends on but its replay
 buffer: the agent's weights, Adam state and generator, the env's exact state, the episode in
@@ -19,7 +19,7 @@ from typing import Any
 
 import torch
 
-from tacbench import checkpoints
+from tacbench.runs import checkpoints
 from tacbench.tac.buffer import ReplayBuffer
 
 REPLAY = "replay"

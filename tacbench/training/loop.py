@@ -15,11 +15,11 @@ from typing import Any
 import numpy as np
 import torch
 
-from tacbench import checkpoints, envs, runs
+from tacbench import envs, runs
 from tacbench.config import RunConfig
 from tacbench.interrupts import StopCheck
 from tacbench.progress import Progress
-from tacbench.runs import Outcome
+from tacbench.runs import Outcome, checkpoints
 from tacbench.seeding import run_streams
 from tacbench.tac import METRICS, Coefficients, ReplayBuffer, TacAgent, coefficients
 from tacbench.tac.update import update
@@ -98,7 +98,7 @@ class GroupTrainer:
 
     def _resume_or_start(self, directories: list[Path]) -> None:
         """Start afresh, or continue from the newest checkpoint generation that every member can
-        use (:func:`tacbench.checkpoints.choose`: a damaged one is passed over, and said so)."""
+        use (:func:`checkpoints.choose`: a damaged one is passed over, and said so)."""
         folders = [d / "checkpoint" for d in directories]
         step, self.resume_notes = checkpoints.choose(folders)
         if step is not None:

@@ -1,51 +1,35 @@
-"""The run directory: layout, atomic JSON, row-by-row CSVs, status, resume planning, progress.
-
-Shared by every trainer (TAC and the baselines), so nothing here knows about torch or
-TAC. The layout (ARCHITECTURE.md, "The run directory")::
-
-    <out>/runs/<algo>/<env>/<variant>/seed<k>/
-      config.json  status.json  eval.csv  train.csv  losses.csv  checkpoint/
+"""The run directory's files: atomic JSON, row-by-row CSVs and the writer of one run
+(:class:`RunWriter`: config.json, status.json, eval.csv, train.csv, losses.csv and TensorBoard
+events).
 
 JSON files are written durably (a temporary name, synced, renamed:
-:func:`tacbench.checkpoints.write_durably`). CSV rows are appended and flushed one at a time;
-reopening a run for resume first cuts every CSV back to the checkpoint's step, so no row is
-ever duplicated and none is missing. docs/results-schema.md describes every file, column and field.
+:func:`tacbench.runs.checkpoints.write_durably`). CSV rows are appended and flushed one at a
+time; reopening a run for resume first cuts every CSV back to the checkpoint's step, so no row is
+ever duplicated and none is missing. docs/results-schema.md describes every file, column and
+field.
 """
 
 from __future__ import annotations
 
 import csv
-import importlib.metadata
 import json
 import math
 import os
-import platform
-import shutil
-import socket
-import subprocess
 import tempfile
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import IO, TYPE_CHECKING, Any, Literal, Protocol, TypeVar
+from typing import IO, TYPE_CHECKING, Any, Literal
 
-from tacbench.checkpoints import write_durably
-from tacbench.config import RESULT_NEUTRAL_FIELDS
 from tacbench.errors import TacbenchError
+from tacbench.runs.checkpoints import write_durably
 
 if TYPE_CHECKING:
-    from tacbench.tensorboard_log import TensorBoardLog
+    from tacbench.runs.tensorboard import TensorBoardLog
 
 EVAL_COLUMNS = ("step", "wall_s", "return_mean", "return_std", "length_mean")
 TRAIN_COLUMNS = ("step", "wall_s", "return", "length")
-VERSIONED_PACKAGES = ("torch", "gymnasium", "mujoco", "stable_baselines3", "numpy")
 State = Literal["running", "complete", "failed"]
-
-
-def run_directory(out: Path, algo: str, env: str, variant: str, seed: int) -> Path:
-    """``<out>/runs/<algo>/<env>/<variant>/seed<seed>``."""
-    return Path(out) / "runs" / algo / env / variant / f"seed{seed}"
 
 
 def now_iso() -> str:
@@ -80,109 +64,6 @@ def read_json(path: Path) -> dict[str, Any]:
     if not isinstance(data, dict):
         raise TacbenchError(f"{path} is not a JSON object; delete it or rerun with --force.")
     return data
-
-
-def package_versions() -> dict[str, str | None]:
-    """Python's and the main dependencies' versions (None for a package that is not installed)."""
-    versions: dict[str, str | None] = {"python": platform.python_version()}
-    for package in VERSIONED_PACKAGES:
-        try:
-            versions[package] = importlib.metadata.version(package.replace("_", "-"))
-        except importlib.metadata.PackageNotFoundError:
-            versions[package] = None
-    return versions
-
-
-def git_commit() -> str | None:
-    """The tacbench checkout's commit, with ``-dirty`` for uncommitted changes; None outside git."""
-    here = Path(__file__).resolve().parent
-    try:
-        sha = subprocess.run(
-            ["git", "rev-parse", "HEAD"], cwd=here, capture_output=True, text=True, check=True
-        ).stdout.strip()
-        dirty = subprocess.run(
-            ["git", "status", "--porcelain", "--untracked-files=no"],
-            cwd=here,
-            capture_output=True,
-            text=True,
-            check=True,
-        ).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return None
-    return sha + ("-dirty" if dirty else "")
-
-
-def run_metadata(config: Mapping[str, Any], command: str, **fields: Any) -> dict[str, Any]:
-    """config.json's content: ``fields`` (algo, env, variant, seed, q, alpha, total_steps, ...)
-    then command, versions, git commit, host, creation time and the full config."""
-    return {
-        **fields,
-        "command": command,
-        "versions": package_versions(),
-        "git_commit": git_commit(),
-        "host": socket.gethostname(),
-        "created": now_iso(),
-        "config": dict(config),
-    }
-
-
-def differing_fields(
-    old: Mapping[str, Any], new: Mapping[str, Any], ignore: Sequence[str] = ()
-) -> list[str]:
-    """``"name: old -> new"`` for every field that differs, ignoring the names in ``ignore``."""
-    names = sorted((set(old) | set(new)) - set(ignore))
-    return [
-        f"{name}: {old.get(name, '(absent)')!r} -> {new.get(name, '(absent)')!r}"
-        for name in names
-        if old.get(name) != new.get(name)
-    ]
-
-
-@dataclass(frozen=True)
-class DirectoryPlan:
-    """What to do with one run directory: start it, resume it, or skip it (with why)."""
-
-    action: Literal["start", "resume", "skip"]
-    message: str = ""
-
-
-def plan_run(
-    directory: Path,
-    config: Mapping[str, Any],
-    *,
-    resume: bool,
-    force: bool,
-    neutral: Sequence[str] = (),
-) -> DirectoryPlan:
-    """Decide how a new command treats ``directory``; refuse (TacbenchError) when it must not
-    touch it. Fields in ``neutral`` may differ between the stored config and the new one."""
-    config_path = directory / "config.json"
-    if force or not config_path.exists():
-        return DirectoryPlan(
-            "start", "--force: starting over" if force and directory.exists() else ""
-        )
-    differences = differing_fields(read_json(config_path).get("config", {}), config, neutral)
-    if differences:
-        raise TacbenchError(
-            f"{directory} holds a run with another config ({'; '.join(differences)}). "
-            "Pass --force to replace it, or --out to write somewhere else."
-        )
-    status_path = directory / "status.json"
-    status = read_json(status_path) if status_path.exists() else {"state": "running", "step": 0}
-    step = status.get("step", 0)
-    if status.get("state") == "complete":
-        return DirectoryPlan("skip", f"already complete ({step} steps); --force retrains it")
-    if status.get("state") == "failed":
-        return DirectoryPlan(
-            "skip",
-            f"failed at step {step}: {status.get('reason', '')}; --force retrains it",
-        )
-    if not resume:
-        raise TacbenchError(
-            f"{directory} holds an unfinished run (step {step}). Add --resume to continue it, "
-            "or --force to start over."
-        )
-    return DirectoryPlan("resume", "resuming from its last checkpoint")
 
 
 class CsvLog:
@@ -276,7 +157,7 @@ class RunWriter:
         ):
             self._logs[name] = CsvLog(self.directory / f"{name}.csv", columns, resume_step)
         if self.tensorboard:
-            from tacbench.tensorboard_log import TensorBoardLog  # protobuf: only when used
+            from tacbench.runs.tensorboard import TensorBoardLog  # protobuf: only when used
 
             self._board = TensorBoardLog(self.directory / "tensorboard", resume_step)
         self.status("running", resume_step or 0)
@@ -330,57 +211,3 @@ class RunWriter:
         if self._board is not None:
             self._board.close()
             self._board = None
-
-
-# --- planning the run directories of one trainer call ----------------------------------
-
-
-@dataclass(frozen=True)
-class Outcome:
-    """How one run ended in this call."""
-
-    seed: int
-    directory: Path
-    state: str  # "complete", "failed", "interrupted" or "skipped"
-    step: int
-    message: str = ""
-
-
-class PlannableConfig(Protocol):
-    """What planning needs of a run's config (``RunConfig``, ``BaselineConfig``)."""
-
-    @property
-    def algo(self) -> str: ...
-    @property
-    def env(self) -> str: ...
-    @property
-    def variant(self) -> str: ...
-    @property
-    def seed(self) -> int: ...
-    def to_dict(self) -> Mapping[str, Any]: ...
-
-
-Config = TypeVar("Config", bound=PlannableConfig)
-
-
-def plan_runs(
-    configs: Sequence[Config], out: Path, *, resume: bool, force: bool
-) -> tuple[list[Outcome], list[tuple[Config, Path]]]:
-    """Plan each config's run directory under ``out`` (:func:`plan_run`: start,
-    resume, skip or refuse with a clear error) before anything is trained. Returns the skipped
-    runs' outcomes and the runs to train with their directories; a directory that starts afresh
-    (``force``, or nothing worth resuming in it) is emptied here."""
-    ensure_writable(Path(out))
-    skipped, active = [], []
-    for config in configs:
-        directory = run_directory(out, config.algo, config.env, config.variant, config.seed)
-        plan = plan_run(
-            directory, config.to_dict(), resume=resume, force=force, neutral=RESULT_NEUTRAL_FIELDS
-        )
-        if plan.action == "skip":
-            skipped.append(Outcome(config.seed, directory, "skipped", -1, plan.message))
-            continue
-        if plan.action == "start" and directory.exists():
-            shutil.rmtree(directory)
-        active.append((config, directory))
-    return skipped, active

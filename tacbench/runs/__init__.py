@@ -1,0 +1,59 @@
+"""The run directory: the contract between the trainers, the sweeps and the reports. Nothing
+here knows about torch or TAC; every trainer (TAC and the baselines) writes through it::
+
+    <out>/runs/<algo>/<env>/<variant>/seed<k>/
+      config.json  status.json  eval.csv  train.csv  losses.csv  tensorboard/  checkpoint/
+
+- ``planning``: where a run goes, and whether a command starts, resumes, skips or refuses it;
+- ``files``: atomic JSON, row-by-row CSVs, the writer of one run (:class:`RunWriter`);
+- ``provenance``: versions, git commit and host, as config.json records them;
+- ``checkpoints``: checkpoint generations (durable writes, manifests, choosing what to resume);
+- ``tensorboard``: event files of the same rows.
+
+docs/results-schema.md describes every file, column and field.
+"""
+
+from tacbench.runs.files import (
+    EVAL_COLUMNS,
+    TRAIN_COLUMNS,
+    CsvLog,
+    RunWriter,
+    State,
+    atomic_write_json,
+    ensure_writable,
+    now_iso,
+    read_json,
+)
+from tacbench.runs.planning import (
+    DirectoryPlan,
+    Outcome,
+    PlannableConfig,
+    differing_fields,
+    plan_run,
+    plan_runs,
+    run_directory,
+)
+from tacbench.runs.provenance import VERSIONED_PACKAGES, git_commit, package_versions, run_metadata
+
+__all__ = [
+    "EVAL_COLUMNS",
+    "TRAIN_COLUMNS",
+    "VERSIONED_PACKAGES",
+    "CsvLog",
+    "DirectoryPlan",
+    "Outcome",
+    "PlannableConfig",
+    "RunWriter",
+    "State",
+    "atomic_write_json",
+    "differing_fields",
+    "ensure_writable",
+    "git_commit",
+    "now_iso",
+    "package_versions",
+    "plan_run",
+    "plan_runs",
+    "read_json",
+    "run_directory",
+    "run_metadata",
+]

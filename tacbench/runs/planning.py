@@ -1,0 +1,129 @@
+"""Planning the run directories of one trainer call: where each run goes, and whether a new
+command starts, resumes, skips or must refuse it."""
+
+from __future__ import annotations
+
+import shutil
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal, Protocol, TypeVar
+
+from tacbench.config import RESULT_NEUTRAL_FIELDS
+from tacbench.errors import TacbenchError
+from tacbench.runs.files import ensure_writable, read_json
+
+
+def run_directory(out: Path, algo: str, env: str, variant: str, seed: int) -> Path:
+    """``<out>/runs/<algo>/<env>/<variant>/seed<seed>``."""
+    return Path(out) / "runs" / algo / env / variant / f"seed{seed}"
+
+
+def differing_fields(
+    old: Mapping[str, Any], new: Mapping[str, Any], ignore: Sequence[str] = ()
+) -> list[str]:
+    """``"name: old -> new"`` for every field that differs, ignoring the names in ``ignore``."""
+    names = sorted((set(old) | set(new)) - set(ignore))
+    return [
+        f"{name}: {old.get(name, '(absent)')!r} -> {new.get(name, '(absent)')!r}"
+        for name in names
+        if old.get(name) != new.get(name)
+    ]
+
+
+@dataclass(frozen=True)
+class DirectoryPlan:
+    """What to do with one run directory: start it, resume it, or skip it (with why)."""
+
+    action: Literal["start", "resume", "skip"]
+    message: str = ""
+
+
+def plan_run(
+    directory: Path,
+    config: Mapping[str, Any],
+    *,
+    resume: bool,
+    force: bool,
+    neutral: Sequence[str] = (),
+) -> DirectoryPlan:
+    """Decide how a new command treats ``directory``; refuse (TacbenchError) when it must not
+    touch it. Fields in ``neutral`` may differ between the stored config and the new one."""
+    config_path = directory / "config.json"
+    if force or not config_path.exists():
+        return DirectoryPlan(
+            "start", "--force: starting over" if force and directory.exists() else ""
+        )
+    differences = differing_fields(read_json(config_path).get("config", {}), config, neutral)
+    if differences:
+        raise TacbenchError(
+            f"{directory} holds a run with another config ({'; '.join(differences)}). "
+            "Pass --force to replace it, or --out to write somewhere else."
+        )
+    status_path = directory / "status.json"
+    status = read_json(status_path) if status_path.exists() else {"state": "running", "step": 0}
+    step = status.get("step", 0)
+    if status.get("state") == "complete":
+        return DirectoryPlan("skip", f"already complete ({step} steps); --force retrains it")
+    if status.get("state") == "failed":
+        return DirectoryPlan(
+            "skip",
+            f"failed at step {step}: {status.get('reason', '')}; --force retrains it",
+        )
+    if not resume:
+        raise TacbenchError(
+            f"{directory} holds an unfinished run (step {step}). Add --resume to continue it, "
+            "or --force to start over."
+        )
+    return DirectoryPlan("resume", "resuming from its last checkpoint")
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """How one run ended in this call."""
+
+    seed: int
+    directory: Path
+    state: str  # "complete", "failed", "interrupted" or "skipped"
+    step: int
+    message: str = ""
+
+
+class PlannableConfig(Protocol):
+    """What planning needs of a run's config (``RunConfig``, ``BaselineConfig``)."""
+
+    @property
+    def algo(self) -> str: ...
+    @property
+    def env(self) -> str: ...
+    @property
+    def variant(self) -> str: ...
+    @property
+    def seed(self) -> int: ...
+    def to_dict(self) -> Mapping[str, Any]: ...
+
+
+Config = TypeVar("Config", bound=PlannableConfig)
+
+
+def plan_runs(
+    configs: Sequence[Config], out: Path, *, resume: bool, force: bool
+) -> tuple[list[Outcome], list[tuple[Config, Path]]]:
+    """Plan each config's run directory under ``out`` (:func:`plan_run`: start,
+    resume, skip or refuse with a clear error) before anything is trained. Returns the skipped
+    runs' outcomes and the runs to train with their directories; a directory that starts afresh
+    (``force``, or nothing worth resuming in it) is emptied here."""
+    ensure_writable(Path(out))
+    skipped, active = [], []
+    for config in configs:
+        directory = run_directory(out, config.algo, config.env, config.variant, config.seed)
+        plan = plan_run(
+            directory, config.to_dict(), resume=resume, force=force, neutral=RESULT_NEUTRAL_FIELDS
+        )
+        if plan.action == "skip":
+            skipped.append(Outcome(config.seed, directory, "skipped", -1, plan.message))
+            continue
+        if plan.action == "start" and directory.exists():
+            shutil.rmtree(directory)
+        active.append((config, directory))
+    return skipped, active
