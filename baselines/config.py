@@ -105,7 +105,8 @@ def flags_as_overrides(algo: str, given: Mapping[str, Any]) -> list[str]:
         key = _FLAG_KEYS.get((algo, name))
         if key is None:
             raise TacbenchError(
-                f"--{name.replace('_', '-')} is a TAC option that {algo} does not use; set "
+                f"--{name.replace('_', '-')} is a TAC option that {algo} does not use; leave it "
+                f"out for {algo} (tacbench sweep: --algo tac keeps TAC's runs only) and set "
                 f"{algo}'s hyperparameters with --hp KEY=VALUE, KEY one of "
                 f"{', '.join(sorted(hyperparams.ALGO_KEYS[algo]))}."
             )

@@ -11,6 +11,7 @@ deterministic actions, one episode on each of ``eval_episodes`` separate env ins
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -50,7 +51,7 @@ def metadata(config: BaselineConfig, command: str) -> dict[str, Any]:
 
 
 def train(
-    configs: list[BaselineConfig],
+    configs: Sequence[BaselineConfig],
     out: Path,
     *,
     resume: bool = False,
@@ -59,15 +60,9 @@ def train(
     command: str = "",
     stop: StopCheck | None = None,
 ) -> list[Outcome]:
-    """Train each config (same algorithm and env, different seeds) into its run directory.
-
-    ``stop`` is polled at every boundary (each step off-policy, each rollout for PPO/TRPO); when
-    it, Ctrl-C or SIGTERM says stop, the run is checkpointed and left "running" for
-    ``resume=True``, and later seeds are not started. Complete and failed runs are skipped
-    unless ``force``. A full disk or an unwritable folder raises
-    :class:`tacbench.runs.checkpoints.DiskError`; what was written up to the last checkpoint stays
-    resumable.
-    """
+    """:meth:`tacbench.trainers.Trainer.train` for a baseline: the seeds train one after the
+    other; ``stop`` is polled at every boundary (each step off-policy, each rollout for
+    PPO/TRPO), and after an interruption later seeds are not started."""
     if not configs or len({c.seed for c in configs}) != len(configs):
         raise TacbenchError("give each baseline run a different seed.")
     envs.env_info(configs[0].env)  # an unusable task fails before any directory is touched

@@ -1,8 +1,8 @@
 """The one place where tacbench chooses a trainer: TAC's (:mod:`tacbench.training`) or a
 baseline's (the top-level ``baselines`` package, stable-baselines3 and sb3-contrib).
 
-Both trainers have the same interface: configs in, run directories and
-:class:`tacbench.runs.Outcome` out. Everything heavy is imported when a function here runs,
+Both implement :class:`Trainer`: configs in, run directories and :class:`tacbench.runs.Outcome`
+out; :func:`trainer_for` picks one. Everything heavy is imported when a function here runs,
 so the CLI can import this module at start-up.
 """
 
@@ -10,12 +10,11 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 from baselines import ALGOS as BASELINES
-from tacbench.config import RunConfig, RunSettings
+from tacbench.config import RunConfig
 from tacbench.members import make_run_configs
-from tacbench.settings import settings_of
 
 if TYPE_CHECKING:
     from baselines.config import BaselineConfig
@@ -25,9 +24,6 @@ if TYPE_CHECKING:
     AnyConfig = RunConfig | BaselineConfig
 
 ALGOS = ("tac", *BASELINES)
-# TAC's settings that a baseline does not have (``tacbench run --algo td3 --lnq joint`` is
-# refused, or mapped to the baseline's hyperparameter where there is one)
-TAC_ONLY = tuple(name for name in settings_of(RunConfig) if name not in settings_of(RunSettings))
 
 
 def make_configs(
@@ -53,36 +49,58 @@ def make_configs(
         return list(configs), notes
     from baselines import config as baseline_config  # torch and SB3 only when this runs
 
-    overrides = baseline_config.flags_as_overrides(algo, tac_settings_given or {})
+    overrides = tac_flags_for_baseline(algo, tac_settings_given or {})
     built, _, notes = baseline_config.make_configs(
         algo, env, task, seeds, [*overrides, *hp], **settings
     )
     return list(built), notes
 
 
-def train(
-    configs: Sequence[AnyConfig],
-    out: Path,
-    *,
-    resume: bool = False,
-    force: bool = False,
-    quiet: bool = False,
-    command: str = "",
-    stop: StopCheck | None = None,
-) -> list[Outcome]:
-    """Train ``configs`` (one algorithm, one task) with their algorithm's trainer."""
-    kwargs: dict[str, Any] = {
-        "resume": resume,
-        "force": force,
-        "quiet": quiet,
-        "command": command,
-        "stop": stop,
-    }
-    if all(isinstance(c, RunConfig) for c in configs):
+class Trainer(Protocol):
+    """What ``tacbench run`` and the sweep call to train runs: TAC's (:mod:`tacbench.training`)
+    and the baselines' (``baselines.trainer``) implement it as a module-level ``train``."""
+
+    def train(
+        self,
+        configs: Sequence[Any],
+        out: Path,
+        *,
+        resume: bool = False,
+        force: bool = False,
+        quiet: bool = False,
+        command: str = "",
+        stop: StopCheck | None = None,
+    ) -> list[Outcome]:
+        """Train ``configs`` (one algorithm, one task, different seeds; for TAC the members of
+        one group, which may also differ in q and alpha) into their run directories under
+        ``out``, planned first (start, resume, skip or refuse: :func:`tacbench.runs.plan_runs`).
+
+        ``stop`` is polled with the step count; when it, Ctrl-C or SIGTERM says stop, every run
+        in progress is checkpointed and left "running", to be continued with ``resume=True``.
+        Complete and failed runs are skipped unless ``force``. ``command`` is recorded in
+        config.json. A full disk or an unwritable folder raises
+        :class:`tacbench.runs.checkpoints.DiskError`; what was written up to the last checkpoint
+        stays resumable. Returns one :class:`~tacbench.runs.Outcome` per run, by seed.
+        """
+        ...
+
+
+def trainer_for(algo: str) -> Trainer:
+    """The trainer of ``algo``: TAC's or the baselines' (imported only when asked for)."""
+    if algo == "tac":
         from tacbench import training
 
-        return training.train([c for c in configs if isinstance(c, RunConfig)], out, **kwargs)
+        return training
     from baselines import trainer
-    from baselines.config import BaselineConfig
 
-    return trainer.train([c for c in configs if isinstance(c, BaselineConfig)], out, **kwargs)
+    return trainer
+
+
+def tac_flags_for_baseline(algo: str, given: Mapping[str, Any]) -> list[str]:
+    """The one rule for TAC's flags on a baseline's runs, in ``tacbench run`` and ``tacbench
+    sweep`` alike: a flag the baseline has an equivalent for becomes that hyperparameter, as an
+    ``--hp`` item (``--learning-starts`` for the off-policy baselines; ``--alpha`` and
+    ``--target-entropy`` for sac-sb3); any other is refused with a TacbenchError (exit 2)."""
+    from baselines import config as baseline_config
+
+    return baseline_config.flags_as_overrides(algo, given)

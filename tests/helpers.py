@@ -102,7 +102,8 @@ def tiny_configs(
 
 def train(out: Path, configs: Sequence[AnyConfig], **kwargs: Any) -> list[Outcome]:
     """Train ``configs`` into ``out`` without a progress display."""
-    return trainers.train(list(configs), out, quiet=True, **kwargs)
+    trainer = trainers.trainer_for(configs[0].algo)
+    return trainer.train(list(configs), out, quiet=True, **kwargs)
 
 
 def results_of(run: Path) -> dict[str, str]:

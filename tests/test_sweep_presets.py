@@ -73,12 +73,24 @@ def test_narrowing() -> None:
     assert {(r.config.total_steps, r.config.checkpoint_every) for r in short} == {(400, 100)}
 
 
-def test_critic_target_applies_to_tac_runs_only() -> None:
-    runs = _runs("paper-comparison", seeds=(0,), settings={"critic_target": "twin-q"})
-    tac = [r for r in runs if r.config.algo == "tac"]
-    assert tac and {r.config.critic_target for r in tac} == {"twin-q"}  # type: ignore[union-attr]
-    assert all(r.config.variant.endswith("-twinq") for r in tac)
-    assert len(runs) == len(_runs("paper-comparison", seeds=(0,)))  # the baselines unchanged
+def test_tac_flags_follow_one_rule_for_baselines_as_in_tacbench_run() -> None:
+    """A TAC setting applies to TAC's entries; for a baseline's it becomes the baseline's
+    equivalent hyperparameter (--learning-starts for the off-policy ones), and where there is
+    none the sweep is refused, as tacbench run refuses it (exit 2 through the CLI)."""
+    runs = _runs(
+        "paper-comparison", seeds=(0,), algos=("tac",), settings={"critic_target": "twin-q"}
+    )
+    assert runs and {r.config.critic_target for r in runs} == {"twin-q"}  # type: ignore[union-attr]
+    assert all(r.config.variant.endswith("-twinq") for r in runs)
+    with pytest.raises(TacbenchError, match="--critic-target is a TAC option that ddpg does not"):
+        _runs("paper-comparison", seeds=(0,), settings={"critic_target": "twin-q"})
+    algos = ("tac", "td3", "ddpg")
+    mapped = _runs("paper-comparison", seeds=(0,), algos=algos, settings={"learning_starts": 5000})
+    off_policy = [r.config for r in mapped if r.config.algo in ("td3", "ddpg")]
+    assert off_policy and {c.hyperparams["learning_starts"] for c in off_policy} == {5000}
+    assert {c.learning_starts for c in (r.config for r in mapped) if c.algo == "tac"} == {5000}
+    with pytest.raises(TacbenchError, match="--learning-starts is a TAC option that ppo does not"):
+        _runs("paper-comparison", seeds=(0,), algos=("ppo",), settings={"learning_starts": 5000})
 
 
 @pytest.mark.parametrize(

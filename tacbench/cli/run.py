@@ -169,7 +169,7 @@ def run(
         )
     for note in notes:
         click.echo(note)
-    outcomes = trainers.train(
+    outcomes = trainers.trainer_for(algo).train(
         configs, out, resume=resume, force=force, quiet=quiet, command=command_line(ctx)
     )
     report_outcomes(ctx, outcomes)

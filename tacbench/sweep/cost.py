@@ -190,7 +190,7 @@ def measure(
             qs=[1.5] if algo == "tac" else (),
             tac_settings_given=warm_up if algo in ("ddpg", "td3", "sac-sb3") else {},
         )
-        trainers.train(configs, out, quiet=True, force=True, stop=stop)
+        trainers.trainer_for(configs[0].algo).train(configs, out, quiet=True, force=True, stop=stop)
         (s0, t0), (s1, t1) = marks["first"], marks["last"]
         result[(algo, env)] = (t1 - t0) / (s1 - s0) / len(configs)
     return result

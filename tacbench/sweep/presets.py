@@ -19,6 +19,7 @@ from typing import Any
 from tacbench import config, paper
 from tacbench.errors import TacbenchError
 from tacbench.settings import settings_of
+from tacbench.trainers import tac_flags_for_baseline
 
 # smoke: ours, the budgets of the trainers' own smoke tests, halved: 1,000 steps,
 # learning from step 500 with minibatches of 32, two evaluation episodes at 500 and 1,000.
@@ -128,7 +129,8 @@ PRESETS: dict[str, Preset] = {
 class Narrowing:
     """What ``--env/--q/--algo/--seed`` keep (empty: all) and the settings that replace the
     preset's (``--steps``, ``--critic-target``, ...: config field -> value). A TAC setting
-    applies to TAC's entries; a run setting (:class:`tacbench.config.RunSettings`) to all."""
+    applies to TAC's entries (a baseline's: :func:`narrow`); a run setting
+    (:class:`tacbench.config.RunSettings`) to all."""
 
     tasks: tuple[str, ...] = ()
     q: tuple[float, ...] = ()
@@ -146,8 +148,10 @@ def get_preset(name: str) -> Preset:
 
 def narrow(preset: Preset, by: Narrowing) -> Preset:
     """``preset`` restricted to the tasks, q values, algorithms and seeds in ``by`` (each must
-    occur in the preset), with ``by.settings`` replacing the preset's (TAC settings on TAC's
-    entries only). A ``--q`` keeps TAC entries only: baselines have no q."""
+    occur in the preset), with ``by.settings`` replacing the preset's. A TAC setting given for
+    a baseline's entry becomes its equivalent hyperparameter or is refused, as in ``tacbench
+    run`` (:func:`tacbench.trainers.tac_flags_for_baseline`). A ``--q`` keeps TAC entries only:
+    baselines have no q."""
     entries = preset.entries
     run_settings = set(settings_of(config.RunSettings))
     by = replace(by, tasks=tuple(task_of(name) for name in by.tasks))
@@ -172,11 +176,14 @@ def narrow(preset: Preset, by: Narrowing) -> Preset:
         seeds = tuple(s for s in entry.seeds if not by.seeds or s in by.seeds)
         if not tasks or not seeds:
             continue
-        settings = {
-            **entry.settings,
-            **{k: v for k, v in by.settings.items() if entry.algo == "tac" or k in run_settings},
-        }
-        kept.append(replace(entry, tasks=tasks, seeds=seeds, settings=_frozen(settings)))
+        given = dict(by.settings)
+        hp = entry.hp
+        if entry.algo != "tac":  # TAC's flags: the baseline's equivalent, or refused
+            tac_only = {k: v for k, v in given.items() if k not in run_settings}
+            hp = (*hp, *tac_flags_for_baseline(entry.algo, tac_only))
+            given = {k: v for k, v in given.items() if k in run_settings}
+        settings = _frozen({**entry.settings, **given})
+        kept.append(replace(entry, tasks=tasks, seeds=seeds, settings=settings, hp=hp))
     if not kept:
         raise TacbenchError(
             f"--env/--q/--algo/--seed leave no run of preset {preset.name!r}; "

@@ -105,7 +105,7 @@ def _train(job: Job, stop: StopHook) -> list[Outcome]:
     configs: list[Any] = [run.config for run in job.unit.runs]
 
     def call(members: list[Any]) -> list[Outcome]:
-        return trainers.train(
+        return trainers.trainer_for(members[0].algo).train(
             members, job.root, resume=True, quiet=True, command=job.command, stop=stop
         )
 

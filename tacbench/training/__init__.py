@@ -70,15 +70,9 @@ def train(
     command: str = "",
     stop: StopCheck | None = None,
 ) -> list[Outcome]:
-    """Train the members ``configs`` (equal but for q, alpha and the seed) into their run
-    directories, as one group.
-
-    ``stop`` is polled before every step with the step count; when it (or Ctrl-C / SIGTERM)
-    says stop, every member is checkpointed and left "running", to be continued with
-    ``resume=True``. Complete and failed runs are skipped unless ``force``. A full disk or an
-    unwritable folder raises :class:`tacbench.runs.checkpoints.DiskError`; what was written up to
-    the last checkpoint stays resumable.
-    """
+    """:meth:`tacbench.trainers.Trainer.train` for TAC: the members ``configs`` (equal but for
+    q, alpha and the seed) train in lockstep as one group; ``stop`` is polled before every
+    step."""
     configs = [resolve_compile(c) for c in configs]
     check_members(configs)
     envs.env_info(configs[0].env)  # an unusable task fails before any directory is touched
