@@ -1,7 +1,7 @@
 """One frozen, JSON-serialisable :class:`BaselineConfig` per baseline run, and how to build them.
 
 The run settings (steps, evaluation, checkpoints, logging, hardware) are TAC's own
-(:class:`tacbench.config.RunSettings`, declared once); the algorithm's settings are
+(:class:`tacbench.settings.RunSettings`, declared once); the algorithm's settings are
 the resolved hyperparameter table (``baselines/hyperparams/<algo>.yaml``) with the ``--hp``
 overrides applied.
 """
@@ -14,14 +14,14 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from baselines import hyperparams
-from tacbench.config import RunSettings
 from tacbench.errors import TacbenchError
+from tacbench.settings import RunSettings
 
 
 @dataclass(frozen=True, kw_only=True)
 class BaselineConfig(RunSettings):
     """Everything that determines one baseline run; built once, then read-only. The run
-    settings are TAC's (:class:`tacbench.config.RunSettings`)."""
+    settings are TAC's (:class:`tacbench.settings.RunSettings`)."""
 
     algo: str
     env: str

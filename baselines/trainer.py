@@ -11,7 +11,7 @@ deterministic actions, one episode on each of ``eval_episodes`` separate env ins
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -219,3 +219,23 @@ def _divergence(err: Exception, step: int) -> str:
         return str(err)
     # torch.distributions refuses NaN parameters: the policy's weights are no longer finite
     return f"non-finite policy output at step {step} ({str(err).splitlines()[0][:120]})"
+
+
+def policy(
+    config_data: dict[str, Any], folder: Path, state: dict[str, Any]
+) -> Callable[[np.ndarray], np.ndarray]:
+    """:meth:`tacbench.trainers.Trainer.policy` for a baseline: SB3's deterministic
+    ``predict``, one observation at a time, with the run's observation normaliser."""
+    config = BaselineConfig(**{**config_data, "device": "cpu"})
+    model = algos.ALGORITHMS[config.algo].load(folder / state["model"], device="cpu")
+    _, venv = algos.make_training_env(config)  # only its observation normaliser is used
+    checkpoint.set_normalizer_state(venv, state["normalize"])
+
+    def act(obs: np.ndarray) -> np.ndarray:
+        observation = obs[None]  # as the evaluation does
+        if isinstance(venv, VecNormalize):
+            observation = np.asarray(venv.normalize_obs(observation))
+        actions, _ = model.predict(observation, deterministic=True)
+        return np.asarray(actions, dtype=np.float64)[0]
+
+    return act

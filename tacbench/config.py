@@ -1,8 +1,9 @@
-"""Run configuration: frozen, JSON-serialisable configs whose fields are the settings, declared
-once (:func:`tacbench.settings.setting`), and the paper's presets.
+"""TAC's run configuration: a frozen, JSON-serialisable config whose fields are the settings,
+declared once (:func:`tacbench.settings.setting`).
 
-:class:`RunSettings` holds what every trainer's run has (steps, evaluation, checkpoints,
-logging, hardware); :class:`RunConfig` (TAC) and ``baselines.config.BaselineConfig`` extend it.
+:class:`RunConfig` is TAC's config; it extends :class:`tacbench.settings.RunSettings`, what every
+trainer's run has (steps, evaluation, checkpoints, logging, hardware), as
+``baselines.config.BaselineConfig`` does.
 Every default names its source next to the value:
 
 - "paper, Hyperparameter Settings table": the first table of the appendix "Implementation Detail"
@@ -25,81 +26,26 @@ import dataclasses
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import Any
 
 from tacbench import paper
 from tacbench.errors import TacbenchError
-from tacbench.settings import flag_of, neutral_fields, setting, settings_of
+from tacbench.settings import (
+    RunSettings,
+    check_choice,
+    check_integers,
+    flag_of,
+    neutral_fields,
+    setting,
+    settings_of,
+)
 
 ON_OFF = ("on", "off")
 PBT_FIELDS = ("pbt_every", "q_range")  # in the variant only with --q auto
-# --compile auto compiles runs with at least this many learning steps: compiling TAC's update
-# took 18-23 s with a cold cache and saved 2.8 ms per step at K = 1 (5.8 ms at K = 10), so it
-# pays after about 8,000 steps; 20,000 leaves a margin (docs/performance.md, AMD EPYC class)
+# --compile auto compiles runs with at least this many learning steps: the compilation pays for
+# itself after about 8,000 (docs/performance.md, "--compile auto and its break-even"); 20,000
+# leaves a margin for slower compilers
 COMPILE_AUTO_LEARNING_STEPS = 20_000
-
-
-@dataclass(frozen=True, kw_only=True)
-class RunSettings:
-    """What every trainer's run has: its seed, length, evaluation, checkpoints, logging and
-    hardware. The seed is repeatable on the command line (``--seed``), so it has no generated
-    option."""
-
-    seed: int = setting(0, "Random seed.", source="ours", cli=False)
-    total_steps: int = setting(
-        paper.TOTAL_STEPS,
-        "Environment steps per run.",
-        source="reference code: 200 epochs x 5,000 steps",
-        flag="--steps",
-    )
-    eval_every: int = setting(
-        5_000,
-        "Steps between evaluations; 0 disables evaluation.",
-        source="reference code: one evaluation per 5,000-step epoch",
-    )
-    eval_episodes: int = setting(
-        10, "Deterministic episodes per evaluation.", source="reference code"
-    )
-    checkpoint_every: int = setting(
-        50_000,
-        "Steps between checkpoints (also at the end and on Ctrl-C); 0: only then.",
-        source="ours: a 1M-step run checkpoints 20 times",
-        neutral=True,
-    )
-    log_every: int = setting(
-        1_000,
-        "Steps between losses.csv rows, each the mean over the updates since the last.",
-        source="ours",
-    )
-    tensorboard: bool = setting(
-        True,
-        "Also write TensorBoard event files (<run>/tensorboard/) of the rows the CSVs get.",
-        source="ours",
-        neutral=True,
-    )
-    device: str = setting(
-        "cpu",
-        "Where the networks run (auto: cuda when available).",
-        source="ours",
-        choices=("cpu", "cuda", "auto"),
-        neutral=True,
-        sweep=False,
-    )
-    threads: int = setting(1, "torch CPU threads.", source="ours", neutral=True, sweep=False)
-
-    _MINIMUMS: ClassVar[dict[str, int]] = {
-        "seed": 0,
-        "total_steps": 1,
-        "eval_every": 0,
-        "eval_episodes": 1,
-        "checkpoint_every": 0,
-        "log_every": 1,
-        "threads": 1,
-    }
-
-    def __post_init__(self) -> None:
-        check_integers(self, **self._MINIMUMS)
-        check_choices(self)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -419,33 +365,6 @@ def result_neutral_fields() -> tuple[str, ...]:
 
 
 RESULT_NEUTRAL_FIELDS = result_neutral_fields()
-
-
-def check_integers(config: object, **minimums: int) -> None:
-    """Each named field of ``config`` is an integer (not a bool) at least its minimum; else a
-    TacbenchError names the flag."""
-    for name, minimum in minimums.items():
-        value = getattr(config, name)
-        if not isinstance(value, int) or isinstance(value, bool) or value < minimum:
-            flag = flag_of(type(config), name)
-            raise TacbenchError(f"{name} must be an integer >= {minimum} (got {value!r}); {flag}.")
-
-
-def check_choice(config: object, name: str) -> None:
-    """Field ``name`` of ``config`` is one of its declared choices; else a TacbenchError names
-    the flag and the choices."""
-    choices = settings_of(type(config))[name].info.choices
-    value = getattr(config, name)
-    if value not in choices:
-        flag = flag_of(type(config), name)
-        raise TacbenchError(f"{flag} must be one of {', '.join(choices)} (got {value!r}).")
-
-
-def check_choices(config: object) -> None:
-    """Every setting of ``config`` that declares choices holds one of them."""
-    for name, declared in settings_of(type(config)).items():
-        if declared.info.choices:
-            check_choice(config, name)
 
 
 def check_q_range(values: Sequence[float]) -> tuple[float, float]:

@@ -149,3 +149,20 @@ def compile_note(config: RunConfig, asked: str) -> str:
         f"compile: on (--compile auto: {config.learning_steps:,} learning steps repay the "
         "compilation of the first update)"
     )
+
+
+def members_label(configs: Sequence[RunConfig]) -> str:
+    """``q=1.5 seeds 0,10`` or, for a mixed group, ``q=0.5,1,1.5 alpha=0.2,0.1 seeds 0,10 (12
+    members)``; a long list shows its ends (``seeds 0,1,...,44``)."""
+
+    def listed(values: list[float]) -> str:
+        shown = [f"{v:g}" for v in values]
+        return ",".join(shown if len(shown) <= 6 else [*shown[:2], "...", shown[-1]])
+
+    qs = list(dict.fromkeys(c.q for c in configs))
+    alphas = list(dict.fromkeys(c.alpha for c in configs))
+    seeds = list(dict.fromkeys(c.seed for c in configs))
+    q_part = "q=auto" if configs[0].q_mode == "auto" else f"q={listed(qs)}"
+    parts = [q_part] + ([f"alpha={listed(alphas)}"] if len(alphas) > 1 else [])
+    parts.append(f"seed{'s' if len(seeds) > 1 else ''} {listed([float(s) for s in seeds])}")
+    return " ".join(parts) + (f" ({len(configs)} members)" if len(configs) > 1 else "")

@@ -5,7 +5,9 @@ says how the command line spells it, what it means, where its default comes from
 enters a run's variant name. ``tacbench run`` and ``tacbench sweep`` generate their options
 from these declarations (:mod:`tacbench.cli.options`), and the configs validate with the same
 flag names, so adding a TAC option is one field in :class:`tacbench.config.RunConfig` plus its
-use. No click and no torch here: the configs import this at CLI start-up.
+use. :class:`RunSettings` declares what every trainer's run has (steps, evaluation,
+checkpoints, logging, hardware). No click and no torch here: the configs import this at CLI
+start-up.
 """
 
 from __future__ import annotations
@@ -14,7 +16,10 @@ import dataclasses
 import typing
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, ClassVar
+
+from tacbench import paper
+from tacbench.errors import TacbenchError
 
 _KEY = "tacbench"
 
@@ -114,3 +119,93 @@ def neutral_fields(*classes: type) -> tuple[str, ...]:
     return tuple(
         dict.fromkeys(n for cls in classes for n, s in settings_of(cls).items() if s.info.neutral)
     )
+
+
+def check_integers(config: object, **minimums: int) -> None:
+    """Each named field of ``config`` is an integer (not a bool) at least its minimum; else a
+    TacbenchError names the flag."""
+    for name, minimum in minimums.items():
+        value = getattr(config, name)
+        if not isinstance(value, int) or isinstance(value, bool) or value < minimum:
+            flag = flag_of(type(config), name)
+            raise TacbenchError(f"{name} must be an integer >= {minimum} (got {value!r}); {flag}.")
+
+
+def check_choice(config: object, name: str) -> None:
+    """Field ``name`` of ``config`` is one of its declared choices; else a TacbenchError names
+    the flag and the choices."""
+    choices = settings_of(type(config))[name].info.choices
+    value = getattr(config, name)
+    if value not in choices:
+        flag = flag_of(type(config), name)
+        raise TacbenchError(f"{flag} must be one of {', '.join(choices)} (got {value!r}).")
+
+
+def check_choices(config: object) -> None:
+    """Every setting of ``config`` that declares choices holds one of them."""
+    for name, declared in settings_of(type(config)).items():
+        if declared.info.choices:
+            check_choice(config, name)
+
+
+@dataclass(frozen=True, kw_only=True)
+class RunSettings:
+    """What every trainer's run has: its seed, length, evaluation, checkpoints, logging and
+    hardware. The seed is repeatable on the command line (``--seed``), so it has no generated
+    option."""
+
+    seed: int = setting(0, "Random seed.", source="ours", cli=False)
+    total_steps: int = setting(
+        paper.TOTAL_STEPS,
+        "Environment steps per run.",
+        source="reference code: 200 epochs x 5,000 steps",
+        flag="--steps",
+    )
+    eval_every: int = setting(
+        5_000,
+        "Steps between evaluations; 0 disables evaluation.",
+        source="reference code: one evaluation per 5,000-step epoch",
+    )
+    eval_episodes: int = setting(
+        10, "Deterministic episodes per evaluation.", source="reference code"
+    )
+    checkpoint_every: int = setting(
+        50_000,
+        "Steps between checkpoints (also at the end and on Ctrl-C); 0: only then.",
+        source="ours: a 1M-step run checkpoints 20 times",
+        neutral=True,
+    )
+    log_every: int = setting(
+        1_000,
+        "Steps between losses.csv rows, each the mean over the updates since the last.",
+        source="ours",
+    )
+    tensorboard: bool = setting(
+        True,
+        "Also write TensorBoard event files (<run>/tensorboard/) of the rows the CSVs get.",
+        source="ours",
+        neutral=True,
+    )
+    device: str = setting(
+        "cpu",
+        "Where the networks run (auto: cuda when available).",
+        source="ours",
+        choices=("cpu", "cuda", "auto"),
+        neutral=True,
+        sweep=False,
+    )
+    threads: int = setting(1, "torch CPU threads.", source="ours", neutral=True, sweep=False)
+
+    _MINIMUMS: ClassVar[dict[str, int]] = {
+        "seed": 0,
+        "total_steps": 1,
+        "eval_every": 0,
+        "eval_episodes": 1,
+        "checkpoint_every": 0,
+        "log_every": 1,
+        "threads": 1,
+    }
+
+    def __post_init__(self) -> None:
+        check_integers(self, **self._MINIMUMS)
+        check_choices(self)

@@ -8,7 +8,7 @@ so the CLI can import this module at start-up.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
@@ -17,6 +17,8 @@ from tacbench.config import RunConfig
 from tacbench.members import make_run_configs
 
 if TYPE_CHECKING:
+    import numpy as np
+
     from baselines.config import BaselineConfig
     from tacbench.interrupts import StopCheck
     from tacbench.runs import Outcome
@@ -82,6 +84,14 @@ class Trainer(Protocol):
         :class:`tacbench.runs.checkpoints.DiskError`; what was written up to the last checkpoint
         stays resumable. Returns one :class:`~tacbench.runs.Outcome` per run, by seed.
         """
+        ...
+
+    def policy(
+        self, config_data: dict[str, Any], folder: Path, state: dict[str, Any]
+    ) -> Callable[[np.ndarray], np.ndarray]:
+        """The deterministic policy of a run whose ``config.json`` holds ``config_data`` and
+        whose newest intact checkpoint (in ``folder``) holds ``state``: one observation in, one
+        action in the env's units out (``tacbench video``)."""
         ...
 
 

@@ -18,7 +18,6 @@ import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -26,6 +25,7 @@ import numpy.typing as npt
 from tacbench import envs
 from tacbench.errors import TacbenchError
 from tacbench.runs import checkpoints, read_json
+from tacbench.trainers import trainer_for
 
 GL_BACKENDS = ("egl", "osmesa")  # MuJoCo's offscreen backends, GPU-capable first
 FORMATS = (".mp4", ".gif")
@@ -84,45 +84,6 @@ class LoadedPolicy:
     act: Policy  # one observation -> one action in the env's units
 
 
-def _tac_policy(config_data: dict[str, Any], state: dict[str, Any]) -> Policy:
-    import torch
-
-    from tacbench.config import RunConfig
-    from tacbench.tac.agent import TacAgent
-
-    config = RunConfig.from_dict({**config_data, "compile": "off"})  # one forward per frame
-    info = envs.env_info(config.env)
-    scale = info.high[0] if config.action_scale == "bound" else 1.0
-    agent = TacAgent(info.obs_dim, info.act_dim, config, [config.seed], torch.device("cpu"), scale)
-    agent.load_member_states([state["agent"]])
-
-    def act(obs: np.ndarray) -> np.ndarray:
-        return envs.to_env_action(agent.act_deterministic(obs[None, None])[0, 0], info)
-
-    return act
-
-
-def _baseline_policy(config_data: dict[str, Any], folder: Path, state: dict[str, Any]) -> Policy:
-    from stable_baselines3.common.vec_env import VecNormalize
-
-    from baselines import algos, checkpoint
-    from baselines.config import BaselineConfig
-
-    config = BaselineConfig(**{**config_data, "device": "cpu"})
-    model = algos.ALGORITHMS[config.algo].load(folder / state["model"], device="cpu")
-    _, venv = algos.make_training_env(config)  # only its observation normaliser is used
-    checkpoint.set_normalizer_state(venv, state["normalize"])
-
-    def act(obs: np.ndarray) -> np.ndarray:
-        observation = obs[None]  # as the evaluation does (baselines/trainer.py)
-        if isinstance(venv, VecNormalize):
-            observation = np.asarray(venv.normalize_obs(observation))
-        actions, _ = model.predict(observation, deterministic=True)
-        return np.asarray(actions, dtype=np.float64)[0]
-
-    return act
-
-
 def load_policy(run: Path) -> LoadedPolicy:
     """The deterministic policy of run directory ``run`` at its newest intact checkpoint."""
     import torch
@@ -139,10 +100,7 @@ def load_policy(run: Path) -> LoadedPolicy:
         raise TacbenchError(f"{run} has no checkpoint yet: a policy is saved at each checkpoint.")
     state = torch.load(folder / f"state-{step:012d}.pt", weights_only=True)
     config_data = dict(metadata["config"])
-    if metadata["algo"] == "tac":
-        act = _tac_policy(config_data, state)
-    else:
-        act = _baseline_policy(config_data, folder, state)
+    act = trainer_for(metadata["algo"]).policy(config_data, folder, state)
     return LoadedPolicy(metadata["algo"], metadata["env"], int(metadata["seed"]), step, act)
 
 

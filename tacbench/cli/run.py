@@ -15,9 +15,9 @@ import click
 from tacbench import paper, trainers
 from tacbench.cli.common import command_line, report_outcomes
 from tacbench.cli.options import NumberOrAuto, cli_settings, setting_options
-from tacbench.config import RunConfig, RunSettings
+from tacbench.config import RunConfig
 from tacbench.errors import TacbenchError
-from tacbench.settings import settings_of
+from tacbench.settings import RunSettings, settings_of
 
 _SETTINGS = cli_settings(RunConfig)
 _RUN_SETTINGS = set(settings_of(RunSettings))

@@ -16,9 +16,9 @@ from dataclasses import dataclass, field, replace
 from types import MappingProxyType
 from typing import Any
 
-from tacbench import config, paper
+from tacbench import paper
 from tacbench.errors import TacbenchError
-from tacbench.settings import settings_of
+from tacbench.settings import RunSettings, settings_of
 from tacbench.trainers import tac_flags_for_baseline
 
 # smoke: ours, the budgets of the trainers' own smoke tests, halved: 1,000 steps,
@@ -130,7 +130,7 @@ class Narrowing:
     """What ``--env/--q/--algo/--seed`` keep (empty: all) and the settings that replace the
     preset's (``--steps``, ``--critic-target``, ...: config field -> value). A TAC setting
     applies to TAC's entries (a baseline's: :func:`narrow`); a run setting
-    (:class:`tacbench.config.RunSettings`) to all."""
+    (:class:`tacbench.settings.RunSettings`) to all."""
 
     tasks: tuple[str, ...] = ()
     q: tuple[float, ...] = ()
@@ -153,7 +153,7 @@ def narrow(preset: Preset, by: Narrowing) -> Preset:
     run`` (:func:`tacbench.trainers.tac_flags_for_baseline`). A ``--q`` keeps TAC entries only:
     baselines have no q."""
     entries = preset.entries
-    run_settings = set(settings_of(config.RunSettings))
+    run_settings = set(settings_of(RunSettings))
     by = replace(by, tasks=tuple(task_of(name) for name in by.tasks))
     _check_subset("--env", by.tasks, {t for e in entries for t in e.tasks})
     _check_subset("--algo", by.algos, {e.algo for e in entries})

@@ -9,9 +9,9 @@ eager or compiled by ``config.compile``, the losses' constants, the learning rat
 
 On a CPU the members are held in chunks of at most :data:`CPU_MEMBERS_PER_CHUNK`, each with its
 own parameter buffers, updated one after the other through one shared (compiled) gradient: a
-large group's activations then stay in the caches (docs/performance.md: per member, the
-compiled update took 0.41 ms at 10 members and 0.73 ms at 90). Members never interact, so
-this is the same computation in another order. On a GPU all members are one chunk.
+large group's activations then stay in the caches (docs/performance.md, "Grid members").
+Members never interact, so this is the same computation in another order. On a GPU all members
+are one chunk.
 
 An update round skips the chunks with no member due. In the episode schedule a CPU agent holds
 each member in its own chunk: on Hopper, whose members' episodes end at different steps, a
@@ -38,7 +38,8 @@ from tacbench.tac.maths import ALPHA_METRICS, METRICS
 from tacbench.tac.networks import mlp, policy_head
 from tacbench.tac.parameters import TacParameters
 
-# HalfCheetah, compiled, AMD EPYC: 0.40-0.41 ms per member at 5 and 10 members, 0.48 at 20-45
+# larger stacks cost more per member: their activations leave the caches (docs/performance.md,
+# "Grid members")
 CPU_MEMBERS_PER_CHUNK = 10
 
 

@@ -30,18 +30,15 @@ from tacbench.tac.losses import LossSettings, tac_losses
 from tacbench.tac.maths import Batch, Coefficients
 from tacbench.tac.parameters import FlatLayout
 
+# What each option buys: docs/performance.md, "One source for the maths"
 CPU_COMPILE_OPTIONS: dict[str, str | int | bool | Callable[..., Any]] = {
-    # the C++ wrapper: 7% off the K = 1 update (HalfCheetah, Intel Xeon, in-process A/B)
+    # the compiled kernels called from C++, not from a Python wrapper
     "cpp_wrapper": True,
-    # Inductor unrolls reductions over at most 8 elements into scalar code by default; the sums
-    # over the action dimensions (ln_q pi, log pi) then ran libm's scalar expm1 element by
-    # element. Vectorised instead: 7% off the K = 10 compiled update, K = 1 unchanged (Intel
-    # Xeon, in-process A/B, median of 40 paired rounds)
+    # by default Inductor unrolls reductions over at most 8 elements into scalar code, so the
+    # sums over the action dimensions (ln_q pi, log pi) called libm's scalar expm1 per element
     "unroll_reductions_threshold": 1,
     # one planned pool for the intermediate buffers instead of an allocation for each, and no
-    # re-check of the input sizes and strides, which Dynamo's guards have checked already: 13%
-    # off the K = 1 compiled update, 11% off K = 10 (Intel Xeon, in-process A/B, median of 30
-    # paired rounds)
+    # re-check of the input sizes and strides, which Dynamo's guards have checked already
     "memory_planning": True,
     "size_asserts": False,
     "alignment_asserts": False,

@@ -14,6 +14,9 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
+
+import numpy as np
 
 from tacbench import envs, runs
 from tacbench.config import RunConfig
@@ -25,7 +28,7 @@ from tacbench.runs import Outcome, plan_runs
 from tacbench.runs.checkpoints import disk_errors
 from tacbench.training.loop import LOSS_COLUMNS, GroupTrainer
 
-__all__ = ["LOSS_COLUMNS", "resolve_device", "stepper", "train"]
+__all__ = ["LOSS_COLUMNS", "policy", "resolve_device", "stepper", "train"]
 
 
 def resolve_device(name: str) -> str:
@@ -109,3 +112,24 @@ def stepper(configs: Sequence[RunConfig], out: Path) -> Iterator[Callable[[int],
         yield advance
     finally:
         trainer.close()
+
+
+def policy(
+    config_data: dict[str, Any], folder: Path, state: dict[str, Any]
+) -> Callable[[np.ndarray], np.ndarray]:
+    """:meth:`tacbench.trainers.Trainer.policy` for TAC: the member's deterministic action
+    tanh(mu), one observation at a time, on the CPU."""
+    import torch
+
+    from tacbench.tac.agent import TacAgent
+
+    config = RunConfig.from_dict({**config_data, "compile": "off"})  # one forward per frame
+    info = envs.env_info(config.env)
+    scale = info.high[0] if config.action_scale == "bound" else 1.0
+    agent = TacAgent(info.obs_dim, info.act_dim, config, [config.seed], torch.device("cpu"), scale)
+    agent.load_member_states([state["agent"]])
+
+    def act(obs: np.ndarray) -> np.ndarray:
+        return envs.to_env_action(agent.act_deterministic(obs[None, None])[0, 0], info)
+
+    return act

@@ -14,6 +14,8 @@ the disk).
 from __future__ import annotations
 
 import io
+from collections.abc import Mapping
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
@@ -23,6 +25,34 @@ from tacbench.runs import checkpoints
 from tacbench.tac.buffer import ReplayBuffer
 
 REPLAY = "replay"
+
+
+@dataclass
+class MemberState:
+    """One member's ``state-<step>.pt``: its fields are the file's keys (``pbt`` only with --q
+    auto). The agent's part is :meth:`TacAgent.member_state`, the buffer's
+    :meth:`ReplayBuffer.counters`; the rest is the loop's."""
+
+    step: int
+    agent: dict[str, Any]  # weights, targets, Adam state, generator
+    buffer: dict[str, Any]  # where the member's replay buffer stands (its rows: replay/*.npz)
+    rng: Mapping[str, Any]  # the loop's NumPy generator (warm-up actions, minibatches)
+    env: dict[str, Any] | None  # the env's exact state (MuJoCo), None where there is none
+    obs: torch.Tensor  # the observation the next step acts on
+    episode_return: float  # the episode in progress
+    episode_length: int
+    loss_sum: torch.Tensor  # the open losses.csv window
+    loss_count: int
+    updates_started: bool  # training.schedule
+    wall_s: float
+    pbt: dict[str, Any] | None = None  # --q auto: the member's part of the population
+
+    def to_dict(self) -> dict[str, Any]:
+        """The keys and values ``state-<step>.pt`` holds."""
+        data = {f.name: getattr(self, f.name) for f in fields(self)}
+        if self.pbt is None:
+            del data["pbt"]
+        return data
 
 
 def state_file(checkpoint_dir: Path, step: int) -> Path:
@@ -35,9 +65,9 @@ def _chunk_end(chunk: Path) -> int:
     return int(chunk.stem.split("-")[1])
 
 
-def read(checkpoint_dir: Path, step: int) -> tuple[dict[str, Any], list[Path]]:
+def read(checkpoint_dir: Path, step: int) -> tuple[MemberState, list[Path]]:
     """The member's state at the (intact) generation ``step`` and the replay chunks it lists."""
-    state = torch.load(state_file(checkpoint_dir, step), weights_only=True)
+    state = MemberState(**torch.load(state_file(checkpoint_dir, step), weights_only=True))
     chunks = [p for p in checkpoints.files_of(checkpoint_dir, step) if p.parent.name == REPLAY]
     return state, sorted(chunks)
 
@@ -50,17 +80,17 @@ def load_replay(buffer: ReplayBuffer, member: int, chunks: list[Path]) -> None:
 
 def write_checkpoint(
     checkpoint_dir: Path,
-    state: dict[str, Any],
+    state: MemberState,
     buffer: ReplayBuffer,
     member: int,
     since: tuple[int, int],
     chunks: list[Path],
 ) -> list[Path]:
-    """Write member ``member``'s generation at ``state["step"]``: the replay chunk since ``since``
+    """Write member ``member``'s generation at ``state.step``: the replay chunk since ``since``
     (transitions, rows added at the previous checkpoint), ``state-<step>.pt``, then the
     manifest; returns the chunks the generation lists (``chunks``, the previous generation's,
     plus the new one, less those the buffer has overwritten)."""
-    step = state["step"]
+    step = state.step
     replay = checkpoint_dir / REPLAY
     replay.mkdir(parents=True, exist_ok=True)
     since_added, since_rows = since
@@ -72,7 +102,7 @@ def write_checkpoint(
         )
         listed.append(chunk)
     data = io.BytesIO()
-    torch.save(state, data)
+    torch.save(state.to_dict(), data)
     path = state_file(checkpoint_dir, step)
     checkpoints.write_durably(path, lambda handle: handle.write(data.getbuffer()))
     checkpoints.commit(checkpoint_dir, step, [path, *listed])

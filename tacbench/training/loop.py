@@ -18,12 +18,13 @@ import torch
 from tacbench import envs, runs
 from tacbench.config import RunConfig
 from tacbench.interrupts import StopCheck
+from tacbench.members import members_label
 from tacbench.progress import Progress
 from tacbench.runs import Outcome, checkpoints
 from tacbench.seeding import run_streams
 from tacbench.tac import METRICS, Coefficients, ReplayBuffer, TacAgent, coefficients
 from tacbench.tac.update import update
-from tacbench.training.checkpoint import load_replay, read, write_checkpoint
+from tacbench.training.checkpoint import MemberState, load_replay, read, write_checkpoint
 from tacbench.training.pbt import PBT_COLUMNS, Population
 from tacbench.training.schedule import rounds, updates_due
 
@@ -88,7 +89,7 @@ class GroupTrainer:
         self.resume_notes: list[str] = []
         self._coefficients: tuple[tuple[float, ...], Coefficients] | None = None
         self._resume_or_start(directories)
-        label = f"TAC {config.env} {_members_label(configs)}"
+        label = f"TAC {config.env} {members_label(configs)}"
         self.progress = Progress(label, config.total_steps, self.step, config.eval_every, quiet)
         for note in self.resume_notes:
             self.progress.message(f"{note}; resuming from step {self.step}")
@@ -117,27 +118,27 @@ class GroupTrainer:
         states = [state for state, _ in loaded]
         self.replay_chunks = [chunks for _, chunks in loaded]
         self.step = self.chunk_added = step
-        self.agent.load_member_states([s["agent"] for s in states])
+        self.agent.load_member_states([s.agent for s in states])
         for k, state in enumerate(states):
-            self.buffer.restore_counters(k, state["buffer"])
-            self.chunk_rows[k] = state["buffer"]["n_rows"]  # rows added later go to a new chunk
+            self.buffer.restore_counters(k, state.buffer)
+            self.chunk_rows[k] = state.buffer["n_rows"]  # rows added later go to a new chunk
             load_replay(self.buffer, k, self.replay_chunks[k])
-            self.rngs[k].bit_generator.state = state["rng"]
-            self.obs[k] = state["obs"].numpy()
+            self.rngs[k].bit_generator.state = state.rng
+            self.obs[k] = state.obs.numpy()
             self.envs[k].reset(seed=self.env_seeds[k])
-            if state["env"] is not None:
-                envs.set_env_state(self.envs[k], state["env"])
-                self.episode_return[k] = state["episode_return"]
-                self.episode_length[k] = state["episode_length"]
+            if state.env is not None:
+                envs.set_env_state(self.envs[k], state.env)
+                self.episode_return[k] = state.episode_return
+                self.episode_length[k] = state.episode_length
             else:  # no exact env state (not MuJoCo): continue with a fresh episode
                 self.obs[k] = self.envs[k].reset(seed=self.env_seeds[k] + self.step)[0]
                 self.buffer.start_episodes([k], self.obs[k : k + 1])
-            self.loss_sum[k] = state["loss_sum"].to(self.loss_sum.device)
-            self.loss_count[k] = state["loss_count"]
-            self.updates_started[k] = state["updates_started"]
+            self.loss_sum[k] = state.loss_sum.to(self.loss_sum.device)
+            self.loss_count[k] = state.loss_count
+            self.updates_started[k] = state.updates_started
         if self.population is not None:
-            self.population.load_member_states([s["pbt"] for s in states])
-        self.wall_offset = states[0]["wall_s"]
+            self.population.load_member_states([s.pbt or {} for s in states])
+        self.wall_offset = states[0].wall_s
 
     def _metadata(self, config: RunConfig) -> dict[str, Any]:
         return runs.run_metadata(
@@ -369,22 +370,21 @@ class GroupTrainer:
         """Write every live member's checkpoint generation (new replay chunk, state, manifest),
         then status."""
         for k in self.alive:
-            state = {
-                "step": self.step,
-                "agent": self.agent.member_state(k),
-                "buffer": self.buffer.counters(k),
-                "rng": self.rngs[k].bit_generator.state,
-                "env": envs.get_env_state(self.envs[k]),
-                "obs": torch.from_numpy(self.obs[k].copy()),
-                "episode_return": float(self.episode_return[k]),
-                "episode_length": int(self.episode_length[k]),
-                "loss_sum": self.loss_sum[k].cpu().clone(),
-                "loss_count": int(self.loss_count[k]),
-                "updates_started": bool(self.updates_started[k]),
-                "wall_s": self.wall_s,
-            }
-            if self.population is not None:
-                state["pbt"] = self.population.member_state(k)
+            state = MemberState(
+                step=self.step,
+                agent=self.agent.member_state(k),
+                buffer=self.buffer.counters(k),
+                rng=self.rngs[k].bit_generator.state,
+                env=envs.get_env_state(self.envs[k]),
+                obs=torch.from_numpy(self.obs[k].copy()),
+                episode_return=float(self.episode_return[k]),
+                episode_length=int(self.episode_length[k]),
+                loss_sum=self.loss_sum[k].cpu().clone(),
+                loss_count=int(self.loss_count[k]),
+                updates_started=bool(self.updates_started[k]),
+                wall_s=self.wall_s,
+                pbt=None if self.population is None else self.population.member_state(k),
+            )
             since = (self.chunk_added, int(self.chunk_rows[k]))
             self.replay_chunks[k] = write_checkpoint(
                 self.writers[k].checkpoint_dir, state, self.buffer, k, since, self.replay_chunks[k]
@@ -392,20 +392,3 @@ class GroupTrainer:
             self.writers[k].status("running", self.step)
         if self.step > self.chunk_added:  # the next chunk starts where this one ended
             self.chunk_added, self.chunk_rows = self.step, self.buffer.n_rows.copy()
-
-
-def _members_label(configs: list[RunConfig]) -> str:
-    """``q=1.5 seeds 0,10`` or, for a mixed group, ``q=0.5,1,1.5 alpha=0.2,0.1 seeds 0,10 (12
-    members)``; a long list shows its ends (``seeds 0,1,...,44``)."""
-
-    def listed(values: list[float]) -> str:
-        shown = [f"{v:g}" for v in values]
-        return ",".join(shown if len(shown) <= 6 else [*shown[:2], "...", shown[-1]])
-
-    qs = list(dict.fromkeys(c.q for c in configs))
-    alphas = list(dict.fromkeys(c.alpha for c in configs))
-    seeds = list(dict.fromkeys(c.seed for c in configs))
-    q_part = "q=auto" if configs[0].q_mode == "auto" else f"q={listed(qs)}"
-    parts = [q_part] + ([f"alpha={listed(alphas)}"] if len(alphas) > 1 else [])
-    parts.append(f"seed{'s' if len(seeds) > 1 else ''} {listed([float(s) for s in seeds])}")
-    return " ".join(parts) + (f" ({len(configs)} members)" if len(configs) > 1 else "")
