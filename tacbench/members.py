@@ -5,6 +5,7 @@ default came from and what ``--compile auto`` chose."""
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -91,6 +92,18 @@ def make_run_configs(
     return configs, notes
 
 
+MIN_POPULATION = 4  # --q auto: the bottom quarter of fewer than four is nobody
+
+
+def initial_qs(n: int, q_range: tuple[float, float]) -> list[float]:
+    """``n`` values spread evenly in log q over ``q_range`` (both ends included): where the
+    members of a ``--q auto`` population start."""
+    low, high = q_range
+    if n == 1:
+        return [math.sqrt(low * high)]
+    return [low * (high / low) ** (i / (n - 1)) for i in range(n)]
+
+
 def _population(
     env: str,
     seeds: Sequence[int],
@@ -99,8 +112,6 @@ def _population(
     overrides: Mapping[str, Any],
 ) -> list[RunConfig]:
     """``--q auto``: one member per seed, starting at q spread in log q over ``--q-range``."""
-    from tacbench.training.pbt import MIN_POPULATION, initial_qs
-
     if qs or len(alphas) != 1:
         raise TacbenchError(
             "--q auto learns q: give no other --q, and one --alpha (or --alpha auto)."

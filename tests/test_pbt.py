@@ -15,14 +15,13 @@ import torch
 
 from tacbench.cli import cli
 from tacbench.config import RunConfig
-from tacbench.members import make_run_configs
+from tacbench.members import initial_qs, make_run_configs
 from tacbench.tac import TacAgent
 from tacbench.training.pbt import (
     PBT_COLUMNS,
     PERTURB_FACTORS,
     Population,
     decide,
-    initial_qs,
     population_seed,
 )
 from tests.helpers import TINY_RUN, TINY_TAC, assert_same_results, train

@@ -2,8 +2,8 @@
 
 The paper picks q per task by a grid search and names learning "a proper entropic index for a
 given task" as future work (its conclusion). Here the members of one run (at least
-:data:`MIN_POPULATION`; ``--seed`` repeated) form a population, trained with the exploit/explore
-rule of Jaderberg et al. 2017 ("Population Based Training of Neural Networks"):
+:data:`tacbench.members.MIN_POPULATION`; ``--seed`` repeated) form a population, trained with
+the exploit/explore rule of Jaderberg et al. 2017 ("Population Based Training of Neural Networks"):
 
 * **when**: every ``--pbt-every`` steps after ``--learning-starts`` (a round at step
   ``learning_starts + i * pbt_every``, i >= 1), all members at once;
@@ -19,12 +19,12 @@ rule of Jaderberg et al. 2017 ("Population Based Training of Neural Networks"):
 * **explore**: the copy's q is the source's times 0.8 or 1.2, drawn with equal chances
   (Jaderberg et al.'s "perturb" factors), clipped to ``--q-range``.
 
-The members start at q spread evenly in log q over ``--q-range`` (:func:`initial_qs`, in the
-order of ``--seed``). The draws come from one generator per population, seeded by all the
-members' seeds (:func:`population_seed`), and its state is part of every checkpoint, so a
-resumed population makes the same decisions. Every member's ``pbt.csv`` has one row per round
-(:data:`PBT_COLUMNS`): its score and rank, whether it copied and from whom, and its q before
-and after.
+The members start at q spread evenly in log q over ``--q-range``
+(:func:`tacbench.members.initial_qs`, in the order of ``--seed``). The draws come from one
+generator per population, seeded by all the members' seeds (:func:`population_seed`), and its
+state is part of every checkpoint, so a resumed population makes the same decisions. Every
+member's ``pbt.csv`` has one row per round (:data:`PBT_COLUMNS`): its score and rank, whether
+it copied and from whom, and its q before and after.
 """
 
 from __future__ import annotations
@@ -40,7 +40,6 @@ import numpy as np
 if TYPE_CHECKING:
     from tacbench.config import RunConfig
 
-MIN_POPULATION = 4
 RETURN_WINDOW = 10
 PERTURB_FACTORS = (0.8, 1.2)  # Jaderberg et al. 2017, section 4 ("perturb")
 PBT_COLUMNS = (
@@ -55,14 +54,6 @@ PBT_COLUMNS = (
     "q_after",
 )
 _STREAM = 18  # the PBT generator's spawn key, apart from run_streams' (fixed: seeds reproduce)
-
-
-def initial_qs(n: int, q_range: tuple[float, float]) -> list[float]:
-    """``n`` values spread evenly in log q over ``q_range`` (both ends included)."""
-    low, high = q_range
-    if n == 1:
-        return [math.sqrt(low * high)]
-    return [low * (high / low) ** (i / (n - 1)) for i in range(n)]
 
 
 def population_seed(seeds: Sequence[int]) -> np.random.SeedSequence:
