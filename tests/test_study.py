@@ -10,7 +10,8 @@ import pytest
 
 from tacbench.report import ReportOptions, analyse, write_report
 
-pytestmark = pytest.mark.smoke
+# on one xdist worker: the module's report (`regenerated`, 15-30 s) is then made once
+pytestmark = [pytest.mark.smoke, pytest.mark.xdist_group("study-report")]
 
 STUDY = Path(__file__).resolve().parents[1] / "results" / "studies" / "paper-q-grid-100k"
 TABLES = sorted(

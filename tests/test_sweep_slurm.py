@@ -20,7 +20,10 @@ from click.testing import CliRunner
 from tacbench.cli import cli
 
 pytest.importorskip("submitit")
-pytestmark = pytest.mark.smoke
+# one after another on one xdist worker: both submit to the one single-node cluster (a second
+# array would wait for the node, or take its CPUs from the job whose requeue is being timed),
+# and the requeue test's clean-up cancels every job named tacbench-sweep, the other test's too
+pytestmark = [pytest.mark.smoke, pytest.mark.xdist_group("slurm")]
 
 
 def _cluster_problem() -> str:
