@@ -162,7 +162,7 @@ def test_kill_9_of_a_worker_then_of_the_sweep_and_the_same_command_completes(
 def test_ctrl_c_checkpoints_and_the_same_command_resumes(tmp_path: Path) -> None:
     args = [sys.executable, "-m", "tacbench", *_sweep_args(tmp_path)]
     # long enough that the fast update cannot finish between the signal and the driver's stop
-    args += ["--algo", "tac", "--q", "1", "--seed", "0", "--steps", "6000", "--workers", "1"]
+    args += ["--algo", "tac", "--q", "1", "--seed", "0", "--steps", "3000", "--workers", "1"]
     run = tmp_path / TAC_RUN
     proc = subprocess.Popen(
         args,
@@ -182,7 +182,7 @@ def test_ctrl_c_checkpoints_and_the_same_command_resumes(tmp_path: Path) -> None
     assert proc.returncode == 130, output
     assert "stopping: every running run checkpoints and returns" in output
     status = _status(run)
-    assert status["state"] == "running" and 750 <= status["step"] < 6000
+    assert status["state"] == "running" and 750 <= status["step"] < 3000
     assert status["reason"].startswith(f"interrupted at step {status['step']}; resume with: ")
     assert "tacbench sweep --preset smoke" in status["reason"]
     summary = json.loads((tmp_path / "sweep" / "summary.json").read_text())
@@ -190,7 +190,7 @@ def test_ctrl_c_checkpoints_and_the_same_command_resumes(tmp_path: Path) -> None
     assert not (tmp_path / "sweep" / "lock").exists()
     again = subprocess.run(args, capture_output=True, text=True, env=ENV, timeout=120)
     assert again.returncode == 0, again.stdout + again.stderr
-    _assert_complete_rows(run, 6000)
+    _assert_complete_rows(run, 3000)
 
 
 def test_a_failing_run_is_recorded_and_retried_and_the_others_complete(tmp_path: Path) -> None:
