@@ -13,7 +13,6 @@ import shutil
 import signal
 import subprocess
 import sys
-import time
 import uuid
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -22,7 +21,7 @@ import pytest
 from click.testing import CliRunner
 
 from tacbench.cli import cli
-from tests.helpers import assert_same_results, run_cli, tiny_configs, train
+from tests.helpers import assert_same_results, run_cli, tiny_configs, train, wait_for
 
 pytestmark = pytest.mark.smoke
 
@@ -202,11 +201,7 @@ def _start(out: Path, *extra: str, pause: float = 0.0) -> subprocess.Popen[str]:
 
 
 def _wait_for(proc: subprocess.Popen[str], condition: Callable[[], bool]) -> None:
-    deadline = time.monotonic() + 120
-    while not condition():
-        assert proc.poll() is None, "the process ended first"
-        assert time.monotonic() < deadline, "timed out"
-        time.sleep(0.01)
+    wait_for(condition, timeout=120, proc=proc, poll=0.01)  # often: moments inside a write
 
 
 def _kill_when(proc: subprocess.Popen[str], condition: Callable[[], bool]) -> None:

@@ -9,7 +9,6 @@ import os
 import signal
 import subprocess
 import sys
-import time
 from collections.abc import Callable
 from pathlib import Path
 from types import MappingProxyType
@@ -22,6 +21,7 @@ from click.testing import CliRunner
 from tacbench.cli import cli
 from tacbench.sweep import driver
 from tacbench.sweep.presets import Entry, Preset
+from tests.helpers import wait_for
 
 pytestmark = pytest.mark.smoke
 
@@ -46,14 +46,6 @@ def _last_step(csv: Path) -> int:
         return int(lines[-1].split(",")[0]) if len(lines) > 1 else -1
     except (OSError, ValueError):
         return -1
-
-
-def _wait_for(condition: Callable[[], bool], proc: subprocess.Popen[str], timeout: float = 90):
-    deadline = time.monotonic() + timeout
-    while not condition():
-        assert proc.poll() is None, "the sweep ended before the condition held"
-        assert time.monotonic() < deadline, "timed out"
-        time.sleep(0.02)
 
 
 def _past_checkpoint(run: Path, at_least: int) -> Callable[[], bool]:
@@ -133,12 +125,12 @@ def test_kill_9_of_a_worker_then_of_the_sweep_and_the_same_command_completes(
     )
     try:
         # 1. SIGKILL the worker after its first checkpoint: the sweep records it and resumes
-        _wait_for(_past_checkpoint(run, 500), proc)
+        wait_for(_past_checkpoint(run, 500), timeout=90, proc=proc, what="the first checkpoint")
         worker_pid = int(log.read_text().split(" pid ")[1].split(":")[0])
         os.kill(worker_pid, signal.SIGKILL)
         # 2. SIGKILL the sweep and its worker after the resumed run's next checkpoint
-        _wait_for(lambda: log.read_text().count("=== ") == 2, proc)
-        _wait_for(_past_checkpoint(run, 1000), proc)
+        wait_for(lambda: log.read_text().count("=== ") == 2, timeout=90, proc=proc)
+        wait_for(_past_checkpoint(run, 1000), timeout=90, proc=proc, what="a checkpoint at 1000")
         os.killpg(proc.pid, signal.SIGKILL)
     finally:
         if proc.poll() is None:
@@ -173,7 +165,7 @@ def test_ctrl_c_checkpoints_and_the_same_command_resumes(tmp_path: Path) -> None
         start_new_session=True,
     )
     try:
-        _wait_for(lambda: _last_step(run / "losses.csv") >= 750, proc)
+        wait_for(lambda: _last_step(run / "losses.csv") >= 750, timeout=90, proc=proc)
         proc.send_signal(signal.SIGINT)  # to the driver only, as from a batch scheduler
         output = proc.communicate(timeout=60)[0]
     finally:
