@@ -12,7 +12,7 @@ from click.testing import CliRunner
 from tacbench.cli import cli
 from tests.report_fixtures import synthetic_tree, write_run
 
-pytestmark = [pytest.mark.smoke, pytest.mark.xdist_group("report-cli")]  # one `report_dir`
+pytestmark = pytest.mark.smoke
 
 FIGURES = ("q_sweep", "comparison", "intervals", "intervals_per_task", "improvement", "profiles")
 

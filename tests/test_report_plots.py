@@ -16,7 +16,7 @@ from tacbench.report import Report, ReportOptions, analyse
 from tacbench.report.methods import BEST_Q_LABEL, SAC_LABEL, style_of
 from tests.report_fixtures import synthetic_tree
 
-pytestmark = [pytest.mark.unit, pytest.mark.xdist_group("report-plots")]  # one `report` (5 s)
+pytestmark = pytest.mark.unit
 
 TASKS = ("Hopper-v4", "Ant-v4", "HalfCheetah-v4", "Humanoid-v4")
 

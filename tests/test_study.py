@@ -10,8 +10,7 @@ import pytest
 
 from tacbench.report import ReportOptions, analyse, write_report
 
-# on one xdist worker: the module's report (`regenerated`, 15-30 s) is then made once
-pytestmark = [pytest.mark.smoke, pytest.mark.xdist_group("study-report")]
+pytestmark = pytest.mark.smoke
 
 STUDY = Path(__file__).resolve().parents[1] / "results" / "studies" / "paper-q-grid-100k"
 TABLES = sorted(

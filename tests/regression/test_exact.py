@@ -25,8 +25,7 @@ from tacbench.regress.outcome import TierResult, format_result
 from tacbench.regress.specs import EXACT_RUNS
 from tests.regression.conftest import REFERENCE, RUNNER
 
-# on one xdist worker, if run with one: its module fixtures train the whole tier
-pytestmark = [pytest.mark.regression, pytest.mark.xdist_group("exact-tier")]
+pytestmark = pytest.mark.regression
 
 # this machine's CPU class's reference runs; none (every run test skips) on another class
 RUN_NAMES = (
