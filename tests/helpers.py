@@ -1,5 +1,6 @@
 """What the tests share: tiny configs of every learner, training them quietly, comparing run
-directories, and running ``tacbench`` in a child process that a signal can interrupt."""
+directories, running ``tacbench`` in a child process that a signal can interrupt, small TAC
+agents and random minibatches for them, and waiting for a condition on a child process."""
 
 from __future__ import annotations
 
@@ -7,7 +8,8 @@ import os
 import signal
 import subprocess
 import sys
-from collections.abc import Sequence
+import time
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -16,9 +18,11 @@ import pandas as pd
 import torch
 
 from tacbench import trainers
+from tacbench.config import RunConfig
 from tacbench.paper import paper_task
 from tacbench.regress.manifest import without_wall_clock
 from tacbench.runs import Outcome
+from tacbench.tac.agent import TacAgent
 from tacbench.tac.maths import Batch
 
 if TYPE_CHECKING:
@@ -48,23 +52,63 @@ TINY_HP = {
 LEARNERS = ("tac", "tac-twinq", "ddpg", "td3", "sac-sb3", "ppo", "trpo")
 
 
+def tac_agent(
+    obs: int,
+    act: int,
+    seeds: Sequence[int],
+    *,
+    env: str = "Hopper-v4",
+    q: float = 1.5,
+    alpha: float = 0.2,
+    hidden_sizes: tuple[int, ...] | None = (16,),
+    initial_alphas: Sequence[float] | None = None,
+    **settings: Any,
+) -> TacAgent:
+    """A TAC agent on the CPU with a member per seed of ``seeds``, for ``obs``-dimensional
+    observations and ``act``-dimensional actions: ``env``'s config at ``q`` and ``alpha``, with
+    networks of ``hidden_sizes`` (None: the config's default), not compiled, and ``settings``
+    (RunConfig fields) on top."""
+    sizes = {} if hidden_sizes is None else {"hidden_sizes": hidden_sizes}
+    config = RunConfig(env=env, q=q, alpha=alpha, **{"compile": "off", **sizes, **settings})
+    cpu = torch.device("cpu")
+    return TacAgent(obs, act, config, list(seeds), cpu, initial_alphas=initial_alphas)
+
+
 def random_batch(
-    k: int, b: int, obs: int, act: int, *, seed: int = 0, terminal: float = 0.0
+    k: int,
+    b: int,
+    obs: int,
+    act: int,
+    *,
+    seed: int = 0,
+    terminal: float = 0.0,
+    obs_scale: float = 1.0,
+    noise_scale: float = 1.0,
 ) -> tuple[Batch, torch.Tensor]:
-    """A minibatch ``(k, b, ...)`` of standard-normal observations and rewards, uniform actions
-    in [-1, 1] and a ``terminal`` fraction of terminal transitions, and reparameterisation noise
-    ``(k, b, act)``, all from one generator seeded with ``seed``."""
+    """A minibatch ``(k, b, ...)`` of normal observations (standard deviation ``obs_scale``) and
+    standard-normal rewards, uniform actions in [-1, 1] and a ``terminal`` fraction of terminal
+    transitions, and normal reparameterisation noise ``(k, b, act)`` (standard deviation
+    ``noise_scale``), all from one generator seeded with ``seed``."""
     g = torch.Generator().manual_seed(seed)
     batch = Batch(
-        obs=torch.randn(k, b, obs, generator=g),
+        obs=torch.randn(k, b, obs, generator=g) * obs_scale,
         action=torch.rand(k, b, act, generator=g) * 2 - 1,
         reward=torch.randn(k, b, generator=g),
-        next_obs=torch.randn(k, b, obs, generator=g),
+        next_obs=torch.randn(k, b, obs, generator=g) * obs_scale,
         terminated=(torch.rand(k, b, generator=g) < terminal).float()
         if terminal
         else torch.zeros(k, b),
     )
-    return batch, torch.randn(k, b, act, generator=g)
+    return batch, torch.randn(k, b, act, generator=g) * noise_scale
+
+
+def random_minibatch(
+    k: int, b: int, obs: int, act: int, *, seed: int = 0, terminal: float = 0.0
+) -> dict[str, np.ndarray]:
+    """The minibatch of :func:`random_batch` as the replay buffer hands one to ``update``: a
+    float32 NumPy array per field."""
+    batch, _ = random_batch(k, b, obs, act, seed=seed, terminal=terminal)
+    return {name: getattr(batch, name).numpy() for name in Batch._fields}
 
 
 def tiny_configs(
@@ -135,6 +179,25 @@ def interrupt_cli(args: Sequence[str], when: str, *, timeout: float = 60.0) -> t
             break
     seen.append(proc.stdout.read())
     return proc.wait(timeout=timeout), "".join(seen)
+
+
+def wait_for(
+    condition: Callable[[], bool],
+    *,
+    timeout: float,
+    proc: subprocess.Popen[str] | None = None,
+    poll: float = 0.02,
+    what: str = "the condition",
+) -> None:
+    """Return once ``condition()`` holds, checking every ``poll`` seconds; fail the test after
+    ``timeout`` seconds, or as soon as ``proc`` (when given) has ended first."""
+    deadline = time.monotonic() + timeout
+    while not condition():
+        if proc is not None and proc.poll() is not None:
+            raise AssertionError(f"the process ended before {what} held")
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout:g} s waiting for {what}")
+        time.sleep(poll)
 
 
 def run_cli(args: Sequence[str]) -> subprocess.CompletedProcess[str]:

@@ -23,7 +23,7 @@ from tacbench.errors import TacbenchError
 from tacbench.tac.agent import TacAgent
 from tacbench.tac.maths import ALPHA_METRICS, METRICS, Batch, coefficients, default_lnq_target
 from tacbench.tac.update import gradients, update
-from tests.helpers import random_batch
+from tests.helpers import random_batch, random_minibatch, tac_agent
 
 pytestmark = pytest.mark.unit
 
@@ -34,9 +34,7 @@ ALPHA_COLUMN, LOSS_COLUMN = (len(METRICS) + ALPHA_METRICS.index(n) for n in ("al
 
 def _agent(seeds: list[int], alphas: list[float] | None, **settings: Any) -> TacAgent:
     mode = "fixed" if alphas is None else "auto"
-    settings = {"compile": "off", "alpha_mode": mode, **settings}
-    config = RunConfig(env="Hopper-v4", q=1.0, alpha=0.2, hidden_sizes=(16,), **settings)
-    agent = TacAgent(OBS, ACT, config, seeds, CPU, initial_alphas=alphas)
+    agent = tac_agent(OBS, ACT, seeds, q=1.0, alpha_mode=mode, initial_alphas=alphas, **settings)
     with torch.no_grad():  # a policy near unit std, so no density reaches the per-dim floor
         agent.chunks[0].params.networks.policy.weights[-1].mul_(0.01)
     return agent
@@ -107,8 +105,7 @@ def test_a_fixed_alpha_group_has_no_alpha_parameter_and_the_same_update() -> Non
 def test_alpha_and_its_adam_state_are_in_the_member_state() -> None:
     agent = _agent([0, 1], [0.2, 0.1])
     c = coefficients([1.0, 1.0], [0.2, 0.2], CPU)
-    batch, _ = _batch(2)
-    update(agent, {name: getattr(batch, name) for name in Batch._fields}, c)
+    update(agent, random_minibatch(2, 256, OBS, ACT), c)
     state = agent.member_state(1)
     assert state["params"]["log_alpha"].item() != pytest.approx(math.log(0.1))  # it trained
     assert state["adam"]["exp_avg"]["log_alpha"].item() != 0.0

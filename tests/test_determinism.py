@@ -4,6 +4,7 @@ it would alone, whatever shares its process."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -25,13 +26,15 @@ pytestmark = pytest.mark.smoke
 
 
 @pytest.mark.parametrize("learner", LEARNERS)
-def test_same_seed_same_results_another_seed_other_results(tmp_path: Path, learner: str) -> None:
-    (first,) = train(tmp_path / "first", tiny_configs(learner))
+def test_same_seed_same_results_another_seed_other_results(
+    tmp_path: Path, uninterrupted: Callable[[str], Path], learner: str
+) -> None:
+    first = uninterrupted(learner)  # the session's run of tiny_configs(learner), trained once
     (second,) = train(tmp_path / "second", tiny_configs(learner))
     (other,) = train(tmp_path / "other", tiny_configs(learner, seeds=[1]))
-    assert first.state == second.state == other.state == "complete"
-    assert_same_results(first.directory, second.directory)
-    assert results_of(other.directory)["eval.csv"] != results_of(first.directory)["eval.csv"]
+    assert second.state == other.state == "complete"
+    assert_same_results(first, second.directory)
+    assert results_of(other.directory)["eval.csv"] != results_of(first)["eval.csv"]
 
 
 def test_members_start_exactly_as_they_would_alone(tmp_path: Path) -> None:

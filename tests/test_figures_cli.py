@@ -1,9 +1,8 @@
-"""``tacbench figures`` end to end: every PNG and CSV is written, readable and fast."""
+"""``tacbench figures`` end to end: every PNG and CSV is written and readable."""
 
 from __future__ import annotations
 
 import struct
-import time
 from pathlib import Path
 
 import pandas as pd
@@ -33,12 +32,9 @@ def test_figures_command_writes_every_figure(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     monkeypatch.chdir(tmp_path)  # the default --out is relative: results/figures
-    start = time.perf_counter()
     result = CliRunner().invoke(cli, ["figures"])
-    elapsed = time.perf_counter() - start
     assert result.exit_code == 0, result.output
     out = tmp_path / "results" / "figures"
-    assert elapsed < 60.0  # seconds on a laptop; generous for a loaded CI machine
     for name, columns in EXPECTED_COLUMNS.items():
         png, csv = out / f"{name}.png", out / f"{name}.csv"
         assert f"wrote {Path('results/figures') / png.name}" in result.output

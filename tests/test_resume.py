@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import pandas as pd
 import pytest
@@ -120,9 +121,11 @@ def test_ctrl_c_checkpoints_and_resume_completes(
     assert train_steps.is_monotonic_increasing and not train_steps.duplicated().any()
 
 
-def _stopped_twice_then_resumed(out: Path, configs: list) -> list:
-    """Train ``configs`` into ``out`` stopped at steps 730 and 1234, then to the end."""
-    for stop_at in (730, 1234):
+def _stopped_twice_then_resumed(
+    out: Path, configs: list, stops: tuple[int, int] = (730, 1234)
+) -> list:
+    """Train ``configs`` into ``out`` stopped at steps ``stops``, then to the end."""
+    for stop_at in stops:
         stopped = train(out, configs, resume=True, stop=lambda s, at=stop_at: s >= at)
         assert {(o.state, o.step) for o in stopped} == {("interrupted", stop_at)}
     return train(out, configs, resume=True)
@@ -133,11 +136,16 @@ def test_a_mixed_group_stopped_and_resumed_continues_every_member_exactly(
     tmp_path: Path, profile: str
 ) -> None:
     """Members at q = 1 and 2 (q = 1 and the cap in one group) with two seeds each; in the
-    reference profile each updates at its own episode ends, from its first one."""
-    settings = {"profile": profile, "hidden_sizes": (32,)} if profile == "reference" else {}
+    reference profile each updates at its own episode ends, from its first one (every step
+    of a finished episode is an update from the start: 1,000 steps, stopped at 430 and 730)."""
+    settings: dict[str, Any] = {}
+    stops = (730, 1234)  # in the warm-up and while learning
+    if profile == "reference":
+        settings = {"profile": profile, "hidden_sizes": (32,), "total_steps": 1000}
+        stops = (430, 730)
     configs = tiny_configs("tac", seeds=[0, 10], qs=[1.0, 2.0], **settings)
     reference = train(tmp_path / "reference", configs)
-    resumed = _stopped_twice_then_resumed(tmp_path / "resumed", configs)
+    resumed = _stopped_twice_then_resumed(tmp_path / "resumed", configs, stops)
     assert [o.state for o in resumed] == ["complete"] * 4
     for a, b in zip(reference, resumed, strict=True):
         assert a.directory.relative_to(tmp_path / "reference") == b.directory.relative_to(

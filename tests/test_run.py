@@ -223,7 +223,7 @@ def test_the_reference_profile_trains_as_the_authors_code_did(tmp_path: Path) ->
     """Two members with (400, 300) networks, updates from each one's first episode end during
     the random warm-up, in bursts at episode ends."""
     args = ["run", "--env", "Hopper-v4", "--profile", "reference", "--seed", "0", "--seed", "1"]
-    args += ["--steps", "1100", "--eval-every", "0", "--log-every", "550", "--quiet"]
+    args += ["--steps", "600", "--eval-every", "0", "--log-every", "300", "--quiet"]
     result = CliRunner().invoke(cli, [*args, "--out", str(tmp_path)])
     assert result.exit_code == 0, result.output
     for seed in (0, 1):
@@ -233,7 +233,7 @@ def test_the_reference_profile_trains_as_the_authors_code_did(tmp_path: Path) ->
         losses = pd.read_csv(run / "losses.csv")
         episodes = pd.read_csv(run / "train.csv")
         # every step of every finished episode earned one update, all before learning_starts
-        assert losses["updates"].sum() == episodes["length"].sum() > 1000
+        assert losses["updates"].sum() == episodes["length"].sum() > 500
         assert episodes["step"].max() < config["learning_starts"]
         state = checkpoint_state(run)
         assert state["agent"]["params"]["q1.weights.1"].shape == (400, 300)

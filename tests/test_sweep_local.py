@@ -9,7 +9,6 @@ import os
 import signal
 import subprocess
 import sys
-import time
 from collections.abc import Callable
 from pathlib import Path
 from types import MappingProxyType
@@ -22,6 +21,7 @@ from click.testing import CliRunner
 from tacbench.cli import cli
 from tacbench.sweep import driver
 from tacbench.sweep.presets import Entry, Preset
+from tests.helpers import wait_for
 
 pytestmark = pytest.mark.smoke
 
@@ -46,14 +46,6 @@ def _last_step(csv: Path) -> int:
         return int(lines[-1].split(",")[0]) if len(lines) > 1 else -1
     except (OSError, ValueError):
         return -1
-
-
-def _wait_for(condition: Callable[[], bool], proc: subprocess.Popen[str], timeout: float = 90):
-    deadline = time.monotonic() + timeout
-    while not condition():
-        assert proc.poll() is None, "the sweep ended before the condition held"
-        assert time.monotonic() < deadline, "timed out"
-        time.sleep(0.02)
 
 
 def _past_checkpoint(run: Path, at_least: int) -> Callable[[], bool]:
@@ -133,12 +125,12 @@ def test_kill_9_of_a_worker_then_of_the_sweep_and_the_same_command_completes(
     )
     try:
         # 1. SIGKILL the worker after its first checkpoint: the sweep records it and resumes
-        _wait_for(_past_checkpoint(run, 500), proc)
+        wait_for(_past_checkpoint(run, 500), timeout=90, proc=proc, what="the first checkpoint")
         worker_pid = int(log.read_text().split(" pid ")[1].split(":")[0])
         os.kill(worker_pid, signal.SIGKILL)
         # 2. SIGKILL the sweep and its worker after the resumed run's next checkpoint
-        _wait_for(lambda: log.read_text().count("=== ") == 2, proc)
-        _wait_for(_past_checkpoint(run, 1000), proc)
+        wait_for(lambda: log.read_text().count("=== ") == 2, timeout=90, proc=proc)
+        wait_for(_past_checkpoint(run, 1000), timeout=90, proc=proc, what="a checkpoint at 1000")
         os.killpg(proc.pid, signal.SIGKILL)
     finally:
         if proc.poll() is None:
@@ -162,7 +154,7 @@ def test_kill_9_of_a_worker_then_of_the_sweep_and_the_same_command_completes(
 def test_ctrl_c_checkpoints_and_the_same_command_resumes(tmp_path: Path) -> None:
     args = [sys.executable, "-m", "tacbench", *_sweep_args(tmp_path)]
     # long enough that the fast update cannot finish between the signal and the driver's stop
-    args += ["--algo", "tac", "--q", "1", "--seed", "0", "--steps", "6000", "--workers", "1"]
+    args += ["--algo", "tac", "--q", "1", "--seed", "0", "--steps", "3000", "--workers", "1"]
     run = tmp_path / TAC_RUN
     proc = subprocess.Popen(
         args,
@@ -173,7 +165,7 @@ def test_ctrl_c_checkpoints_and_the_same_command_resumes(tmp_path: Path) -> None
         start_new_session=True,
     )
     try:
-        _wait_for(lambda: _last_step(run / "losses.csv") >= 750, proc)
+        wait_for(lambda: _last_step(run / "losses.csv") >= 750, timeout=90, proc=proc)
         proc.send_signal(signal.SIGINT)  # to the driver only, as from a batch scheduler
         output = proc.communicate(timeout=60)[0]
     finally:
@@ -182,7 +174,7 @@ def test_ctrl_c_checkpoints_and_the_same_command_resumes(tmp_path: Path) -> None
     assert proc.returncode == 130, output
     assert "stopping: every running run checkpoints and returns" in output
     status = _status(run)
-    assert status["state"] == "running" and 750 <= status["step"] < 6000
+    assert status["state"] == "running" and 750 <= status["step"] < 3000
     assert status["reason"].startswith(f"interrupted at step {status['step']}; resume with: ")
     assert "tacbench sweep --preset smoke" in status["reason"]
     summary = json.loads((tmp_path / "sweep" / "summary.json").read_text())
@@ -190,7 +182,7 @@ def test_ctrl_c_checkpoints_and_the_same_command_resumes(tmp_path: Path) -> None
     assert not (tmp_path / "sweep" / "lock").exists()
     again = subprocess.run(args, capture_output=True, text=True, env=ENV, timeout=120)
     assert again.returncode == 0, again.stdout + again.stderr
-    _assert_complete_rows(run, 6000)
+    _assert_complete_rows(run, 3000)
 
 
 def test_a_failing_run_is_recorded_and_retried_and_the_others_complete(tmp_path: Path) -> None:

@@ -16,7 +16,9 @@ from tacbench.cli import cli
 
 ray = pytest.importorskip("ray")
 
-pytestmark = pytest.mark.smoke
+# a Ray test starts a local Ray and checks that its raylet and GCS processes are gone at the end:
+# Ray tests run one after another on one xdist worker, so that no other test's Ray is counted
+pytestmark = [pytest.mark.smoke, pytest.mark.xdist_group("ray")]
 
 
 def _ray_processes() -> set[int]:

@@ -9,8 +9,6 @@ import os
 import shutil
 import subprocess
 import sys
-import time
-from collections.abc import Callable
 from pathlib import Path
 
 import pandas as pd
@@ -18,9 +16,13 @@ import pytest
 from click.testing import CliRunner
 
 from tacbench.cli import cli
+from tests.helpers import wait_for
 
 pytest.importorskip("submitit")
-pytestmark = pytest.mark.smoke
+# one after another on one xdist worker: both submit to the one single-node cluster (a second
+# array would wait for the node, or take its CPUs from the job whose requeue is being timed),
+# and the requeue test's clean-up cancels every job named tacbench-sweep, the other test's too
+pytestmark = [pytest.mark.smoke, pytest.mark.xdist_group("slurm")]
 
 
 def _cluster_problem() -> str:
@@ -70,14 +72,6 @@ def _slurm(*args: str) -> None:
     subprocess.run(args, check=True, capture_output=True)
 
 
-def _wait_for(condition: Callable[[], bool], timeout_s: float, what: str) -> None:
-    deadline = time.monotonic() + timeout_s
-    while not condition():
-        if time.monotonic() > deadline:
-            pytest.fail(f"timed out waiting for {what}")
-        time.sleep(0.5)
-
-
 def _step(out: Path) -> int:
     try:
         return int(json.loads((_run_dir(out) / "status.json").read_text())["step"])
@@ -98,14 +92,23 @@ def test_a_requeued_and_a_time_limited_job_resume_exactly(tmp_path: Path) -> Non
         env={**os.environ, "PYTHONUNBUFFERED": "1"},
     )
     try:
-        _wait_for(lambda: _step(out) >= 1500, 240, "the job to train 1,500 steps")
+        wait_for(
+            lambda: _step(out) >= 1500, timeout=240, poll=0.5, what="the job to train 1,500 steps"
+        )
         (job_id,) = _job_folders(out)
         _slurm("scontrol", "requeue", job_id)
-        _wait_for(lambda: _pending(job_id), 60, "the requeued job to be pending")
+        wait_for(
+            lambda: _pending(job_id), timeout=60, poll=0.5, what="the requeued job to be pending"
+        )
         first = _step(out)
-        _wait_for(lambda: _step(out) >= first + 1500, 240, "the requeued job to train on")
+        wait_for(
+            lambda: _step(out) >= first + 1500,
+            timeout=240,
+            poll=0.5,
+            what="the requeued job to train on",
+        )
         _slurm("scancel", "--signal=USR2", job_id)  # what Slurm sends near the time limit
-        _wait_for(lambda: _pending(job_id), 60, "the job to requeue itself")
+        wait_for(lambda: _pending(job_id), timeout=60, poll=0.5, what="the job to requeue itself")
         output, _ = driver.communicate(timeout=300)
     finally:
         if driver.poll() is None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import pytest
@@ -13,16 +14,15 @@ from tacbench.tac import METRICS, TacAgent, coefficients
 from tacbench.tac.maths import ALPHA_METRICS, Coefficients
 from tacbench.tac.networks import glorot_uniform, init_layers, mlp, policy_head
 from tacbench.tac.update import update
+from tests.helpers import random_minibatch, tac_agent
 
 pytestmark = pytest.mark.unit
 
 OBS, ACT = 5, 3
 
 
-def _agent(seeds: list[int], **overrides: object) -> TacAgent:
-    settings = {"compile": "off", **overrides}
-    config = RunConfig(env="Hopper-v4", q=1.5, alpha=0.2, hidden_sizes=(16,), **settings)  # type: ignore[arg-type]
-    return TacAgent(OBS, ACT, config, seeds, torch.device("cpu"))
+def _agent(seeds: list[int], **settings: Any) -> TacAgent:
+    return tac_agent(OBS, ACT, seeds, **settings)
 
 
 def _c(k: int, q: float = 1.5) -> Coefficients:
@@ -30,14 +30,7 @@ def _c(k: int, q: float = 1.5) -> Coefficients:
 
 
 def _batch(k: int, b: int = 12, seed: int = 0) -> dict[str, np.ndarray]:
-    rng = np.random.default_rng(seed)
-    return {
-        "obs": rng.normal(size=(k, b, OBS)),
-        "action": rng.uniform(-1, 1, size=(k, b, ACT)),
-        "reward": rng.normal(size=(k, b)),
-        "next_obs": rng.normal(size=(k, b, OBS)),
-        "terminated": (rng.random((k, b)) < 0.2).astype(np.float32),
-    }
+    return random_minibatch(k, b, OBS, ACT, seed=seed, terminal=0.2)
 
 
 def _params(agent: TacAgent, k: int) -> dict[str, torch.Tensor]:

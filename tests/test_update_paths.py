@@ -29,6 +29,7 @@ from tacbench.tac.maths import (
 from tacbench.tac.networks import mlp, policy_head
 from tacbench.tac.parameters import TacParameters
 from tacbench.tac.update import gradients
+from tests.helpers import random_batch, tac_agent
 
 pytestmark = pytest.mark.unit
 
@@ -38,9 +39,7 @@ CPU = torch.device("cpu")
 
 
 def _agent(hidden: tuple[int, ...] = (16,), **overrides: Any) -> TacAgent:
-    settings = {"compile": "off", **overrides}
-    config = RunConfig(env="Hopper-v4", q=1.5, alpha=0.2, hidden_sizes=hidden, **settings)
-    agent = TacAgent(OBS, ACT, config, SEEDS, CPU)
+    agent = tac_agent(OBS, ACT, SEEDS, hidden_sizes=hidden, **overrides)
     with torch.no_grad():  # a wide spread of log_std, so the ln_q floor and cap both matter
         params = agent.chunks[0].params
         params.networks.policy.weights[-1].mul_(4.0)
@@ -55,16 +54,9 @@ def _c(q: float | list[float], alpha: float | list[float] = 0.2) -> Coefficients
 
 
 def _batch(seed: int = 0, b: int = 64) -> tuple[Batch, torch.Tensor]:
-    g = torch.Generator().manual_seed(seed)
+    # wide observations and noise: log-densities below the floor and above the cap (see below)
     k = len(SEEDS)
-    batch = Batch(
-        obs=torch.randn(k, b, OBS, generator=g) * 2,
-        action=torch.rand(k, b, ACT, generator=g) * 2 - 1,
-        reward=torch.randn(k, b, generator=g),
-        next_obs=torch.randn(k, b, OBS, generator=g) * 2,
-        terminated=(torch.rand(k, b, generator=g) < 0.2).float(),
-    )
-    return batch, torch.randn(k, b, ACT, generator=g) * 3.0
+    return random_batch(k, b, OBS, ACT, seed=seed, terminal=0.2, obs_scale=2, noise_scale=3)
 
 
 def _close(ours: torch.Tensor, reference: torch.Tensor, rtol: float, name: str) -> None:
@@ -316,15 +308,7 @@ def test_members_in_chunks_start_alike_and_get_the_gradients_of_one_stack(
     for k in seeds:
         for name, value in whole.member_state(k)["params"].items():
             assert torch.equal(chunked.member_state(k)["params"][name], value), (k, name)
-    g = torch.Generator().manual_seed(3)
-    batch = Batch(
-        torch.randn(12, 32, OBS, generator=g),
-        torch.rand(12, 32, ACT, generator=g) * 2 - 1,
-        torch.randn(12, 32, generator=g),
-        torch.randn(12, 32, OBS, generator=g),
-        torch.zeros(12, 32),
-    )
-    eps = torch.randn(12, 32, ACT, generator=g)
+    batch, eps = random_batch(12, 32, OBS, ACT, seed=3)
     c = coefficients([1.0, 1.5, 3.0] * 4, [0.2] * 12, CPU)
     expected, expected_grads = gradients(whole, batch, eps, c)
     metrics, grads = gradients(chunked, batch, eps, c)

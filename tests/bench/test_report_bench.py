@@ -11,15 +11,16 @@ from pathlib import Path
 import pytest
 from pytest_benchmark.fixture import BenchmarkFixture
 
+from tacbench.paper import Q_GRID
 from tacbench.report import ReportOptions, load_runs, make_report
-from tests.report_fixtures import BASELINES, PAPER_QS, synthetic_tree
+from tests.report_fixtures import BASELINES, synthetic_tree
 
 pytestmark = pytest.mark.bench
 
 TASKS = ("HalfCheetah-v4", "Ant-v4", "Pusher-v5", "Humanoid-v4", "Hopper-v4", "Swimmer-v4")
 SEEDS = 12
 EVALUATIONS = 200
-RUNS = len(TASKS) * (len(PAPER_QS) + len(BASELINES)) * SEEDS
+RUNS = len(TASKS) * (len(Q_GRID) + len(BASELINES)) * SEEDS
 
 
 @pytest.fixture(scope="module")
@@ -27,7 +28,7 @@ def sweep(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return synthetic_tree(
         tmp_path_factory.mktemp("sweep"),
         tasks=TASKS,
-        qs=PAPER_QS,
+        qs=Q_GRID,
         baselines=BASELINES,
         seeds=SEEDS,
         n_eval=EVALUATIONS,

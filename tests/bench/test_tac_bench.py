@@ -20,6 +20,7 @@ from tacbench.config import RunConfig
 from tacbench.paper import Q_GRID, SEEDS
 from tacbench.tac import METRICS, ReplayBuffer, TacAgent, coefficients
 from tacbench.tac.update import update
+from tests.helpers import tac_agent
 
 pytestmark = pytest.mark.bench
 
@@ -29,8 +30,9 @@ FILLED = 5000  # transitions in the buffer
 
 
 def _agent(k: int, compile: bool = False) -> TacAgent:
-    config = RunConfig(env=ENV, q=1.5, alpha=0.2, compile="on" if compile else "off")
-    return TacAgent(OBS, ACT, config, list(range(0, 10 * k, 10)), torch.device("cpu"))
+    """K members (seeds 0, 10, ...) with the paper's networks."""
+    mode = "on" if compile else "off"
+    return tac_agent(OBS, ACT, range(0, 10 * k, 10), env=ENV, hidden_sizes=None, compile=mode)
 
 
 def _buffer(k: int) -> tuple[ReplayBuffer, list[np.random.Generator]]:
