@@ -16,6 +16,7 @@ import dataclasses
 import typing
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from functools import cache
 from typing import Any, ClassVar
 
 from tacbench import paper
@@ -100,12 +101,19 @@ class Setting:
 
 def settings_of(cls: type) -> dict[str, Setting]:
     """Every declared setting of config class ``cls`` (and its bases), in field order."""
+    return dict(_declared(cls))
+
+
+@cache
+def _declared(cls: type) -> tuple[tuple[str, Setting], ...]:
+    """:func:`settings_of`, read once per class: resolving the type hints is slow, and every
+    config validates with it."""
     hints = typing.get_type_hints(cls)
-    found = {}
-    for f in dataclasses.fields(cls):
-        if _KEY in f.metadata:
-            found[f.name] = Setting(f.name, hints[f.name], f.default, f.metadata[_KEY])
-    return found
+    return tuple(
+        (f.name, Setting(f.name, hints[f.name], f.default, f.metadata[_KEY]))
+        for f in dataclasses.fields(cls)
+        if _KEY in f.metadata
+    )
 
 
 def flag_of(cls: type, name: str) -> str:
