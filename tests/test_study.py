@@ -1,5 +1,6 @@
-"""The published study (results/studies/, docs/results.md): its committed report regenerates,
-table for table, from its committed run directories, and the runs are what the page says."""
+"""The published q-grid studies (results/studies/, docs/results.md): each committed report
+regenerates, table for table, from its committed run directories, and the runs are what the
+page says."""
 
 from __future__ import annotations
 
@@ -12,32 +13,47 @@ from tacbench.report import ReportOptions, analyse, write_report
 
 pytestmark = pytest.mark.smoke
 
-STUDY = Path(__file__).resolve().parents[1] / "results" / "studies" / "paper-q-grid-100k"
-TABLES = sorted(
-    p.name
-    for p in (STUDY / "report").glob("*")
-    if p.suffix in (".csv", ".md") and p.stem != "report"
-)
+STUDIES = Path(__file__).resolve().parents[1] / "results" / "studies"
+# study folder -> the tasks it holds (each: the paper's 9 q x 5 seeds at 100,000 steps)
+TASKS = {"paper-q-grid-100k": 2, "paper-q-grid-100k-ant": 1}
 
 
-def test_the_study_holds_nine_q_by_five_seeds_on_both_tasks_complete() -> None:
-    statuses = [json.loads(p.read_text()) for p in STUDY.glob("runs/tac/*/*/seed*/status.json")]
-    assert len(statuses) == 2 * 9 * 5
+def _tables(study: str) -> list[str]:
+    report = STUDIES / study / "report"
+    return sorted(p.name for p in report.glob("*") if p.suffix in (".csv", ".md"))
+
+
+@pytest.mark.parametrize("study", TASKS)
+def test_the_study_holds_nine_q_by_five_seeds_per_task_complete(study: str) -> None:
+    folder = STUDIES / study
+    statuses = [json.loads(p.read_text()) for p in folder.glob("runs/tac/*/*/seed*/status.json")]
+    assert len(statuses) == TASKS[study] * 9 * 5
     assert {(s["state"], s["step"]) for s in statuses} == {("complete", 100_000)}
-    assert not list(STUDY.glob("runs/**/checkpoint"))  # CSV and JSON only
+    assert not list(folder.glob("runs/**/checkpoint"))  # CSV and JSON only
 
 
-def test_the_report_has_the_tables_the_page_quotes() -> None:
-    assert {"summary.md", "best_q.md", "q_ranges.md", "stats_per_task.csv"} <= set(TABLES)
+@pytest.mark.parametrize("study", TASKS)
+def test_the_report_has_the_tables_the_page_quotes(study: str) -> None:
+    assert {"summary.md", "best_q.md", "q_ranges.md", "stats_per_task.csv"} <= set(_tables(study))
 
 
-@pytest.mark.parametrize("table", TABLES)
-def test_the_committed_report_tables_regenerate_exactly(regenerated: Path, table: str) -> None:
-    assert (regenerated / table).read_text() == (STUDY / "report" / table).read_text(), table
+@pytest.mark.parametrize(
+    ("study", "table"),
+    [(study, table) for study in TASKS for table in _tables(study) if table != "report.md"],
+)
+def test_the_committed_report_tables_regenerate_exactly(
+    regenerated: dict[str, Path], study: str, table: str
+) -> None:
+    expected = (STUDIES / study / "report" / table).read_text()
+    assert (regenerated[study] / table).read_text() == expected, table
 
 
 @pytest.fixture(scope="module")
-def regenerated(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    out = tmp_path_factory.mktemp("study-report")
-    write_report(analyse(ReportOptions(results=STUDY, out=out)))  # the CLI's defaults
-    return out
+def regenerated(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """Each study's report, made again with the CLI's defaults."""
+    outs = {}
+    for study in TASKS:
+        out = tmp_path_factory.mktemp(study)
+        write_report(analyse(ReportOptions(results=STUDIES / study, out=out)))
+        outs[study] = out
+    return outs
