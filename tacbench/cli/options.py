@@ -78,9 +78,9 @@ def default_text(declared: Setting) -> str:
 
 def _option(declared: Setting, *, sweep: bool) -> Callable[[F], F]:
     info = declared.info
-    default_text_ = "the preset's" if sweep else f"{default_text(declared)} ({info.source})"
+    shown = "the preset's" if sweep else f"{default_text(declared)} ({info.source})"
     kwargs: dict[str, Any] = {
-        "help": f"{info.help}  [default: {default_text_}]",
+        "help": f"{info.help}  [default: {shown}]",
         "default": None if sweep else declared.default,
     }
     if declared.type is bool:  # --name/--no-name

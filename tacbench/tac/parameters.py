@@ -172,32 +172,30 @@ class TacParameters:
         float32 rounding."""
         if active is not None and not self.per_member_steps:
             raise ValueError("an update of some members needs per_member_steps")
-        everyone = active is None or bool(active.all())
-        if everyone and self._host_steps.min() == self._host_steps.max():
-            tensors = [[t] for t in (self.data, self.grad, self.exp_avg, self.exp_avg_sq)]
+        stepping = np.ones(self.n_members, dtype=bool) if active is None else active
+        buffers = (self.data, self.grad, self.exp_avg, self.exp_avg_sq)
+        whole = bool(stepping.all()) and self._host_steps.min() == self._host_steps.max()
+        if whole:
+            params, grads, exp_avgs, exp_avg_sqs = ([t] for t in buffers)
             steps = [self.steps[0].clone()]
-        else:
-            members = np.ones(self.n_members, dtype=bool) if active is None else active
+        else:  # each stepping member's row of every block (a critic block has two per member)
             rows = [
-                (block, row)
+                (block, row, k)
                 for block, block_rows in enumerate(self._host_rows)
                 for row, k in enumerate(block_rows)
-                if members[k]
+                if stepping[k]
             ]
-            views = [
-                self.layout.views(t) for t in (self.data, self.grad, self.exp_avg, self.exp_avg_sq)
-            ]
-            tensors = [[v[block][row] for block, row in rows] for v in views]
-            index = torch.as_tensor(
-                [self._host_rows[b][r] for b, r in rows], device=self.steps.device
+            views = [self.layout.views(t) for t in buffers]
+            params, grads, exp_avgs, exp_avg_sqs = (
+                [v[block][row] for block, row, _ in rows] for v in views
             )
-            steps = list(self.steps[index].unbind())
-        data, grad, exp_avg, exp_avg_sq = tensors
+            owners = torch.as_tensor([k for _, _, k in rows], device=self.steps.device)
+            steps = list(self.steps[owners].unbind())
         adam(
-            data,
-            grad,
-            exp_avg,
-            exp_avg_sq,
+            params,
+            grads,
+            exp_avgs,
+            exp_avg_sqs,
             [],
             steps,
             fused=True,
@@ -209,9 +207,11 @@ class TacParameters:
             eps=ADAM_EPS,
             maximize=False,
         )
-        stepped = np.ones(self.n_members, dtype=bool) if active is None else active
-        self.steps += torch.as_tensor(stepped, device=self.steps.device)
-        self._host_steps += stepped
+        if whole:
+            self.steps += 1
+        else:
+            self.steps += torch.as_tensor(stepping, device=self.steps.device)
+        self._host_steps += stepping
 
     def update_target(self, tau: float, members: npt.NDArray[np.bool_] | None = None) -> None:
         """Polyak average of the target networks: ``target <- (1 - tau) target + tau source``

@@ -74,13 +74,13 @@ def gradients(
     """The metrics of :func:`update` and the gradient of every trained parameter (named as in
     :meth:`TacAgent.member_state`) for one minibatch and noise, by the agent's gradient (compiled
     if its update is), without changing any weight. For comparing the paths."""
-    metrics = [
+    metrics: list[torch.Tensor | None] = [
         _gradient(agent, chunk, batch, eps, agent.alive[chunk.members], c, eps_next)
         for chunk in agent.chunks
     ]
     named = [chunk.params.named_gradients() for chunk in agent.chunks]
     grads = {name: torch.cat([g[name] for g in named]) for name in named[0]}
-    return _in_member_order(agent, list(metrics)), grads
+    return _in_member_order(agent, metrics), grads
 
 
 def _gradient(
