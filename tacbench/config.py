@@ -60,18 +60,58 @@ class RunConfig(RunSettings):
         "paper",
         "paper: the paper's table; reference: everything the authors' code did otherwise "
         "(updates during warm-up, episode bursts, 400x300 networks, Pusher's time limit "
-        "terminal, actions scaled by the bound; docs/tac.md, Profiles). Each is its own setting.",
+        "terminal, actions scaled by the bound; docs/tac.md, Profiles); authors-DATE: their "
+        "code as it stood then (docs/authors-versions.md). Each is its own setting.",
         source="ours: the paper's table is the default",
         choices=tuple(paper.PROFILES),
-        variant={"reference": "ref"},
+        variant=paper.PROFILE_VARIANTS,
     )
     lnq: str = setting(
-        "per-dim",
-        "per-dim: sum of per-dimension ln_q (the authors' final commit); joint: ln_q of the "
-        "joint density (paper appendix; overflows in high action dimensions, docs/tac.md).",
-        source="reference code",
-        choices=("joint", "per-dim"),
-        variant={"joint": "joint"},
+        None,
+        "per-dim: sum of per-dimension ln_q (the authors' final code); joint: ln_q of the joint "
+        "density (paper appendix; overflows in high action dimensions, docs/tac.md); "
+        "joint-batch-max: ln_q of the joint density over the minibatch's largest (the authors' "
+        "code of 2019-01-07, docs/authors-versions.md).",
+        source="reference code and the authors' earlier versions",
+        choices=("joint", "per-dim", "joint-batch-max"),
+        variant={"joint": "joint", "per-dim": "perdim", "joint-batch-max": "jointbm"},
+        profile=True,
+    )
+    density_floor: float = setting(
+        None,
+        "Smallest density that ln_q sees: each dimension's (--lnq per-dim) or the normalised "
+        "joint one (joint-batch-max); --lnq joint has none.",
+        source="the authors' code: 1e-6 from 2019-01-22 (7a7e754), 1e-8 before",
+        variant="floor",
+        metavar="FLOAT",
+        profile=True,
+    )
+    density_cap: str = setting(
+        None,
+        "Where the density cap 10^(8/(q-1)) applies: paper: for q >= 2 (its Numerical Issue; "
+        "the authors' final code); every-q: for every q != 1; off: never.",
+        source="paper appendix; the authors' code: every q on 2019-01-16 (7b0308a), none before",
+        choices=paper.DENSITY_CAP_RULES,
+        variant={"paper": "cappaper", "every-q": "capeveryq", "off": "capoff"},
+        profile=True,
+    )
+    jacobian_clip: float = setting(
+        None,
+        "Raise each 1 - tanh(z)^2 of the density's Jacobian to at least this before its "
+        "+ 1e-6, passing the gradient through (0: no change).",
+        source="the authors' code: 1e-3 on 2019-01-07 (3c5cf2b), 0 otherwise",
+        variant="jclip",
+        metavar="FLOAT",
+        profile=True,
+    )
+    gaussian_eps: float = setting(
+        None,
+        "Standardise the policy's noise by sigma + this in its log-density, as Spinning Up's "
+        "gaussian_likelihood does (0: the exact Gaussian).",
+        source="the authors' code: 1e-8 in every version (Spinning Up)",
+        variant="geps",
+        metavar="FLOAT",
+        profile=True,
     )
     critic_target: str = setting(
         "v",
@@ -268,6 +308,7 @@ class RunConfig(RunSettings):
             raise TacbenchError("need 0 < gamma <= 1, 0 < tau <= 1 and learning_rate > 0.")
         if not self.log_std_min < self.log_std_max:
             raise TacbenchError("log_std_min must be smaller than log_std_max.")
+        self._check_density()
         if self.target_entropy is not None and self.alpha_mode != "auto":
             raise TacbenchError(
                 "--target-entropy is the target of a learned alpha; add --alpha auto "
@@ -278,6 +319,29 @@ class RunConfig(RunSettings):
                 "need 0 <= q_schedule_start < q_schedule_end <= 1 (fractions of steps)."
             )
         self._check_pbt()
+
+    def _check_density(self) -> None:
+        if not 0.0 < self.density_floor < 1.0:
+            raise TacbenchError(
+                f"--density-floor must lie in (0, 1) (got {self.density_floor:g}); the authors' "
+                "code used 1e-6 and 1e-8."
+            )
+        if self.lnq == "joint" and self.density_floor != self._profile_value("density_floor"):
+            raise TacbenchError(
+                "--density-floor applies to --lnq per-dim and joint-batch-max; joint has none."
+            )
+        if not 0.0 <= self.jacobian_clip < 1.0:
+            raise TacbenchError(f"--jacobian-clip must lie in [0, 1) (got {self.jacobian_clip:g}).")
+        if not 0.0 <= self.gaussian_eps < 1.0:
+            raise TacbenchError(f"--gaussian-eps must lie in [0, 1) (got {self.gaussian_eps:g}).")
+        if self.lnq == "joint-batch-max" and self.alpha_mode == "auto":
+            raise TacbenchError(
+                "--lnq joint-batch-max depends on the minibatch, so it has no entropy to hold; "
+                "--alpha auto needs --lnq per-dim or joint."
+            )
+
+    def _profile_value(self, name: str) -> Any:
+        return paper.PROFILES[self.profile][name]
 
     def _check_pbt(self) -> None:
         low_high = check_q_range(self.q_range)

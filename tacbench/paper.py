@@ -114,6 +114,34 @@ DEFAULT_ALPHA = 0.2
 DEFAULT_Q = 1.0
 """q for a task outside the paper, which names no best q there: q = 1 (Shannon entropy, SAC)."""
 
+DENSITY_CAP_RULES: tuple[str, ...] = ("paper", "every-q", "off")
+"""Where the density cap ``10^(8/(q-1))`` applies (``--density-cap``): ``paper`` for q >= 2 (the
+appendix "Numerical Issue", line 1712; the authors' final code), ``every-q`` for every q != 1
+(the authors' code of 2019-01-16, 7b0308a), ``off`` nowhere (their code before that)."""
+
+_PAPER_DENSITY: dict[str, Any] = {
+    "lnq": "per-dim",  # the authors' final code; the paper writes the joint density (docs/tac.md)
+    "density_floor": 1e-6,  # the authors' final code (7a7e754): each dimension's density >= 1e-6
+    "density_cap": "paper",  # appendix "Numerical Issue": q >= 2 only
+    "jacobian_clip": 0.0,  # SAC v1 and the authors' final code: 1 - tanh^2 + 1e-6, no clip
+    "gaussian_eps": 0.0,  # the exact Gaussian log-density
+}
+_REFERENCE: dict[str, Any] = {
+    "update_schedule": "episode",  # tac.py's main loop: bursts at episode ends
+    "warmup_updates": "on",  # tac.py: from the first episode end, during warm-up
+    "hidden_sizes": (400, 300),  # core.py's default, never overridden by the scripts
+    "time_limits": "terminal-below-1000",  # tac.py: d = False only if ep_len == 1000
+    "action_scale": "bound",  # core.py: tanh output times action_space.high[0]
+    **_PAPER_DENSITY,
+}
+
+
+def _authors(**density: Any) -> MappingProxyType[str, Any]:
+    """The authors' code on a date: the reference profile (which no version changed) with that
+    date's density formulas, and Spinning Up's ``sigma + 1e-8`` that every version has."""
+    return MappingProxyType({**_REFERENCE, "gaussian_eps": 1e-8, **density})
+
+
 PROFILES: MappingProxyType[str, MappingProxyType[str, Any]] = MappingProxyType(
     {
         "paper": MappingProxyType(
@@ -123,22 +151,44 @@ PROFILES: MappingProxyType[str, MappingProxyType[str, Any]] = MappingProxyType(
                 "hidden_sizes": HYPERPARAMETERS.hidden_sizes,  # Hyperparameter Settings table
                 "time_limits": "not-terminal",  # a time-limit end is never terminal (SB3, CleanRL)
                 "action_scale": "unit",  # the critics and the buffer see actions in [-1, 1]
+                **_PAPER_DENSITY,
             }
         ),
-        "reference": MappingProxyType(
-            {
-                "update_schedule": "episode",  # tac.py's main loop: bursts at episode ends
-                "warmup_updates": "on",  # tac.py: from the first episode end, during warm-up
-                "hidden_sizes": (400, 300),  # core.py's default, never overridden by the scripts
-                "time_limits": "terminal-below-1000",  # tac.py: d = False only if ep_len == 1000
-                "action_scale": "bound",  # core.py: tanh output times action_space.high[0]
-            }
+        "reference": MappingProxyType(_REFERENCE),
+        # 3c5cf2b, 2019-01-07 17:23 +0900 ("Check numerical safety of tac"), in force 87.6 h
+        "authors-2019-01-07b": _authors(
+            lnq="joint-batch-max",  # 3c5cf2b: joint density over the minibatch's largest
+            density_floor=1e-8,  # 3c5cf2b: max(..., 1e-8)
+            density_cap="off",  # no cap before 7b0308a
+            jacobian_clip=1e-3,  # 3c5cf2b: clip_but_pass_gradient(1 - tanh^2, 1e-3, 1)
         ),
+        # 5ec199b, 2019-01-11 09:15 +0900 ("Really bug free"), in force 120.4 h
+        "authors-2019-01-11b": _authors(
+            density_floor=1e-8,  # 5ec199b: each dimension's density >= 1e-8
+            density_cap="off",  # no cap before 7b0308a
+        ),
+        # 7b0308a, 2019-01-16 10:38 +0900 ("Fix bug in clipping pdf"), the code of "Final plot"
+        # (f87da3c, 14:13), in force 153.2 h
+        "authors-2019-01-16c": _authors(
+            density_floor=1e-8,  # 7b0308a: each dimension's density >= 1e-8
+            density_cap="every-q",  # 7b0308a: min(density, 10^(8/(q-1))) for every q
+        ),
+        # 7a7e754, 2019-01-22 19:51 +0900 ("trim useless code"), unchanged to the last commit
+        "authors-2019-01-22": _authors(),
     }
 )
-"""The settings where the authors' code (shared/REFERENCE.md, the final commit of
-rllab-snu/tsallis_actor_critic_mujoco; docs/tac.md, "Profiles") did otherwise than the paper's
-table: ``--profile paper`` (the default) or ``reference``. Each is also a setting of its own."""
+"""The settings where the paper's table leaves a choice or the authors' code (rllab-snu/
+tsallis_actor_critic_mujoco) did otherwise: ``--profile paper`` (the default); ``reference``,
+the authors' final code as tacbench first read it (REFERENCE.md; docs/tac.md, "Profiles"),
+which is ``authors-2019-01-22`` but for Spinning Up's ``sigma + 1e-8``; and the authors' code
+as it stood on a date, each version that could have made a published curve
+(docs/authors-versions.md). Each value is also a setting of its own."""
+
+PROFILE_VARIANTS: MappingProxyType[str, str] = MappingProxyType(
+    {name: "ref" if name == "reference" else name.replace("-", "") for name in PROFILES}
+)
+"""Each profile's word in a run's variant name (``-ref``, ``-authors20190111b``); the default
+profile's never appears."""
 
 
 def task_name(env_id: str) -> str:

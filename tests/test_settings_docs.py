@@ -26,8 +26,8 @@ def test_run_help_shows_every_default_and_none_is_none() -> None:
     assert result.exit_code == 0
     text = " ".join(result.output.split())
     assert "default: None" not in text
-    assert "[default: paper: 300; reference: 400,300" in text
-    assert "[default: paper: step; reference: episode" in text
+    assert "[default: paper: 300; reference, authors-*: 400,300" in text
+    assert "[default: paper: step; reference, authors-*: episode" in text
     assert "[default: -A ln_q(e) (--lnq per-dim) or -ln_q(e^A) (joint)" in text
     assert not re.search(r"\bissue \d+", text)
 

@@ -211,6 +211,8 @@ def test_the_reference_profile_is_priced_on_its_own(tmp_path: Path) -> None:
             f"500,{wall},1,0,1\n1000,{2 * wall},1,0,1\n"
         )
     assert cost.cost_algo("tac", "reference") == cost.REFERENCE_TAC
+    assert cost.cost_algo("tac", "authors-2019-01-11b") == cost.REFERENCE_TAC
+    assert cost.cost_algo("tac", "paper") == "tac"
     assert cost.cost_algo("ppo", None) == "ppo"
     measured = cost.rates(tmp_path, [("tac", "Hopper-v4"), (cost.REFERENCE_TAC, "Hopper-v4")])
     assert measured[("tac", "Hopper-v4")].seconds_per_step == pytest.approx(0.002)

@@ -63,14 +63,21 @@ def _shown(value: Any) -> str:
 
 
 def default_text(declared: Setting) -> str:
-    """A setting's default as ``--help`` shows it: its value, each profile's value where the
-    profile sets it (``paper: 300; reference: 400,300``), or how a computed default is
-    computed."""
+    """A setting's default as ``--help`` shows it: its value, the profiles' values where the
+    profile sets it (``paper: 300; reference, authors-*: 400,300``: profiles grouped by
+    value), or how a computed default is computed."""
     info = declared.info
     if info.profile:
-        return "; ".join(
-            f"{name}: {_shown(values[declared.name])}" for name, values in PROFILES.items()
-        )
+        groups: dict[str, list[str]] = {}
+        for name, values in PROFILES.items():
+            groups.setdefault(_shown(values[declared.name]), []).append(name)
+        authors = [name for name in PROFILES if name.startswith("authors-")]
+        shown = []
+        for value, names in groups.items():
+            if set(authors) <= set(names):  # every dated version alike: one word for them all
+                names = [n for n in names if n not in authors] + ["authors-*"]
+            shown.append(f"{', '.join(names)}: {value}")
+        return "; ".join(shown)
     if info.shown_default:
         return info.shown_default
     return _shown(declared.default)

@@ -80,8 +80,10 @@ DEFAULT_SOURCE = "default*"  # the plan explains the asterisk
 
 def cost_algo(algo: str, profile: str | None) -> str:
     """The name a run's cost is kept under: its algorithm, or :data:`REFERENCE_TAC` for TAC in
-    the reference profile, which costs several times the paper profile per step."""
-    return REFERENCE_TAC if algo == "tac" and profile == "reference" else algo
+    the reference profile or a dated version of the authors' code (``authors-*``, the same
+    networks and schedule), which cost several times the paper profile per step."""
+    authors_code = profile is not None and profile != "paper"
+    return REFERENCE_TAC if algo == "tac" and authors_code else algo
 
 
 @dataclass(frozen=True)

@@ -70,7 +70,15 @@ class TacAgent:
         self.generators = [torch.Generator().manual_seed(int(seed)) for seed in seeds]
         c = config
         self.settings = LossSettings(
-            c.gamma, c.lnq, c.log_std_min, c.log_std_max, action_scale, c.target_entropy
+            c.gamma,
+            c.lnq,
+            c.log_std_min,
+            c.log_std_max,
+            action_scale,
+            c.target_entropy,
+            math.log(c.density_floor),
+            c.jacobian_clip,
+            c.gaussian_eps,
         )
         self.learning_rate, self.tau = c.learning_rate, c.tau
         k = len(seeds)

@@ -18,6 +18,7 @@ from typing import NamedTuple
 import torch
 
 from tacbench.tac.maths import (
+    LOG_DENSITY_FLOOR,
     Batch,
     Coefficients,
     default_lnq_target,
@@ -32,11 +33,14 @@ class LossSettings(NamedTuple):
     """The constants of the losses that all members share."""
 
     gamma: float
-    lnq: str  # "per-dim" or "joint" (maths.lnq_of_policy)
+    lnq: str  # "per-dim", "joint" or "joint-batch-max" (maths.lnq_of_policy)
     log_std_min: float
     log_std_max: float
     action_scale: float = 1.0  # the critics see the policy's actions times this (buffer alike)
     target_entropy: float | None = None  # --alpha auto: of E[-ln_q pi]; None: the default
+    log_density_floor: float = LOG_DENSITY_FLOOR  # maths.lnq_of_policy
+    jacobian_clip: float = 0.0  # maths.squashed_gaussian
+    gaussian_eps: float = 0.0  # maths.squashed_gaussian
 
 
 class TacLosses(NamedTuple):
@@ -59,7 +63,9 @@ def _policy_sample(
     and the policy's standard deviation."""
     mu, log_std = policy_head(mlp(policy, obs), eps.shape[-1], s.log_std_min, s.log_std_max)
     std = log_std.exp()
-    action, log_prob_dims = squashed_gaussian(mu, log_std, std, eps)
+    action, log_prob_dims = squashed_gaussian(
+        mu, log_std, std, eps, s.jacobian_clip, s.gaussian_eps
+    )
     return action, log_prob_dims, std
 
 
@@ -92,7 +98,7 @@ def tac_losses(
     alpha = alpha_in_force[:, None]
     # a~ ~ pi(.|s) by the reparameterisation trick, and ln_q pi(a~|s)
     new_action, log_prob_dims, std = _policy_sample(nets.policy, batch.obs, eps, s)
-    lnq_pi = lnq_of_policy(log_prob_dims, c, s.lnq)
+    lnq_pi = lnq_of_policy(log_prob_dims, c, s.lnq, s.log_density_floor)
 
     # eqn:q_obj  J_theta = E[ 1/2 (Q_theta(s,a) - r - gamma V_psi-(s'))^2 ]; time-limit ends
     # are not terminal, so only a true terminal state drops the bootstrap (reference code).
@@ -107,7 +113,7 @@ def tac_losses(
             next_action = next_action * s.action_scale
             pairs = torch.cat([batch.next_obs, next_action], dim=-1).repeat(2, 1, 1)
             q_next = mlp(target, pairs).view(2, k, -1)
-            lnq_next = lnq_of_policy(next_log_prob_dims, c, s.lnq)
+            lnq_next = lnq_of_policy(next_log_prob_dims, c, s.lnq, s.log_density_floor)
             v_next = torch.minimum(q_next[0], q_next[1]) - alpha * lnq_next
         q_target = batch.reward + s.gamma * (1.0 - batch.terminated) * v_next
     # Q1 and Q2 are one stack of 2K critics: both evaluated at (s, a) at once

@@ -21,8 +21,11 @@ from typing import NamedTuple
 import torch
 import torch.nn.functional as F
 
+from tacbench.paper import DENSITY_CAP_RULES
+
 LOG_DENSITY_FLOOR = math.log(1e-6)  # reference code: each per-dimension density >= 1e-6
-JACOBIAN_EPS_LOG = math.log(1e-6)  # SAC v1 and reference code: log(1 - tanh(z)^2 + 1e-6)
+JACOBIAN_EPS = 1e-6  # SAC v1 and reference code: log(1 - tanh(z)^2 + 1e-6)
+JACOBIAN_EPS_LOG = math.log(JACOBIAN_EPS)
 HALF_LOG_2PI = 0.5 * math.log(2.0 * math.pi)
 
 LOSSES = ("loss_q1", "loss_q2", "loss_v", "loss_pi")
@@ -43,10 +46,14 @@ class Batch(NamedTuple):
     terminated: torch.Tensor  # (K, B), 1.0 where s' is terminal (never for a time-limit end)
 
 
-def density_log_cap(q: float) -> float:
-    """The log of the paper's density cap ``10^(8/(q-1))`` for q >= 2 ("Numerical Issue"), +inf
-    (no cap) for q < 2."""
-    return 8.0 * math.log(10.0) / (q - 1.0) if q >= 2.0 else math.inf
+def density_log_cap(q: float, rule: str = "paper") -> float:
+    """The log of the density cap ``10^(8/(q-1))`` where ``rule`` (``paper.DENSITY_CAP_RULES``)
+    applies it: the paper's for q >= 2 ("Numerical Issue"); +inf (no cap) elsewhere and at
+    q = 1."""
+    if rule not in DENSITY_CAP_RULES:
+        raise ValueError(f"unknown density cap rule {rule!r}")
+    applies = {"paper": q >= 2.0, "every-q": q != 1.0, "off": False}[rule]
+    return 8.0 * math.log(10.0) / (q - 1.0) if applies else math.inf
 
 
 class Coefficients(NamedTuple):
@@ -62,17 +69,18 @@ class Coefficients(NamedTuple):
 
 
 def coefficients(
-    qs: Sequence[float], alphas: Sequence[float], device: torch.device
+    qs: Sequence[float], alphas: Sequence[float], device: torch.device, cap_rule: str = "paper"
 ) -> Coefficients:
     """:class:`Coefficients` of members with entropic indices ``qs`` and coefficients
-    ``alphas``, on ``device`` (the copy does not wait for the device)."""
+    ``alphas``, their density caps by ``cap_rule`` (:func:`density_log_cap`), on ``device`` (the
+    copy does not wait for the device)."""
 
     def tensor(values: Sequence[float]) -> torch.Tensor:
         return torch.tensor(values, dtype=torch.float32).to(device, non_blocking=True)
 
     return Coefficients(
         tensor([q - 1.0 for q in qs]),
-        tensor([density_log_cap(q) for q in qs]),
+        tensor([density_log_cap(q, cap_rule) for q in qs]),
         tensor(list(alphas)),
     )
 
@@ -86,7 +94,12 @@ def log_std_from_tanh(
 
 
 def squashed_gaussian(
-    mu: torch.Tensor, log_std: torch.Tensor, std: torch.Tensor, eps: torch.Tensor
+    mu: torch.Tensor,
+    log_std: torch.Tensor,
+    std: torch.Tensor,
+    eps: torch.Tensor,
+    jacobian_clip: float = 0.0,
+    gaussian_eps: float = 0.0,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Reparameterised action ``a = tanh(mu + eps * sigma)`` and ``log pi_i(a_i|s)`` per dimension.
 
@@ -97,11 +110,25 @@ def squashed_gaussian(
     ``logaddexp(log(1 - tanh(z)^2), log 1e-6)`` with ``log(1 - tanh(z)^2)`` computed stably as
     ``2 (log 2 - z - softplus(-2 z))``. ``std`` is ``log_std.exp()``, passed in because the
     caller reports it too.
+
+    Two options reproduce versions of the authors' code (docs/authors-versions.md):
+    ``jacobian_clip`` > 0 raises ``1 - tanh(z)^2`` to at least that value before the ``+ 1e-6``,
+    passing the gradient straight through (Spinning Up's ``clip_but_pass_gradient``);
+    ``gaussian_eps`` > 0 standardises ``z - mu`` by ``sigma + gaussian_eps`` instead of
+    ``sigma`` (Spinning Up's ``gaussian_likelihood``), which matters only for sigma near it.
     """
     z = mu + eps * std
     log_jacobian = 2.0 * (math.log(2.0) - z - F.softplus(-2.0 * z))
-    log_jacobian_eps = torch.logaddexp(log_jacobian, log_jacobian.new_full((), JACOBIAN_EPS_LOG))
-    log_prob_dims = (-0.5 * eps.square() - log_std - HALF_LOG_2PI) - log_jacobian_eps
+    if jacobian_clip > 0.0:
+        jacobian = log_jacobian.exp()
+        raised = jacobian + (jacobian.clamp(min=jacobian_clip) - jacobian).detach()
+        log_jacobian_eps = torch.log(raised + JACOBIAN_EPS)
+    else:
+        log_jacobian_eps = torch.logaddexp(
+            log_jacobian, log_jacobian.new_full((), JACOBIAN_EPS_LOG)
+        )
+    standard = eps if gaussian_eps == 0.0 else eps * std / (std + gaussian_eps)
+    log_prob_dims = (-0.5 * standard.square() - log_std - HALF_LOG_2PI) - log_jacobian_eps
     return torch.tanh(z), log_prob_dims
 
 
@@ -125,21 +152,34 @@ def per_member(values: torch.Tensor, like: torch.Tensor) -> torch.Tensor:
     return values.view(-1, *([1] * (like.dim() - 1)))
 
 
-def lnq_of_policy(log_prob_dims: torch.Tensor, c: Coefficients, lnq: str) -> torch.Tensor:
+def lnq_of_policy(
+    log_prob_dims: torch.Tensor,
+    c: Coefficients,
+    lnq: str,
+    log_floor: float = LOG_DENSITY_FLOOR,
+) -> torch.Tensor:
     """``ln_q pi(a|s)`` ``(K, B)`` from per-dimension log-densities ``(K, B, A)``.
 
     ``joint`` (paper): ln_q of the joint density ``exp(sum_i log pi_i)``. ``per-dim`` (reference
-    code): ``sum_i ln_q(pi_i)`` with each pi_i floored at 1e-6. Both equal ``log pi`` at q = 1.
-    For q >= 2 the density is capped at ``10^(8/(q-1))`` (paper, "Numerical Issue"), so
-    ``ln_q <= (10^8 - 1)/(q-1)``. A clamp passes the gradient only inside its bounds.
+    code): ``sum_i ln_q(pi_i)``, each pi_i floored at ``exp(log_floor)``. ``joint-batch-max``
+    (the authors' code of 2019-01-07, 3c5cf2b): ln_q of the joint density divided by the largest
+    in the minibatch (each member's B rows; the maximum is differentiated too), floored alike.
+    All equal ``log pi`` at q = 1 but the last, which is ``log pi`` minus the batch's largest.
+    Each density is capped at ``exp(c.log_cap)`` (:func:`density_log_cap`) before the floor,
+    so for q >= 2 ``ln_q <= (10^8 - 1)/(q-1)``. A clamp passes the gradient only inside its
+    bounds.
     """
-    if lnq == "joint":
-        log_prob = log_prob_dims.sum(dim=-1)
-        capped = log_prob.clamp(max=per_member(c.log_cap, log_prob))
-        return log_q_of_log(capped, per_member(c.q_minus_one, log_prob))
-    cap = per_member(c.log_cap, log_prob_dims)
-    clamped = log_prob_dims.clamp(min=LOG_DENSITY_FLOOR).clamp(max=cap)
-    return log_q_of_log(clamped, per_member(c.q_minus_one, log_prob_dims)).sum(dim=-1)
+    if lnq == "per-dim":
+        log_densities = log_prob_dims
+    else:
+        log_densities = log_prob_dims.sum(dim=-1)
+        if lnq == "joint-batch-max":
+            log_densities = log_densities - log_densities.amax(dim=-1, keepdim=True)
+    capped = log_densities.clamp(max=per_member(c.log_cap, log_densities))
+    if lnq != "joint":
+        capped = capped.clamp(min=log_floor)
+    lnq_values = log_q_of_log(capped, per_member(c.q_minus_one, capped))
+    return lnq_values.sum(dim=-1) if lnq == "per-dim" else lnq_values
 
 
 def default_lnq_target(c: Coefficients, act_dim: int, lnq: str) -> torch.Tensor:

@@ -258,7 +258,10 @@ class GroupTrainer:
         qs = tuple(self.q_of(k, step) for k in range(len(self.configs)))
         if self._coefficients is None or self._coefficients[0] != qs:
             alphas = [c.alpha for c in self.configs]
-            self._coefficients = qs, coefficients(qs, alphas, self.agent.device)
+            self._coefficients = (
+                qs,
+                coefficients(qs, alphas, self.agent.device, self.agent.config.density_cap),
+            )
         return self._coefficients[1]
 
     def _learn(self, done: np.ndarray) -> list[Outcome]:
