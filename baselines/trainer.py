@@ -2,10 +2,11 @@
 
 :func:`train` is the baselines' counterpart of :func:`tacbench.training.train`, with the same
 interface and outcomes: it plans every seed's run directory first (start, resume, skip, refuse;
-:func:`tacbench.runs.plan_run`), then trains the seeds one after another (SB3 trains one model
-per process), each through :class:`baselines.callbacks.RunCallback`. The evaluation protocol is
-TAC's own function (:func:`tacbench.envs.evaluate` with :func:`tacbench.envs.eval_seeds`):
-deterministic actions, one episode on each of ``eval_episodes`` separate env instances.
+:func:`tacbench.runs.planned_runs`, which also locks them), then trains the seeds one after
+another (SB3 trains one model per process), each through
+:class:`baselines.callbacks.RunCallback`. The evaluation protocol is TAC's own function
+(:func:`tacbench.envs.evaluate` with :func:`tacbench.envs.eval_seeds`): deterministic actions,
+one episode on each of ``eval_episodes`` separate env instances.
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ from tacbench.errors import TacbenchError
 from tacbench.hardware import configure_process
 from tacbench.interrupts import StopCheck, stop_signals
 from tacbench.progress import Progress
-from tacbench.runs import Outcome, plan_runs
+from tacbench.runs import Outcome, planned_runs
 from tacbench.runs.checkpoints import disk_errors
 
 
@@ -66,8 +67,11 @@ def train(
     if not configs or len({c.seed for c in configs}) != len(configs):
         raise TacbenchError("give each baseline run a different seed.")
     envs.env_info(configs[0].env)  # an unusable task fails before any directory is touched
-    with disk_errors("the run's files"), stop_signals() as received:
-        outcomes, active = plan_runs(configs, out, resume=resume, force=force)
+    with (
+        disk_errors("the run's files"),
+        stop_signals() as received,
+        planned_runs(configs, out, resume=resume, force=force) as (outcomes, active),
+    ):
         for config, directory in active:
             configure_process(config.threads)
             run = _Run(config, directory, command, quiet)

@@ -75,7 +75,8 @@ class Trainer(Protocol):
     ) -> list[Outcome]:
         """Train ``configs`` (one algorithm, one task, different seeds; for TAC the members of
         one group, which may also differ in q and alpha) into their run directories under
-        ``out``, planned first (start, resume, skip or refuse: :func:`tacbench.runs.plan_runs`).
+        ``out``, planned first (start, resume, skip or refuse:
+        :func:`tacbench.runs.planned_runs`) and locked against other writers until it returns.
 
         ``stop`` is polled with the step count; when it, Ctrl-C or SIGTERM says stop, every run
         in progress is checkpointed and left "running", to be continued with ``resume=True``.

@@ -5,6 +5,7 @@ here knows about torch or TAC; every trainer (TAC and the baselines) writes thro
       config.json  status.json  eval.csv  train.csv  losses.csv  tensorboard/  checkpoint/
 
 - ``planning``: where a run goes, and whether a command starts, resumes, skips or refuses it;
+- ``locks``: one writer per run directory;
 - ``files``: atomic JSON, row-by-row CSVs, the writer of one run (:class:`RunWriter`);
 - ``provenance``: versions, git commit and host, as config.json records them;
 - ``checkpoints``: checkpoint generations (durable writes, manifests, choosing what to resume);
@@ -31,6 +32,7 @@ from tacbench.runs.planning import (
     differing_fields,
     plan_run,
     plan_runs,
+    planned_runs,
     run_directory,
 )
 from tacbench.runs.provenance import VERSIONED_PACKAGES, git_commit, package_versions, run_metadata
@@ -53,6 +55,7 @@ __all__ = [
     "package_versions",
     "plan_run",
     "plan_runs",
+    "planned_runs",
     "read_json",
     "run_directory",
     "run_metadata",

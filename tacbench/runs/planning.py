@@ -1,10 +1,11 @@
 """Planning the run directories of one trainer call: where each run goes, and whether a new
-command starts, resumes, skips or must refuse it."""
+command starts, resumes, skips or must refuse it, while it holds the directories' locks."""
 
 from __future__ import annotations
 
 import shutil
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal, Protocol, TypeVar
@@ -12,6 +13,7 @@ from typing import Any, Literal, Protocol, TypeVar
 from tacbench.config import RESULT_NEUTRAL_FIELDS
 from tacbench.errors import TacbenchError
 from tacbench.runs.files import ensure_writable, read_json
+from tacbench.runs.locks import writing
 
 
 def run_directory(out: Path, algo: str, env: str, variant: str, seed: int) -> Path:
@@ -127,3 +129,15 @@ def plan_runs(
             shutil.rmtree(directory)
         active.append((config, directory))
     return skipped, active
+
+
+@contextmanager
+def planned_runs(
+    configs: Sequence[Config], out: Path, *, resume: bool, force: bool
+) -> Iterator[tuple[list[Outcome], list[tuple[Config, Path]]]]:
+    """:func:`plan_runs`, holding the lock of every run directory (:func:`locks.writing`) from
+    before the plan to the end of the block, so that no other process writes them meanwhile."""
+    ensure_writable(Path(out))
+    directories = [run_directory(out, c.algo, c.env, c.variant, c.seed) for c in configs]
+    with writing(directories):
+        yield plan_runs(configs, out, resume=resume, force=force)

@@ -2,7 +2,7 @@
 :func:`stepper` (for benchmarks and profiles).
 
 :func:`train` takes the configs of K members, plans each run directory (start, resume, skip;
-:func:`tacbench.runs.plan_runs`), and trains the members in lockstep as one group
+:func:`tacbench.runs.planned_runs`), and trains the members in lockstep as one group
 (:class:`loop.GroupTrainer`). Each member's checkpoint (:mod:`checkpoint`) holds everything its
 continuation depends on: weights, Adam moments, generators, the env's exact state (MuJoCo), the
 episode in progress, the partial losses window and the replay buffer, the latter written
@@ -24,7 +24,7 @@ from tacbench.errors import TacbenchError
 from tacbench.hardware import configure_process
 from tacbench.interrupts import StopCheck, stop_signals
 from tacbench.members import resolve_compile
-from tacbench.runs import Outcome, plan_runs
+from tacbench.runs import Outcome, planned_runs
 from tacbench.runs.checkpoints import disk_errors
 from tacbench.training.loop import LOSS_COLUMNS, GroupTrainer
 
@@ -79,8 +79,10 @@ def train(
     configs = [resolve_compile(c) for c in configs]
     check_members(configs)
     envs.env_info(configs[0].env)  # an unusable task fails before any directory is touched
-    with disk_errors("the run's files"):
-        outcomes, active = plan_runs(configs, out, resume=resume, force=force)
+    with (
+        disk_errors("the run's files"),
+        planned_runs(configs, out, resume=resume, force=force) as (outcomes, active),
+    ):
         if active:
             configure_process(active[0][0].threads)
             trainer = GroupTrainer([c for c, _ in active], [d for _, d in active], command, quiet)

@@ -1,0 +1,59 @@
+"""One writer per run directory: an OS lock held for the writer's lifetime.
+
+Each run directory ``.../<variant>/seed<k>`` has a lock file beside it,
+``.../<variant>/.seed<k>.lock``, outside the directory so that ``--force`` can delete and
+recreate the directory while its lock is held. A writer takes an exclusive ``flock`` on it
+before it reads or writes anything in the directory and keeps it until it exits; the kernel
+releases it when the process ends in any way (kill -9 included), so no stale lock survives.
+The file records the holder's PID and host, for the error a second writer gets. The file is
+never deleted: a writer that deleted it could leave two processes holding locks on different
+files of the same name.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import os
+import socket
+from collections.abc import Iterator, Sequence
+from contextlib import ExitStack, contextmanager
+from pathlib import Path
+
+from tacbench.errors import TacbenchError
+
+
+def lock_path(directory: Path) -> Path:
+    """The lock file of run directory ``directory``."""
+    return directory.parent / f".{directory.name}.lock"
+
+
+@contextmanager
+def _hold(directory: Path) -> Iterator[None]:
+    path = lock_path(directory)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    descriptor = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        try:
+            fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(descriptor, 256, 0).decode(errors="replace").strip()
+            raise TacbenchError(
+                f"{directory} is being written by another tacbench process "
+                f"({holder or 'holder unknown'}); wait for it to finish or stop it, then "
+                "run this again (--resume continues an unfinished run)."
+            ) from None
+        os.ftruncate(descriptor, 0)
+        os.pwrite(descriptor, f"PID {os.getpid()} on {socket.gethostname()}\n".encode(), 0)
+        yield
+    finally:
+        os.close(descriptor)  # releases the lock
+
+
+@contextmanager
+def writing(directories: Sequence[Path]) -> Iterator[None]:
+    """Hold the lock of every run directory in ``directories`` (a member group's all before any
+    is read), or raise a TacbenchError naming the directory and its writer's PID and host."""
+    with ExitStack() as stack:
+        for directory in sorted(set(directories)):
+            stack.enter_context(_hold(directory))
+        yield

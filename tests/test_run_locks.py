@@ -1,0 +1,95 @@
+"""One writer per run directory: a second process (or a second group in this one) that would
+write a locked run directory is refused with the holder's PID, and the first run's results are
+those of a lone run."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from tacbench.errors import TacbenchError
+from tacbench.runs import run_directory
+from tacbench.runs.locks import lock_path, writing
+from tests.helpers import assert_same_results, tiny_configs, train, wait_for
+
+pytestmark = pytest.mark.unit
+
+
+def test_a_held_run_directory_refuses_a_second_writer_and_names_the_holder(
+    tmp_path: Path,
+) -> None:
+    configs = tiny_configs("tac", seeds=(0, 10))
+    locked = run_directory(tmp_path, "tac", configs[1].env, configs[1].variant, 10)
+    with writing([locked]):
+        with pytest.raises(TacbenchError, match=f"being written by .*PID {os.getpid()} on "):
+            train(tmp_path, configs)
+        # the group locks all its members before it touches any: seed 0 was not started
+        assert not run_directory(tmp_path, "tac", configs[0].env, configs[0].variant, 0).exists()
+    outcomes = train(tmp_path, configs)  # released: trains
+    assert [o.state for o in outcomes] == ["complete", "complete"]
+    assert lock_path(locked).is_file()  # kept: deleting it could let two writers in
+
+
+def test_force_cannot_take_a_run_from_its_writer(tmp_path: Path) -> None:
+    configs = tiny_configs("ddpg")
+    train(tmp_path, configs)
+    directory = run_directory(tmp_path, "ddpg", configs[0].env, configs[0].variant, 0)
+    before = (directory / "eval.csv").read_text()
+    with writing([directory]), pytest.raises(TacbenchError, match="being written"):
+        train(tmp_path, configs, force=True)
+    assert (directory / "eval.csv").read_text() == before
+
+
+def test_two_processes_on_one_run_one_refused_the_other_as_a_lone_run(tmp_path: Path) -> None:
+    args = [
+        "run",
+        "--env",
+        "Hopper-v4",
+        "--q",
+        "1.5",
+        "--steps",
+        "3000",
+        "--learning-starts",
+        "500",
+        "--eval-every",
+        "1000",
+        "--eval-episodes",
+        "1",
+        "--hidden-sizes",
+        "16",
+        "--batch-size",
+        "16",
+        "--compile",
+        "off",
+        "--quiet",
+    ]
+    command = [sys.executable, "-m", "tacbench", *args]
+    first = subprocess.Popen(
+        [*command, "--out", str(tmp_path / "both")],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    wait_for(
+        lambda: any((tmp_path / "both").glob("runs/tac/*/*/seed0/status.json")),
+        timeout=60,
+        proc=first,
+        what="the first run's status.json",
+    )
+    second = subprocess.run(
+        [*command, "--out", str(tmp_path / "both")], capture_output=True, text=True, check=False
+    )
+    assert second.returncode == 2, second.stdout + second.stderr
+    assert f"PID {first.pid} on" in second.stdout + second.stderr
+    assert "Traceback" not in second.stdout + second.stderr
+    assert first.wait(timeout=300) == 0
+    lone = subprocess.run(
+        [*command, "--out", str(tmp_path / "lone")], capture_output=True, text=True, check=False
+    )
+    assert lone.returncode == 0, lone.stdout + lone.stderr
+    run = next((tmp_path / "both").glob("runs/tac/*/*/seed0"))
+    assert_same_results(run, next((tmp_path / "lone").glob("runs/tac/*/*/seed0")))
