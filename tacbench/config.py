@@ -46,6 +46,9 @@ PBT_FIELDS = ("pbt_every", "q_range")  # in the variant only with --q auto
 # itself after about 8,000 (docs/performance.md, "--compile auto and its break-even"); 20,000
 # leaves a margin for slower compilers
 COMPILE_AUTO_LEARNING_STEPS = 20_000
+# the largest q a run trains: above it (q - 1) times a log-density overflows float32 in ln_q
+# (a density of 2 at q = 1,000 is 2^999); q -> infinity is plain RL (paper, section 3)
+MAX_TRAINING_Q = 1_000.0
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -304,21 +307,56 @@ class RunConfig(RunSettings):
                 f"hidden_sizes must be positive layer widths (got {self.hidden_sizes}); "
                 "--hidden-sizes 400,300 for example."
             )
-        if not 0.0 < self.gamma <= 1.0 or not 0.0 < self.tau <= 1.0 or self.learning_rate <= 0:
-            raise TacbenchError("need 0 < gamma <= 1, 0 < tau <= 1 and learning_rate > 0.")
-        if not self.log_std_min < self.log_std_max:
-            raise TacbenchError("log_std_min must be smaller than log_std_max.")
+        self._check_numbers()
         self._check_density()
         if self.target_entropy is not None and self.alpha_mode != "auto":
             raise TacbenchError(
                 "--target-entropy is the target of a learned alpha; add --alpha auto "
                 "(or --alpha-mode auto)."
             )
+        self._check_q_schedule()
+        self._check_pbt()
+
+    def _check_numbers(self) -> None:
+        if self.q_mode == "fixed" and self.q > MAX_TRAINING_Q:
+            raise TacbenchError(
+                f"--q {self.q:g} is above {MAX_TRAINING_Q:g}, where ln_q overflows float32; "
+                "q -> infinity is plain RL (the paper's grid ends at 5)."
+            )
+        for name, low, high in (("gamma", 0.0, 1.0), ("tau", 0.0, 1.0)):
+            if not low < getattr(self, name) <= high:
+                raise TacbenchError(
+                    f"{flag_of(RunConfig, name)} must lie in ({low:g}, {high:g}] "
+                    f"(got {getattr(self, name)!r})."
+                )
+        if not (math.isfinite(self.learning_rate) and self.learning_rate > 0):
+            raise TacbenchError(
+                f"--learning-rate must be a finite number > 0 (got {self.learning_rate!r})."
+            )
+        bounds = (self.log_std_min, self.log_std_max)
+        if not all(math.isfinite(b) for b in bounds) or not bounds[0] < bounds[1]:
+            raise TacbenchError(
+                f"--log-std-min and --log-std-max must be finite with min < max (got {bounds})."
+            )
+        if self.target_entropy is not None and not math.isfinite(self.target_entropy):
+            raise TacbenchError(
+                f"--target-entropy must be a finite number (got {self.target_entropy!r})."
+            )
+
+    def _check_q_schedule(self) -> None:
         if not 0.0 <= self.q_schedule_start < self.q_schedule_end <= 1.0:
             raise TacbenchError(
                 "need 0 <= q_schedule_start < q_schedule_end <= 1 (fractions of steps)."
             )
-        self._check_pbt()
+        declared = settings_of(RunConfig)
+        ramp = [
+            f
+            for f in ("q_schedule_start", "q_schedule_end")
+            if getattr(self, f) != declared[f].default
+        ]
+        if self.q_schedule != "linear" and ramp:
+            flags = " and ".join(flag_of(RunConfig, f) for f in ramp)
+            raise TacbenchError(f"{flags} shape the linear q schedule; add --q-schedule linear.")
 
     def _check_density(self) -> None:
         if not 0.0 < self.density_floor < 1.0:

@@ -101,12 +101,25 @@ def test_q_at_least_two_mentions_the_density_cap() -> None:
         ("total_steps", 0, "--steps"),
         ("batch_size", 2.5, "batch_size"),
         ("eval_episodes", 0, "--eval-episodes"),
-        ("lnq", "log", "--lnq must be one of joint, per-dim"),
+        ("lnq", "log", "--lnq must be one of joint, per-dim, joint-batch-max"),
+        ("density_cap", "always", "--density-cap must be one of paper, every-q, off"),
         ("update_schedule", "epoch", "--update-schedule"),
         ("device", "tpu", "--device"),
-        ("gamma", 1.5, "gamma"),
+        ("gamma", 1.5, "--gamma must lie in"),
+        ("gamma", float("nan"), "--gamma must lie in"),
+        ("tau", 0.0, "--tau must lie in"),
+        ("learning_rate", float("nan"), "--learning-rate must be a finite"),
+        ("learning_rate", float("inf"), "--learning-rate must be a finite"),
+        ("log_std_max", float("inf"), "--log-std-min and --log-std-max must be finite"),
+        ("log_std_min", 3.0, "min < max"),
+        ("target_entropy", float("nan"), "--target-entropy must be a finite"),
+        ("q", 1e308, "above 1000, where ln_q overflows"),
         ("hidden_sizes", (), "hidden_sizes"),
         ("q_schedule_start", 0.95, "q_schedule_start"),
+        ("q_schedule_start", 0.5, "--q-schedule-start shape the linear q schedule; add"),
+        ("density_floor", 0.0, "--density-floor must lie in"),
+        ("jacobian_clip", 1.0, "--jacobian-clip must lie in"),
+        ("gaussian_eps", -1e-8, "--gaussian-eps must lie in"),
         ("compile", True, "--compile must be one of auto, on, off"),
     ],
 )
@@ -115,6 +128,17 @@ def test_invalid_values_are_refused_with_what_to_do(
 ) -> None:
     with pytest.raises(TacbenchError, match=fragment):
         RunConfig(**{"env": "Hopper-v4", "q": 1.5, "alpha": 0.2, field: value})  # type: ignore[arg-type]
+
+
+def test_the_density_settings_refuse_what_they_cannot_mean() -> None:
+    with pytest.raises(TacbenchError, match="--density-floor applies to --lnq per-dim"):
+        RunConfig(env="Hopper-v4", q=1.5, alpha=0.2, lnq="joint", density_floor=1e-8)
+    with pytest.raises(TacbenchError, match="--alpha auto needs --lnq per-dim or joint"):
+        RunConfig(env="Hopper-v4", q=1.5, alpha=0.2, lnq="joint-batch-max", alpha_mode="auto")
+    ramp = {"q_schedule": "linear", "q_schedule_start": 0.5}
+    assert (
+        RunConfig(env="Hopper-v4", q=2.0, alpha=0.2, **ramp).variant == "q2-a0.2-qlinear-qstart0.5"
+    )
 
 
 def test_members_must_have_distinct_seeds_and_the_episode_schedule_takes_several() -> None:
@@ -159,6 +183,12 @@ def test_the_reference_profile_sets_what_the_authors_code_did_and_each_item_can_
     [
         ({}, "q1.5-a0.2"),
         ({"lnq": "joint"}, "q1.5-a0.2-joint"),
+        ({"profile": "authors-2019-01-11b"}, "q1.5-a0.2-authors20190111b"),
+        (
+            {"profile": "authors-2019-01-11b", "density_cap": "paper"},
+            "q1.5-a0.2-authors20190111b-cappaper",
+        ),
+        ({"density_floor": 1e-8, "jacobian_clip": 1e-3}, "q1.5-a0.2-floor1e-08-jclip0.001"),
         ({"update_schedule": "episode", "q_schedule": "linear"}, "q1.5-a0.2-episode-qlinear"),
         ({"learning_starts": 100_000}, "q1.5-a0.2-ls100000"),
         ({"hidden_sizes": (400, 300), "learning_rate": 3e-4}, "q1.5-a0.2-h400x300-lr0.0003"),

@@ -9,6 +9,7 @@ so a command passes its options to the config as they are.
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable
+from pathlib import Path
 from typing import Any, TypeVar
 
 import click
@@ -17,6 +18,19 @@ from tacbench.paper import PROFILES
 from tacbench.settings import Setting, settings_of
 
 F = TypeVar("F", bound=Callable[..., Any])
+
+
+class ResultsFolder(click.Path):
+    """A folder to write results to: not a file, and not an empty string (which would write
+    into the current folder)."""
+
+    def __init__(self) -> None:
+        super().__init__(file_okay=False, path_type=Path)
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
+        if isinstance(value, str) and not value.strip():
+            self.fail("must name a folder (got an empty string); the default is results/.")
+        return super().convert(value, param, ctx)
 
 
 class NumberTuple(click.ParamType):

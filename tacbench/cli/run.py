@@ -14,7 +14,7 @@ import click
 
 from tacbench import paper, trainers
 from tacbench.cli.common import command_line, report_outcomes
-from tacbench.cli.options import NumberOrAuto, cli_settings, setting_options
+from tacbench.cli.options import NumberOrAuto, ResultsFolder, cli_settings, setting_options
 from tacbench.config import RunConfig
 from tacbench.errors import TacbenchError
 from tacbench.settings import RunSettings, settings_of
@@ -82,7 +82,7 @@ def _learned_mode(
 @setting_options(RunConfig, _SETTINGS)
 @click.option(
     "--out",
-    type=click.Path(file_okay=False, path_type=Path),
+    type=ResultsFolder(),
     default=Path("results"),
     show_default=True,
     help="Results folder; runs go to <out>/runs/<algo>/<env>/<variant>/seed<k>/.",

@@ -14,7 +14,7 @@ import click
 
 from tacbench import trainers
 from tacbench.cli.common import command_line
-from tacbench.cli.options import cli_settings, setting_options
+from tacbench.cli.options import ResultsFolder, cli_settings, setting_options
 from tacbench.config import RunConfig
 from tacbench.sweep import EXECUTORS, GROUPS
 from tacbench.sweep.presets import PRESETS as SWEEP_PRESETS
@@ -95,7 +95,7 @@ _OVERRIDES = cli_settings(RunConfig, sweep=True)
 @click.option("--max-retries", type=int, default=2, show_default=True, help="Per failed run.")
 @click.option(
     "--out",
-    type=click.Path(file_okay=False, path_type=Path),
+    type=ResultsFolder(),
     default=Path("results"),
     show_default=True,
     help="Results folder: runs/... as `tacbench run`, and sweep/ (state, summary, logs).",
