@@ -65,15 +65,56 @@ def test_train_metric_reads_training_episodes(tmp_path: Path) -> None:
     assert runset.data["return"].tolist() == [-1.0, 4.0, 6.0]
 
 
-def test_rows_are_sorted_deduplicated_and_non_finite_rows_dropped(tmp_path: Path) -> None:
+def test_non_finite_rows_are_dropped(tmp_path: Path) -> None:
     path = _tac(tmp_path)
     (path / "eval.csv").write_text(
         "step,wall_s,return_mean,return_std,length_mean\n"
-        "200,2,2.0,0,1\n100,1,1.0,0,1\n200,2.5,2.5,0,1\n300,3,nan,0,1\n400,4,4.0,0,1\n"
+        "100,1,1.0,0,1\n200,2.5,2.5,0,1\n300,3,nan,0,1\n400,4,4.0,0,1\n"
     )
     runset = load_runs(tmp_path)
     assert runset.data["step"].tolist() == [100.0, 200.0, 400.0]
     assert runset.data["return"].tolist() == [1.0, 2.5, 4.0]
+
+
+HEADER = "step,wall_s,return_mean,return_std,length_mean\n"
+
+
+@pytest.mark.parametrize(
+    ("rows", "reason"),
+    [
+        (
+            "100,1,1.0,0,1\n200,2,2.0,0,1\n1500,16.62,9",
+            "eval.csv ends in a torn line '1500,16.62,9'",
+        ),
+        ("100,1,1.0,0,1\n200,2\n300,3,3.0,0,1\n", "eval.csv line 3 has 2 fields, not 5"),
+        ("100,1,1.0,0,1\n200,2,x,0,1\n", "eval.csv line 3 is not numbers: '200,2,x,0,1'"),
+        ("100,1,1.0,0,1\n100,1,1.0,0,1\n", "eval.csv line 3: step 100 does not follow step 100"),
+        ("200,2,2.0,0,1\n100,1,1.0,0,1\n", "eval.csv line 3: step 100 does not follow step 200"),
+    ],
+)
+def test_a_run_with_a_torn_or_inconsistent_row_is_skipped_with_the_line(
+    tmp_path: Path, rows: str, reason: str
+) -> None:
+    _tac(tmp_path, seed=0)
+    (_tac(tmp_path, seed=1) / "eval.csv").write_text(HEADER + rows)
+    runset = load_runs(tmp_path)
+    assert runset.runs["seed"].tolist() == [0]
+    assert len(runset.skipped) == 1 and runset.skipped[0].reason.startswith(reason)
+
+
+def test_a_running_runs_torn_last_line_is_dropped_as_a_writer_leaves_it(tmp_path: Path) -> None:
+    path = _tac(tmp_path, state="running", status_step=200, total_steps=1000)
+    (path / "eval.csv").write_text(HEADER + "100,1,1.0,0,1\n200,2,2.0,0,1\n300,3,3")
+    runset = load_runs(tmp_path)
+    assert runset.data["return"].tolist() == [1.0, 2.0] and not runset.skipped
+    assert runset.runs["partial"].tolist() == [True]
+
+
+def test_a_run_planned_shorter_than_its_methods_others_is_partial(tmp_path: Path) -> None:
+    _tac(tmp_path, seed=0, steps=[500, 1000, 1500], total_steps=1500)
+    _tac(tmp_path, seed=1, steps=[1000, 3000, 5500], total_steps=5500)
+    runs = load_runs(tmp_path).runs.set_index("seed")
+    assert runs.loc[0, "partial"] and not runs.loc[1, "partial"]
 
 
 def test_the_runs_folder_is_preferred_and_bare_trees_work(tmp_path: Path) -> None:
@@ -103,7 +144,7 @@ def test_partial_runs_are_included_and_flagged(tmp_path: Path) -> None:
     assert runs.loc[0, "partial"] and runs.loc[0, "step_reached"] == 350
     assert runs.loc[0, "state"] == "running"
     assert runs.loc[1, "partial"] and runs.loc[1, "step_reached"] == 300
-    assert not runs.loc[2, "partial"]
+    assert runs.loc[2, "partial"]  # complete, but planned 300 steps beside runs of 1,000
     assert runs.loc[3, "partial"] and runs.loc[3, "state"] == "unknown"
 
 

@@ -12,6 +12,7 @@ flagged ``partial``.
 
 from __future__ import annotations
 
+import io
 import json
 import math
 import os
@@ -194,26 +195,66 @@ def _status(run_dir: Path) -> tuple[str, float, str]:
     return str(state), step_f, str(status.get("reason", ""))
 
 
-def _series(run_dir: Path, metric: Metric) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(step, return, wall_s) sorted by step, non-finite rows dropped, repeated steps kept last."""
+def _check_numbers(fields: list[str], filename: str, line: int) -> None:
+    for field in fields:
+        try:
+            float(field)
+        except ValueError:
+            raise _Unreadable(
+                f"{filename} line {line} is not numbers: {','.join(fields)!r}"
+            ) from None
+
+
+def _series(run_dir: Path, metric: Metric, state: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(step, return, wall_s) of whole rows in logged order, rows with a non-finite step or
+    return dropped. A run whose rows are not whole numbers of the header's width with steps
+    rising throughout is unreadable (the reason says which line); a torn last line, which a
+    writer leaves while it appends, is dropped only while the run is still ``running``."""
     filename, column = METRIC_SOURCES[metric]
     path = run_dir / filename
     if not path.exists():
         raise _Unreadable(f"{filename} missing")
     try:
-        frame = pd.read_csv(path, usecols=["step", "wall_s", column])
-        values = frame[["step", column, "wall_s"]].to_numpy(dtype=np.float64)
-    except pd.errors.EmptyDataError:
-        raise _Unreadable(f"{filename} is empty") from None
-    except (ValueError, pd.errors.ParserError, OSError) as err:
-        first_line = str(err).splitlines()[0] if str(err) else type(err).__name__
-        raise _Unreadable(f"{filename} unreadable: {first_line}") from None
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as err:
+        raise _Unreadable(f"{filename} unreadable: {err}") from None
+    if not text.strip():
+        raise _Unreadable(f"{filename} is empty")
+    header, *lines = text.split("\n")
+    names = header.split(",")
+    missing = [name for name in ("step", "wall_s", column) if name not in names]
+    if missing:
+        raise _Unreadable(f"{filename} unreadable: no column {', '.join(missing)}")
+    torn = lines.pop() if lines else ""  # "" when the file ends with a newline
+    if torn and state != "running":
+        raise _Unreadable(
+            f"{filename} ends in a torn line {torn!r} (a writer was cut off); "
+            "`tacbench run ... --resume` repairs an interrupted run"
+        )
+    for number, line in enumerate(lines, start=2):
+        fields = line.split(",")
+        if len(fields) != len(names):
+            raise _Unreadable(
+                f"{filename} line {number} has {len(fields)} fields, not {len(names)}"
+            )
+        _check_numbers(fields, filename, number)
+    if not lines:
+        raise _Unreadable(f"{filename} has no rows yet")
+    # the checked lines, parsed by pandas as the published reports were (its fast parser can
+    # differ from Python's float in the last bit)
+    whole = io.StringIO("\n".join([header, *lines]))
+    frame = pd.read_csv(whole, usecols=["step", "wall_s", column])
+    values = frame[["step", column, "wall_s"]].to_numpy(dtype=np.float64)
+    falling = np.flatnonzero(np.diff(values[:, 0]) <= 0)
+    if len(falling):
+        at = falling[0] + 1
+        raise _Unreadable(
+            f"{filename} line {at + 2}: step {values[at, 0]:g} does not follow step "
+            f"{values[at - 1, 0]:g} (a repeated or out-of-order row)"
+        )
     values = values[np.isfinite(values[:, 0]) & np.isfinite(values[:, 1])]
     if len(values) == 0:
-        raise _Unreadable(f"{filename} has no rows yet")
-    values = values[np.argsort(values[:, 0], kind="stable")]
-    last_of_step = np.append(values[1:, 0] != values[:-1, 0], True)
-    values = values[last_of_step]
+        raise _Unreadable(f"{filename} has no finite rows")
     return values[:, 0], values[:, 1], values[:, 2]
 
 
@@ -223,7 +264,7 @@ def _read_run(run_dir: Path, metric: Metric) -> tuple[dict[str, Any], tuple[np.n
     if state == "failed":
         at = "" if math.isnan(status_step) else f" at step {int(status_step)}"
         raise _Unreadable(f"run failed{at}: {reason or 'no reason given'}", identity)
-    series = _series(run_dir, metric)
+    series = _series(run_dir, metric, state)
     reached = float(np.nanmax([status_step, series[0][-1]]))
     total = identity["total_steps"]
     partial = state != "complete" or (not math.isnan(total) and reached < total)
@@ -281,6 +322,9 @@ def load_runs(results: Path | str, metric: Metric = "eval") -> RunSet:
             f"{'; ...' if len(skipped) > 5 else ''}); fix or remove them"
         )
     runs = pd.DataFrame(rows, columns=list(RUN_COLUMNS))
+    # a run planned shorter than others of its method is partial beside them, not averaged in
+    planned = runs.groupby(["algo", "env", "variant"])["total_steps"].transform("max")
+    runs["partial"] = runs["partial"] | (runs["total_steps"] < planned)
     return RunSet(_tidy(runs, series), runs, tuple(skipped), metric, root)
 
 
