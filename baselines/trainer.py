@@ -75,7 +75,14 @@ def train(
         for config, directory in active:
             configure_process(config.threads)
             run = _Run(config, directory, command, quiet)
-            outcome = run.learn(lambda step: bool(received) or (stop is not None and stop(step)))
+            try:
+                outcome = run.learn(
+                    lambda step: bool(received) or (stop is not None and stop(step))
+                )
+            except Exception as err:
+                if not isinstance(err, TacbenchError):  # ours say what to do, keep the status
+                    run.writer.crashed(run.model.num_timesteps, err)
+                raise
             outcomes.append(outcome)
             if outcome.state == "interrupted":
                 break

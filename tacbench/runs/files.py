@@ -11,6 +11,7 @@ field.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import json
 import math
@@ -30,6 +31,9 @@ if TYPE_CHECKING:
 EVAL_COLUMNS = ("step", "wall_s", "return_mean", "return_std", "length_mean")
 TRAIN_COLUMNS = ("step", "wall_s", "return", "length")
 State = Literal["running", "complete", "failed"]
+# the start of the reason of a run that an unexpected error ended (RunWriter.crashed): unlike a
+# diverged run's, its last checkpoint is worth resuming
+CRASHED = "crashed"
 
 
 def now_iso() -> str:
@@ -202,6 +206,15 @@ class RunWriter:
             self.directory / "status.json",
             {"state": state, "step": step, "reason": reason or self.note, "updated": now_iso()},
         )
+
+    def crashed(self, step: int, error: BaseException) -> None:
+        """Record an unexpected error as the run's end: status.json ``failed``, the reason
+        starting with :data:`CRASHED` and saying that ``--resume`` continues from the last
+        checkpoint. An error while recording is swallowed, so that it cannot hide ``error``."""
+        what = f"{type(error).__name__}: {error}".splitlines()[0]
+        reason = f"{CRASHED} at step {step}: {what}; --resume continues from the last checkpoint"
+        with contextlib.suppress(OSError):
+            self.status("failed", step, reason)
 
     def close(self) -> None:
         """Close the CSVs and the event file."""

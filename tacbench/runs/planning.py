@@ -12,7 +12,7 @@ from typing import Any, Literal, Protocol, TypeVar
 
 from tacbench.config import RESULT_NEUTRAL_FIELDS
 from tacbench.errors import TacbenchError
-from tacbench.runs.files import ensure_writable, read_json
+from tacbench.runs.files import CRASHED, ensure_writable, read_json
 from tacbench.runs.locks import writing
 
 
@@ -68,10 +68,15 @@ def plan_run(
     if status.get("state") == "complete":
         return DirectoryPlan("skip", f"already complete ({step} steps); --force retrains it")
     if status.get("state") == "failed":
-        return DirectoryPlan(
-            "skip",
-            f"failed at step {step}: {status.get('reason', '')}; --force retrains it",
+        reason = str(status.get("reason", ""))
+        if reason.startswith(CRASHED) and resume:
+            return DirectoryPlan("resume", "resuming a crashed run from its last checkpoint")
+        again = (
+            "--resume continues it, --force retrains it"
+            if reason.startswith(CRASHED)
+            else ("--force retrains it")
         )
+        return DirectoryPlan("skip", f"failed at step {step}: {reason}; {again}")
     if not resume:
         raise TacbenchError(
             f"{directory} holds an unfinished run (step {step}). Add --resume to continue it, "

@@ -17,6 +17,7 @@ import torch
 
 from tacbench import envs, runs
 from tacbench.config import RunConfig
+from tacbench.errors import TacbenchError
 from tacbench.interrupts import StopCheck
 from tacbench.members import members_label
 from tacbench.progress import Progress
@@ -171,6 +172,11 @@ class GroupTrainer:
                     return outcomes + self._finish("interrupted")
                 outcomes += self.advance()
             return outcomes + self._finish("complete")
+        except Exception as err:
+            if not isinstance(err, TacbenchError):  # ours say what to do and keep the status
+                for k in self.alive:
+                    self.writers[k].crashed(self.step, err)
+            raise
         finally:
             self.close()
 
