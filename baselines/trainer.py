@@ -80,8 +80,7 @@ def train(
                     lambda step: bool(received) or (stop is not None and stop(step))
                 )
             except Exception as err:
-                if not isinstance(err, TacbenchError):  # ours say what to do, keep the status
-                    run.writer.crashed(run.model.num_timesteps, err)
+                run.writer.crashed(run.model.num_timesteps, err)
                 raise
             outcomes.append(outcome)
             if outcome.state == "interrupted":

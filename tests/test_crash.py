@@ -34,7 +34,7 @@ def test_a_crash_is_recorded_and_resume_continues_it(
         train(tmp_path / "crash", configs)
     directory = run_directory(tmp_path / "crash", "tac", configs[0].env, configs[0].variant, 0)
     status = json.loads((directory / "status.json").read_text())
-    assert status["state"] == "failed" and status["step"] == 1299
+    assert status["state"] == "failed" and status["step"] == 1000  # the last checkpoint
     assert status["reason"].startswith("crashed at step 1299: RuntimeError: a bug in the update")
     monkeypatch.setattr(loop, "update", real)
 
@@ -59,5 +59,5 @@ def test_a_baselines_crash_is_recorded_too(tmp_path: Path, monkeypatch: pytest.M
         train(tmp_path, configs)
     directory = run_directory(tmp_path, "ddpg", configs[0].env, configs[0].variant, 0)
     status = json.loads((directory / "status.json").read_text())
-    assert status["state"] == "failed"
+    assert status["state"] == "failed" and status["step"] == 0  # no checkpoint yet
     assert status["reason"].startswith("crashed at step 500: RuntimeError: an evaluation bug")

@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any, Literal
 
 from tacbench.errors import TacbenchError
-from tacbench.runs.checkpoints import write_durably
+from tacbench.runs.checkpoints import DISK_ERRNOS, write_durably
 
 if TYPE_CHECKING:
     from tacbench.runs.tensorboard import TensorBoardLog
@@ -139,6 +139,7 @@ class RunWriter:
         self._logs: dict[str, CsvLog] = {}
         self._board: TensorBoardLog | None = None
         self._last_episode: tuple[int, float] | None = None  # (step, wall_s): for steps/s
+        self._status_step = 0  # the step status.json holds
 
     @property
     def checkpoint_dir(self) -> Path:
@@ -206,15 +207,21 @@ class RunWriter:
             self.directory / "status.json",
             {"state": state, "step": step, "reason": reason or self.note, "updated": now_iso()},
         )
+        self._status_step = step
 
     def crashed(self, step: int, error: BaseException) -> None:
-        """Record an unexpected error as the run's end: status.json ``failed``, the reason
-        starting with :data:`CRASHED` and saying that ``--resume`` continues from the last
-        checkpoint. An error while recording is swallowed, so that it cannot hide ``error``."""
+        """Record an unexpected error at ``step`` as the run's end: status.json ``failed`` at
+        the step it last recorded (the last checkpoint's), the reason starting with
+        :data:`CRASHED` and saying that ``--resume`` continues from there. Our own errors and
+        the disk's (full, read-only) are not unexpected: they leave the status as it is, to be
+        resumed. An error while recording is swallowed, so that it cannot hide ``error``."""
+        disk = isinstance(error, OSError) and error.errno in DISK_ERRNOS
+        if isinstance(error, TacbenchError) or disk:
+            return
         what = f"{type(error).__name__}: {error}".splitlines()[0]
         reason = f"{CRASHED} at step {step}: {what}; --resume continues from the last checkpoint"
         with contextlib.suppress(OSError):
-            self.status("failed", step, reason)
+            self.status("failed", self._status_step, reason)
 
     def close(self) -> None:
         """Close the CSVs and the event file."""

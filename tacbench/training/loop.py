@@ -17,7 +17,6 @@ import torch
 
 from tacbench import envs, runs
 from tacbench.config import RunConfig
-from tacbench.errors import TacbenchError
 from tacbench.interrupts import StopCheck
 from tacbench.members import members_label
 from tacbench.progress import Progress
@@ -173,9 +172,8 @@ class GroupTrainer:
                 outcomes += self.advance()
             return outcomes + self._finish("complete")
         except Exception as err:
-            if not isinstance(err, TacbenchError):  # ours say what to do and keep the status
-                for k in self.alive:
-                    self.writers[k].crashed(self.step, err)
+            for k in self.alive:
+                self.writers[k].crashed(self.step, err)
             raise
         finally:
             self.close()
