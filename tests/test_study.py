@@ -14,11 +14,13 @@ from tacbench.report import ReportOptions, analyse, write_report
 pytestmark = pytest.mark.smoke
 
 STUDIES = Path(__file__).resolve().parents[1] / "results" / "studies"
-# study folder -> its TAC runs, each of 100,000 steps: the paper's 9 q x 5 seeds per task
+# study folder -> its TAC runs, each of 100,000 steps: the paper's 9 q x 5 seeds per task, and
+# the authors' code versions
 RUNS = {
     "paper-q-grid-100k": 2 * 9 * 5,
     "paper-q-grid-100k-ant": 9 * 5,
     "paper-q-grid-100k-swimmer": 9 * 5,
+    "authors-versions-100k": 1 * 5 * 5,  # HalfCheetah, per version so far: 5 q x 5 seeds
 }
 
 
