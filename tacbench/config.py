@@ -23,32 +23,27 @@ it. Error messages name the command-line flag of the offending setting.
 from __future__ import annotations
 
 import dataclasses
-import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from tacbench import config_checks as checks
 from tacbench import paper
 from tacbench.errors import TacbenchError
 from tacbench.settings import (
     RunSettings,
     check_choice,
     check_integers,
-    flag_of,
     neutral_fields,
     setting,
     settings_of,
 )
 
 ON_OFF = ("on", "off")
-PBT_FIELDS = ("pbt_every", "q_range")  # in the variant only with --q auto
 # --compile auto compiles runs with at least this many learning steps: the compilation pays for
 # itself after about 8,000 (docs/performance.md, "--compile auto and its break-even"); 20,000
 # leaves a margin for slower compilers
 COMPILE_AUTO_LEARNING_STEPS = 20_000
-# the largest q a run trains: above it (q - 1) times a log-density overflows float32 in ln_q
-# (a density of 2 at q = 1,000 is 2^999); q -> infinity is plain RL (paper, section 3)
-MAX_TRAINING_Q = 1_000.0
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -307,94 +302,15 @@ class RunConfig(RunSettings):
                 f"hidden_sizes must be positive layer widths (got {self.hidden_sizes}); "
                 "--hidden-sizes 400,300 for example."
             )
-        self._check_numbers()
-        self._check_density()
+        checks.check_numbers(self)
+        checks.check_density(self)
         if self.target_entropy is not None and self.alpha_mode != "auto":
             raise TacbenchError(
                 "--target-entropy is the target of a learned alpha; add --alpha auto "
                 "(or --alpha-mode auto)."
             )
-        self._check_q_schedule()
-        self._check_pbt()
-
-    def _check_numbers(self) -> None:
-        if self.q_mode == "fixed" and self.q > MAX_TRAINING_Q:
-            raise TacbenchError(
-                f"--q {self.q:g} is above {MAX_TRAINING_Q:g}, where ln_q overflows float32; "
-                "q -> infinity is plain RL (the paper's grid ends at 5)."
-            )
-        for name, low, high in (("gamma", 0.0, 1.0), ("tau", 0.0, 1.0)):
-            if not low < getattr(self, name) <= high:
-                raise TacbenchError(
-                    f"{flag_of(RunConfig, name)} must lie in ({low:g}, {high:g}] "
-                    f"(got {getattr(self, name)!r})."
-                )
-        if not (math.isfinite(self.learning_rate) and self.learning_rate > 0):
-            raise TacbenchError(
-                f"--learning-rate must be a finite number > 0 (got {self.learning_rate!r})."
-            )
-        bounds = (self.log_std_min, self.log_std_max)
-        if not all(math.isfinite(b) for b in bounds) or not bounds[0] < bounds[1]:
-            raise TacbenchError(
-                f"--log-std-min and --log-std-max must be finite with min < max (got {bounds})."
-            )
-        if self.target_entropy is not None and not math.isfinite(self.target_entropy):
-            raise TacbenchError(
-                f"--target-entropy must be a finite number (got {self.target_entropy!r})."
-            )
-
-    def _check_q_schedule(self) -> None:
-        if not 0.0 <= self.q_schedule_start < self.q_schedule_end <= 1.0:
-            raise TacbenchError(
-                "need 0 <= q_schedule_start < q_schedule_end <= 1 (fractions of steps)."
-            )
-        declared = settings_of(RunConfig)
-        ramp = [
-            f
-            for f in ("q_schedule_start", "q_schedule_end")
-            if getattr(self, f) != declared[f].default
-        ]
-        if self.q_schedule != "linear" and ramp:
-            flags = " and ".join(flag_of(RunConfig, f) for f in ramp)
-            raise TacbenchError(f"{flags} shape the linear q schedule; add --q-schedule linear.")
-
-    def _check_density(self) -> None:
-        if not 0.0 < self.density_floor < 1.0:
-            raise TacbenchError(
-                f"--density-floor must lie in (0, 1) (got {self.density_floor:g}); the authors' "
-                "code used 1e-6 and 1e-8."
-            )
-        if self.lnq == "joint" and self.density_floor != self._profile_value("density_floor"):
-            raise TacbenchError(
-                "--density-floor applies to --lnq per-dim and joint-batch-max; joint has none."
-            )
-        if not 0.0 <= self.jacobian_clip < 1.0:
-            raise TacbenchError(f"--jacobian-clip must lie in [0, 1) (got {self.jacobian_clip:g}).")
-        if not 0.0 <= self.gaussian_eps < 1.0:
-            raise TacbenchError(f"--gaussian-eps must lie in [0, 1) (got {self.gaussian_eps:g}).")
-        if self.lnq == "joint-batch-max" and self.alpha_mode == "auto":
-            raise TacbenchError(
-                "--lnq joint-batch-max depends on the minibatch, so it has no entropy to hold; "
-                "--alpha auto needs --lnq per-dim or joint."
-            )
-
-    def _profile_value(self, name: str) -> Any:
-        return paper.PROFILES[self.profile][name]
-
-    def _check_pbt(self) -> None:
-        low_high = check_q_range(self.q_range)
-        object.__setattr__(self, "q_range", low_high)
-        if self.pbt_every < 1:
-            raise TacbenchError(f"--pbt-every must be at least 1 step (got {self.pbt_every}).")
-        declared = settings_of(RunConfig)
-        changed = [f for f in PBT_FIELDS if getattr(self, f) != declared[f].default]
-        if self.q_mode != "auto" and changed:
-            flags = " and ".join(flag_of(RunConfig, f) for f in changed)
-            raise TacbenchError(f"{flags} set population-based training of q; add --q auto.")
-        if self.q_mode == "auto" and self.q_schedule != "constant":
-            raise TacbenchError("--q auto learns q; it does not combine with --q-schedule linear.")
-        if self.q_mode == "auto" and not low_high[0] <= self.q <= low_high[1]:
-            raise TacbenchError(f"--q auto: a member's q {self.q:g} lies outside --q-range.")
+        checks.check_q_schedule(self)
+        checks.check_pbt(self)
 
     @property
     def per_member_updates(self) -> bool:
@@ -419,7 +335,11 @@ class RunConfig(RunSettings):
         for key, declared in settings_of(RunConfig).items():
             part, value = declared.info.variant, getattr(self, key)
             default = paper.PROFILES[self.profile].get(key, declared.default)
-            if part is None or value == default or (key in PBT_FIELDS and self.q_mode != "auto"):
+            if (
+                part is None
+                or value == default
+                or (key in checks.PBT_FIELDS and self.q_mode != "auto")
+            ):
                 continue
             if isinstance(part, Mapping):
                 name += f"-{part[value]}"
@@ -467,14 +387,3 @@ def result_neutral_fields() -> tuple[str, ...]:
 
 
 RESULT_NEUTRAL_FIELDS = result_neutral_fields()
-
-
-def check_q_range(values: Sequence[float]) -> tuple[float, float]:
-    """``--q-range`` as (LOW, HIGH), or a TacbenchError unless 0 < LOW < HIGH < inf."""
-    low_high = tuple(float(v) for v in values)
-    if len(low_high) != 2 or not 0 < low_high[0] < low_high[1] < math.inf:
-        raise TacbenchError(
-            f"--q-range must be LOW,HIGH with 0 < LOW < HIGH < inf (got {low_high}); "
-            "the paper's grid is 0.5,5."
-        )
-    return low_high[0], low_high[1]

@@ -10,7 +10,8 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from tacbench import paper
-from tacbench.config import COMPILE_AUTO_LEARNING_STEPS, RunConfig, check_q_range
+from tacbench.config import COMPILE_AUTO_LEARNING_STEPS, RunConfig
+from tacbench.config_checks import check_q_range
 from tacbench.errors import TacbenchError
 from tacbench.settings import settings_of
 

@@ -96,7 +96,6 @@ class GroupTrainer:
         self._t0 = time.perf_counter()
 
     # --- start and resume ----------------------------------------------------------------
-
     def _resume_or_start(self, directories: list[Path]) -> None:
         """Start afresh, or continue from the newest checkpoint generation that every member can
         use (:func:`checkpoints.choose`: a damaged one is passed over, and said so)."""
@@ -155,13 +154,12 @@ class GroupTrainer:
         )
 
     # --- the loop ---------------------------------------------------------------------------
-
     @property
     def wall_s(self) -> float:
         return self.wall_offset + time.perf_counter() - self._t0
 
     def run(self, stop: StopCheck) -> list[Outcome]:
-        """Step until done, stopped or every member failed; then close everything."""
+        """Step until done, stopped or every member failed (an error: crashed); then close."""
         outcomes = list[Outcome]()
         try:
             while self.step < self.config.total_steps and self.alive:

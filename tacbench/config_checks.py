@@ -1,0 +1,121 @@
+"""The checks of a TAC run's settings beyond each one's own range (which
+:mod:`tacbench.settings` checks): numbers that must be finite, settings that only mean something
+together, and population-based training's. :class:`tacbench.config.RunConfig` runs them when it
+is made; each error names the flag and says what to do."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
+
+from tacbench import paper
+from tacbench.errors import TacbenchError
+from tacbench.settings import flag_of, settings_of
+
+if TYPE_CHECKING:
+    from tacbench.config import RunConfig
+
+PBT_FIELDS = ("pbt_every", "q_range")  # in the variant only with --q auto
+# the largest q a run trains: above it (q - 1) times a log-density overflows float32 in ln_q
+# (a density of 2 at q = 1,000 is 2^999); q -> infinity is plain RL (paper, section 3)
+MAX_TRAINING_Q = 1_000.0
+
+
+def check_numbers(config: RunConfig) -> None:
+    """q, gamma, tau, the learning rate, the log-std bounds and the target entropy."""
+    if config.q_mode == "fixed" and config.q > MAX_TRAINING_Q:
+        raise TacbenchError(
+            f"--q {config.q:g} is above {MAX_TRAINING_Q:g}, where ln_q overflows float32; "
+            "q -> infinity is plain RL (the paper's grid ends at 5)."
+        )
+    for name, low, high in (("gamma", 0.0, 1.0), ("tau", 0.0, 1.0)):
+        if not low < getattr(config, name) <= high:
+            raise TacbenchError(
+                f"{flag_of(type(config), name)} must lie in ({low:g}, {high:g}] "
+                f"(got {getattr(config, name)!r})."
+            )
+    if not (math.isfinite(config.learning_rate) and config.learning_rate > 0):
+        raise TacbenchError(
+            f"--learning-rate must be a finite number > 0 (got {config.learning_rate!r})."
+        )
+    bounds = (config.log_std_min, config.log_std_max)
+    if not all(math.isfinite(b) for b in bounds) or not bounds[0] < bounds[1]:
+        raise TacbenchError(
+            f"--log-std-min and --log-std-max must be finite with min < max (got {bounds})."
+        )
+    if config.target_entropy is not None and not math.isfinite(config.target_entropy):
+        raise TacbenchError(
+            f"--target-entropy must be a finite number (got {config.target_entropy!r})."
+        )
+
+
+def check_q_schedule(config: RunConfig) -> None:
+    """The linear q schedule's fractions, and none without that schedule."""
+    if not 0.0 <= config.q_schedule_start < config.q_schedule_end <= 1.0:
+        raise TacbenchError(
+            "need 0 <= q_schedule_start < q_schedule_end <= 1 (fractions of steps)."
+        )
+    declared = settings_of(type(config))
+    ramp = [
+        f
+        for f in ("q_schedule_start", "q_schedule_end")
+        if getattr(config, f) != declared[f].default
+    ]
+    if config.q_schedule != "linear" and ramp:
+        flags = " and ".join(flag_of(type(config), f) for f in ramp)
+        raise TacbenchError(f"{flags} shape the linear q schedule; add --q-schedule linear.")
+
+
+def check_density(config: RunConfig) -> None:
+    """The density settings (the authors' versions): in range, and meaningful together."""
+    if not 0.0 < config.density_floor < 1.0:
+        raise TacbenchError(
+            f"--density-floor must lie in (0, 1) (got {config.density_floor:g}); the authors' "
+            "code used 1e-6 and 1e-8."
+        )
+    if (
+        config.lnq == "joint"
+        and config.density_floor != paper.PROFILES[config.profile]["density_floor"]
+    ):
+        raise TacbenchError(
+            "--density-floor applies to --lnq per-dim and joint-batch-max; joint has none."
+        )
+    if not 0.0 <= config.jacobian_clip < 1.0:
+        raise TacbenchError(f"--jacobian-clip must lie in [0, 1) (got {config.jacobian_clip:g}).")
+    if not 0.0 <= config.gaussian_eps < 1.0:
+        raise TacbenchError(f"--gaussian-eps must lie in [0, 1) (got {config.gaussian_eps:g}).")
+    if config.lnq == "joint-batch-max" and config.alpha_mode == "auto":
+        raise TacbenchError(
+            "--lnq joint-batch-max depends on the minibatch, so it has no entropy to hold; "
+            "--alpha auto needs --lnq per-dim or joint."
+        )
+
+
+def check_pbt(config: RunConfig) -> None:
+    """Population-based training's settings, only with --q auto; stores ``q_range`` as
+    (LOW, HIGH) first, so that it compares equal to its default."""
+    low_high = check_q_range(config.q_range)
+    object.__setattr__(config, "q_range", low_high)
+    if config.pbt_every < 1:
+        raise TacbenchError(f"--pbt-every must be at least 1 step (got {config.pbt_every}).")
+    declared = settings_of(type(config))
+    changed = [f for f in PBT_FIELDS if getattr(config, f) != declared[f].default]
+    if config.q_mode != "auto" and changed:
+        flags = " and ".join(flag_of(type(config), f) for f in changed)
+        raise TacbenchError(f"{flags} set population-based training of q; add --q auto.")
+    if config.q_mode == "auto" and config.q_schedule != "constant":
+        raise TacbenchError("--q auto learns q; it does not combine with --q-schedule linear.")
+    if config.q_mode == "auto" and not low_high[0] <= config.q <= low_high[1]:
+        raise TacbenchError(f"--q auto: a member's q {config.q:g} lies outside --q-range.")
+
+
+def check_q_range(values: Sequence[float]) -> tuple[float, float]:
+    """``--q-range`` as (LOW, HIGH), or a TacbenchError unless 0 < LOW < HIGH < inf."""
+    low_high = tuple(float(v) for v in values)
+    if len(low_high) != 2 or not 0 < low_high[0] < low_high[1] < math.inf:
+        raise TacbenchError(
+            f"--q-range must be LOW,HIGH with 0 < LOW < HIGH < inf (got {low_high}); "
+            "the paper's grid is 0.5,5."
+        )
+    return low_high[0], low_high[1]
