@@ -56,15 +56,9 @@ def check_q_schedule(config: RunConfig) -> None:
         raise TacbenchError(
             "need 0 <= q_schedule_start < q_schedule_end <= 1 (fractions of steps)."
         )
-    declared = settings_of(type(config))
-    ramp = [
-        f
-        for f in ("q_schedule_start", "q_schedule_end")
-        if getattr(config, f) != declared[f].default
-    ]
+    ramp = _changed_flags(config, ("q_schedule_start", "q_schedule_end"))
     if config.q_schedule != "linear" and ramp:
-        flags = " and ".join(flag_of(type(config), f) for f in ramp)
-        raise TacbenchError(f"{flags} shape the linear q schedule; add --q-schedule linear.")
+        raise TacbenchError(f"{ramp} shape the linear q schedule; add --q-schedule linear.")
 
 
 def check_density(config: RunConfig) -> None:
@@ -99,15 +93,21 @@ def check_pbt(config: RunConfig) -> None:
     object.__setattr__(config, "q_range", low_high)
     if config.pbt_every < 1:
         raise TacbenchError(f"--pbt-every must be at least 1 step (got {config.pbt_every}).")
-    declared = settings_of(type(config))
-    changed = [f for f in PBT_FIELDS if getattr(config, f) != declared[f].default]
+    changed = _changed_flags(config, PBT_FIELDS)
     if config.q_mode != "auto" and changed:
-        flags = " and ".join(flag_of(type(config), f) for f in changed)
-        raise TacbenchError(f"{flags} set population-based training of q; add --q auto.")
+        raise TacbenchError(f"{changed} set population-based training of q; add --q auto.")
     if config.q_mode == "auto" and config.q_schedule != "constant":
         raise TacbenchError("--q auto learns q; it does not combine with --q-schedule linear.")
     if config.q_mode == "auto" and not low_high[0] <= config.q <= low_high[1]:
         raise TacbenchError(f"--q auto: a member's q {config.q:g} lies outside --q-range.")
+
+
+def _changed_flags(config: RunConfig, fields: Sequence[str]) -> str:
+    """The flags of ``fields`` that differ from their declared defaults, joined by "and"
+    ("" if none): settings that only mean something in a mode the config may not be in."""
+    declared = settings_of(type(config))
+    changed = [f for f in fields if getattr(config, f) != declared[f].default]
+    return " and ".join(flag_of(type(config), f) for f in changed)
 
 
 def check_q_range(values: Sequence[float]) -> tuple[float, float]:

@@ -69,13 +69,10 @@ def plan_run(
         return DirectoryPlan("skip", f"already complete ({step} steps); --force retrains it")
     if status.get("state") == "failed":
         reason = str(status.get("reason", ""))
-        if reason.startswith(CRASHED) and resume:
+        crashed = reason.startswith(CRASHED)
+        if crashed and resume:
             return DirectoryPlan("resume", "resuming a crashed run from its last checkpoint")
-        again = (
-            "--resume continues it, --force retrains it"
-            if reason.startswith(CRASHED)
-            else ("--force retrains it")
-        )
+        again = "--resume continues it, --force retrains it" if crashed else "--force retrains it"
         return DirectoryPlan("skip", f"failed at step {step}: {reason}; {again}")
     if not resume:
         raise TacbenchError(
