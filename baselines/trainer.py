@@ -22,7 +22,7 @@ from stable_baselines3.common.vec_env import VecNormalize
 from baselines import algos, checkpoint, hyperparams
 from baselines.callbacks import Diverged, Interrupted, LossLogger, RunCallback
 from baselines.config import BaselineConfig
-from tacbench import envs, paper, runs
+from tacbench import envs, memory, paper, runs
 from tacbench.errors import TacbenchError
 from tacbench.hardware import configure_process
 from tacbench.interrupts import StopCheck, stop_signals
@@ -66,7 +66,9 @@ def train(
     PPO/TRPO), and after an interruption later seeds are not started."""
     if not configs or len({c.seed for c in configs}) != len(configs):
         raise TacbenchError("give each baseline run a different seed.")
-    envs.env_info(configs[0].env)  # an unusable task fails before any directory is touched
+    info = envs.env_info(configs[0].env)  # an unusable task fails before any directory is touched
+    for config in configs:
+        check_sizes(config, info)
     with (
         disk_errors("the run's files"),
         stop_signals() as received,
@@ -88,6 +90,28 @@ def train(
     return sorted(outcomes, key=lambda o: o.seed)
 
 
+def check_sizes(config: BaselineConfig, info: envs.EnvInfo) -> None:
+    """Refuse, before anything is written, a run whose networks, minibatches and buffer (SB3's
+    replay buffer, allocated whole, float64 observations; or the on-policy rollout) would not
+    fit this machine's memory, or more threads than it has cores (:mod:`tacbench.memory`)."""
+    memory.check_threads(config.threads)
+    hp = config.hyperparams  # where a table leaves a size out, SB3's default stands in
+    arch = hp.get("net_arch") or [64, 64]
+    widths = [
+        int(w) for part in (arch.values() if isinstance(arch, dict) else [arch]) for w in part
+    ]
+    needs = memory.actor_critic_bytes(
+        info.obs_dim, info.act_dim, widths, int(hp.get("batch_size", 256)), value_network=False
+    )
+    obs, act = info.obs_dim * 8, info.act_dim * memory.FLOAT32
+    if config.off_policy:
+        rows = int(hp.get("buffer_size", 1_000_000))
+        needs["the replay buffer"] = rows * (2 * obs + act + 2 * memory.FLOAT32)
+    else:
+        needs["the rollout"] = int(hp.get("n_steps", 2048)) * (obs + act + 6 * memory.FLOAT32)
+    memory.check_fits(needs, "--hp net_arch, batch_size, buffer_size or n_steps")
+
+
 class _Run:
     """One baseline run: its model, environments, writer and checkpoints."""
 
@@ -104,7 +128,7 @@ class _Run:
         self.dummy, self.venv = algos.make_training_env(config)
         self.eval_envs = [
             envs.make_env(config.env)
-            for _ in range(config.eval_episodes if config.eval_every else 0)
+            for _ in range(envs.eval_pool_size(config.eval_episodes) if config.eval_every else 0)
         ]
         state, self.chunks, notes = checkpoint.load(self.writer.checkpoint_dir)
         if state is not None and notes:

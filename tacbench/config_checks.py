@@ -20,6 +20,7 @@ PBT_FIELDS = ("pbt_every", "q_range")  # in the variant only with --q auto
 # the largest q a run trains: above it (q - 1) times a log-density overflows float32 in ln_q
 # (a density of 2 at q = 1,000 is 2^999); q -> infinity is plain RL (paper, section 3)
 MAX_TRAINING_Q = 1_000.0
+FLOAT32_MAX = 3.4028234663852886e38
 
 
 def check_numbers(config: RunConfig) -> None:
@@ -40,14 +41,21 @@ def check_numbers(config: RunConfig) -> None:
             f"--learning-rate must be a finite number > 0 (got {config.learning_rate!r})."
         )
     bounds = (config.log_std_min, config.log_std_max)
-    if not all(math.isfinite(b) for b in bounds) or not bounds[0] < bounds[1]:
+    if not all(_float32(b) for b in bounds) or not bounds[0] < bounds[1]:
         raise TacbenchError(
-            f"--log-std-min and --log-std-max must be finite with min < max (got {bounds})."
+            f"--log-std-min and --log-std-max must be finite float32 numbers with min < max "
+            f"(got {bounds})."
         )
-    if config.target_entropy is not None and not math.isfinite(config.target_entropy):
+    if config.target_entropy is not None and not _float32(config.target_entropy):
         raise TacbenchError(
-            f"--target-entropy must be a finite number (got {config.target_entropy!r})."
+            "--target-entropy must be a finite number a float32 holds, |x| < 3.4e38 (got "
+            f"{config.target_entropy!r}); the usual target is minus the action dimension."
         )
+
+
+def _float32(value: float) -> bool:
+    """Whether ``value`` is finite and within float32's range (the update's tensors)."""
+    return math.isfinite(value) and abs(value) <= FLOAT32_MAX
 
 
 def check_q_schedule(config: RunConfig) -> None:

@@ -60,6 +60,11 @@ def resolve_env_id(name: str) -> str:
     )
 
 
+# evaluation envs kept per member (about 1.1 MB each for the MuJoCo tasks): the reference code's
+# 10 episodes run at once, more run in waves of this many, so memory does not grow with
+# --eval-episodes
+EVAL_POOL = 10
+
 # MuJoCo 4 deprecates the compiler attribute that Gymnasium's v4 HalfCheetah model sets; the
 # attribute still works and the suite keeps v4 on purpose (module docstring)
 _SILENCED_MUJOCO_WARNINGS = ("compiler attribute 'settotalmass' is deprecated",)
@@ -202,15 +207,55 @@ def eval_seeds(seed: int, step: int, n: int) -> list[int]:
     return [int(s) for s in sequence.generate_state(n, dtype=np.uint32)]
 
 
+def eval_pool_size(episodes: int) -> int:
+    """How many evaluation envs a run keeps for ``episodes`` episodes per evaluation: one per
+    episode up to :data:`EVAL_POOL`, then the pool is reused in waves (:func:`waves`)."""
+    return min(episodes, EVAL_POOL)
+
+
+def waves(episodes: int, pool: int) -> list[slice]:
+    """The episodes of one evaluation in waves of at most ``pool``, in order."""
+    return [slice(start, min(start + pool, episodes)) for start in range(0, episodes, pool)]
+
+
+def evaluate_members(
+    policy: Policy, pools: Sequence[Sequence[gym.Env[Any, Any]]], seeds: Sequence[Sequence[int]]
+) -> tuple[FloatArray, FloatArray]:
+    """Member m's episodes (one per seed of ``seeds[m]``) on its ``pools[m]`` of envs, in waves
+    (:func:`waves`), every member's wave at once: ``policy`` gets the wave's rows member by
+    member. Returns ``(members, episodes)`` returns and lengths."""
+    members, episodes = len(seeds), len(seeds[0])
+    returns, lengths = np.zeros((members, episodes)), np.zeros((members, episodes))
+    for wave in waves(episodes, min(len(pool) for pool in pools)):
+        width = wave.stop - wave.start
+        returns[:, wave], lengths[:, wave] = (
+            result.reshape(members, width)
+            for result in evaluate(
+                policy,
+                [env for pool in pools for env in pool[:width]],
+                [int(s) for member in seeds for s in member[wave]],
+            )
+        )
+    return returns, lengths
+
+
 def evaluate(
     policy: Policy, envs: Sequence[gym.Env[Any, Any]], seeds: Sequence[int]
 ) -> tuple[FloatArray, FloatArray]:
-    """One episode on each of ``envs``, reset with its seed, all stepped in lockstep.
+    """One episode per seed, reset with it, on ``envs`` (reused in waves of ``len(envs)``
+    episodes when there are more seeds than envs), each wave's envs stepped in lockstep.
 
-    ``policy`` maps an ``(n, obs_dim)`` array (one row per env, finished ones included) to
-    ``(n, act_dim)`` actions in the env's units; it should be deterministic. Returns the
-    episode returns and lengths. The envs are evaluation-only instances: training is unaffected.
+    ``policy`` maps an ``(n, obs_dim)`` array (one row per env of the wave, finished ones
+    included) to ``(n, act_dim)`` actions in the env's units; it should be deterministic.
+    Returns the episode returns and lengths. The envs are evaluation-only instances: training
+    is unaffected.
     """
+    if len(seeds) > len(envs):
+        done = [
+            evaluate(policy, envs[: wave.stop - wave.start], seeds[wave])
+            for wave in waves(len(seeds), len(envs))
+        ]
+        return np.concatenate([r for r, _ in done]), np.concatenate([n for _, n in done])
     if len(envs) != len(seeds):
         raise ValueError("evaluate needs one seed per env")
     obs = np.stack(

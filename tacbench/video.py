@@ -15,9 +15,10 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -94,6 +95,12 @@ def load_policy(run: Path) -> LoadedPolicy:
             "results/runs/tac/Hopper-v4/q2-a0.2/seed0."
         )
     metadata = read_json(run / "config.json")
+    missing = [key for key in ("algo", "env", "seed", "config") if key not in metadata]
+    if missing or not isinstance(metadata["config"], dict):
+        raise TacbenchError(
+            f"{run / 'config.json'} is not a run's config (no {', '.join(missing) or 'config'}); "
+            "restore it from the run's sweep or rerun the run."
+        )
     folder = run / "checkpoint"
     step, _ = checkpoints.choose([folder]) if folder.is_dir() else (None, [])
     if step is None:
@@ -104,34 +111,54 @@ def load_policy(run: Path) -> LoadedPolicy:
     return LoadedPolicy(metadata["algo"], metadata["env"], int(metadata["seed"]), step, act)
 
 
-def render_episodes(
-    policy: LoadedPolicy, episodes: int, width: int, height: int, max_steps: int | None = None
-) -> tuple[list[Frame], list[float]]:
-    """Frames of ``episodes`` episodes (each at most ``max_steps`` steps), one after another,
-    and each episode's return."""
+def episode_frames(
+    policy: LoadedPolicy,
+    episodes: int,
+    width: int,
+    height: int,
+    max_steps: int | None = None,
+    returns: list[float] | None = None,
+) -> Iterator[Frame]:
+    """The frames of ``episodes`` episodes (each at most ``max_steps`` steps), one after
+    another, made as they are asked for, so that only one is held at a time; each episode's
+    return is appended to ``returns`` when it ends."""
     env = envs.make_env(policy.env, render_mode="rgb_array", width=width, height=height)
-    frames: list[Frame] = []
-    returns = []
     try:
         for seed in envs.eval_seeds(policy.seed, policy.step, episodes):
             obs, _ = env.reset(seed=int(seed))
-            frames.append(np.asarray(env.render(), dtype=np.uint8))
+            yield np.asarray(env.render(), dtype=np.uint8)
             done, steps, total = False, 0, 0.0
             while not done and (max_steps is None or steps < max_steps):
                 obs, reward, terminated, truncated, _ = env.step(policy.act(np.asarray(obs)))
-                frames.append(np.asarray(env.render(), dtype=np.uint8))
+                yield np.asarray(env.render(), dtype=np.uint8)
                 done, steps, total = terminated or truncated, steps + 1, total + float(reward)
-            returns.append(total)
+            if returns is not None:
+                returns.append(total)
     finally:
         env.close()
-    return frames, returns
 
 
-def write_video(frames: list[Frame], out: Path, fps: int) -> None:
-    """An MP4 (H.264 through imageio's ffmpeg) or a looping GIF, by ``out``'s suffix."""
-    import imageio.v3 as iio
-
+def write_video(frames: Iterable[Frame], out: Path, fps: int) -> int:
+    """An MP4 (H.264 through imageio's ffmpeg pipe; each frame is sent to the encoder as it
+    comes, so memory does not grow with the video's length) or a looping GIF (Pillow writes a
+    GIF at the end, so its frames are kept, as 256-colour images: a third of their RGB size),
+    by ``out``'s suffix. Returns the number of frames."""
+    count = 0
     if out.suffix == ".gif":
-        iio.imwrite(out, np.stack(frames), extension=".gif", duration=1000 / fps, loop=0)
-    else:
-        iio.imwrite(out, np.stack(frames), plugin="FFMPEG", fps=fps, macro_block_size=8)
+        from PIL import Image
+
+        kept = [Image.fromarray(frame).quantize(colors=256) for frame in frames]
+        kept[0].save(
+            out, format="GIF", save_all=True, append_images=kept[1:], duration=1000 / fps, loop=0
+        )
+        return len(kept)
+    import imageio.v2 as imageio
+
+    writer: Any = imageio.get_writer(out, format="FFMPEG", fps=fps, macro_block_size=8)
+    try:
+        for frame in frames:
+            writer.append_data(frame)
+            count += 1
+    finally:
+        writer.close()
+    return count

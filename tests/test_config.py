@@ -113,6 +113,8 @@ def test_q_at_least_two_mentions_the_density_cap() -> None:
         ("log_std_max", float("inf"), "--log-std-min and --log-std-max must be finite"),
         ("log_std_min", 3.0, "min < max"),
         ("target_entropy", float("nan"), "--target-entropy must be a finite"),
+        ("target_entropy", 1e308, "a float32 holds"),
+        ("log_std_max", 1e308, "finite float32 numbers"),
         ("q", 1e308, "above 1000, where ln_q overflows"),
         ("hidden_sizes", (), "hidden_sizes"),
         ("q_schedule_start", 0.95, "q_schedule_start"),

@@ -4,7 +4,10 @@ synthetic distributions, manifests, version gating, and the ``tacbench regress``
 from __future__ import annotations
 
 import json
+import os
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -333,3 +336,17 @@ def test_update_records_this_cpu_class_and_keeps_the_others(tmp_path: Path) -> N
     result = exact.check_exact(reference, tmp_path / "check", log=lambda _: None)
     assert result.verdict == "PASS", format_result(result)
     assert [row.status for row in result.rows] == ["match"] * 4
+
+
+def test_a_cpu_class_without_references_fails_loudly_with_exit_three(tmp_path: Path) -> None:
+    """Under a forced other ATen CPU capability this machine is a class without exact
+    references: the tier compares nothing, so the command fails (exit 3) and says how to record
+    that class's set, instead of passing."""
+    env = {**os.environ, "ATEN_CPU_CAPABILITY": "default"}
+    args = ["regress", "--tier", "exact", "--only", "tac-Hopper-v4-q2", "--against", str(REFERENCE)]
+    done = subprocess.run(
+        [sys.executable, "-m", "tacbench", *args], capture_output=True, text=True, env=env
+    )
+    assert done.returncode == 3, done.stdout + done.stderr
+    assert "no exact references for this machine's CPU class" in done.stdout
+    assert "-DEFAULT" in done.stdout and "tacbench regress --update --tier exact" in done.stdout

@@ -4,6 +4,7 @@ error. Needs an OpenGL backend for MuJoCo (EGL or OSMesa; .ci/run installs one).
 
 from __future__ import annotations
 
+import tracemalloc
 from pathlib import Path
 
 import imageio.v3 as iio
@@ -49,7 +50,8 @@ def test_the_rendered_policy_is_the_one_the_run_evaluated(
         0,
         1024,
     )
-    frames, returns = video.render_episodes(policy, episodes=episodes, width=32, height=24)
+    returns: list[float] = []
+    frames = list(video.episode_frames(policy, episodes, width=32, height=24, returns=returns))
     evaluation = pd.read_csv(outcome.directory / "eval.csv").iloc[-1]
     assert evaluation["step"] == 1024
     assert sum(returns) / episodes == pytest.approx(evaluation["return_mean"], rel=1e-5)
@@ -81,7 +83,15 @@ def test_bad_requests_are_clear_errors(tmp_path: Path) -> None:
     assert result.exit_code == 2 and "must end in .mp4 or .gif" in result.output
     result = CliRunner().invoke(cli, ["video", str(tmp_path), "--out", str(tmp_path / "x.mp4")])
     assert result.exit_code == 2 and "is not a run directory" in result.output
-    (tmp_path / "config.json").write_text('{"algo": "tac", "env": "Hopper-v4", "seed": 0}')
+    (tmp_path / "config.json").write_text("")
+    result = CliRunner().invoke(cli, ["video", str(tmp_path), "--out", str(tmp_path / "x.mp4")])
+    assert result.exit_code == 2 and "config.json is empty" in result.output
+    (tmp_path / "config.json").write_text('{"algo": "tac"}')
+    result = CliRunner().invoke(cli, ["video", str(tmp_path), "--out", str(tmp_path / "x.mp4")])
+    assert result.exit_code == 2 and "is not a run's config (no env, seed, config)" in result.output
+    (tmp_path / "config.json").write_text(
+        '{"algo": "tac", "env": "Hopper-v4", "seed": 0, "config": {}}'
+    )
     result = CliRunner().invoke(cli, ["video", str(tmp_path), "--out", str(tmp_path / "x.mp4")])
     assert result.exit_code == 2 and "has no checkpoint yet" in result.output
 
@@ -93,3 +103,25 @@ def test_a_machine_without_opengl_is_told_what_to_install(
     monkeypatch.setattr(video, "_backend_works", lambda backend: (False, "no library"))
     with pytest.raises(TacbenchError, match=r"apt-get install libegl1.*libosmesa6"):
         video.choose_gl_backend()
+
+
+def test_a_video_streams_its_frames_so_five_episodes_peak_like_one(
+    tmp_path: Path, backend: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("MUJOCO_GL", backend)
+    monkeypatch.setenv("PYOPENGL_PLATFORM", backend)
+    (outcome,) = train(tmp_path, tiny_configs("tac", "HalfCheetah-v4", total_steps=500))
+    policy = video.load_policy(outcome.directory)
+
+    def peak(episodes: int) -> int:  # HalfCheetah never ends early: 61 frames an episode
+        tracemalloc.start()
+        frames = video.episode_frames(policy, episodes, width=96, height=72, max_steps=60)
+        count = video.write_video(frames, tmp_path / f"{episodes}.mp4", fps=30)
+        _, top = tracemalloc.get_traced_memory()
+        tracemalloc.stop()
+        assert count == episodes * 61
+        return top
+
+    one, five = peak(1), peak(5)
+    frame = 96 * 72 * 3  # bytes; five episodes held whole would be 305 frames, 6.3 MB
+    assert five < one + 20 * frame, (one, five)

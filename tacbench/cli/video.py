@@ -48,13 +48,14 @@ def video(
         f"rendering {episodes} episode(s) of {policy.algo} on {policy.env}, seed {policy.seed}, "
         f"checkpoint at step {policy.step:,} ({backend})"
     )
-    frames, returns = rendering.render_episodes(policy, episodes, width, height, max_steps)
+    returns: list[float] = []
+    frames = rendering.episode_frames(policy, episodes, width, height, max_steps, returns)
     out.parent.mkdir(parents=True, exist_ok=True)
     partial = out.with_name(f".{out.stem}.partial{out.suffix}")
     try:
-        rendering.write_video(frames, partial, fps)
+        count = rendering.write_video(frames, partial, fps)
         partial.replace(out)
     finally:
         partial.unlink(missing_ok=True)
     shown = ", ".join(f"{r:.1f}" for r in returns)
-    click.echo(f"wrote {out} ({len(frames)} frames, {len(frames) / fps:.1f} s; returns {shown})")
+    click.echo(f"wrote {out} ({count} frames, {count / fps:.1f} s; returns {shown})")

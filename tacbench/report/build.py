@@ -15,6 +15,7 @@ import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
 
+from tacbench import memory
 from tacbench.errors import TacbenchError
 from tacbench.paper import task_sort_key
 from tacbench.report import plots
@@ -75,6 +76,10 @@ class ReportOptions:
         for name, minimum in (("reps", 100), ("last", 1), ("grid_points", 2)):
             if getattr(self, name) < minimum:
                 raise TacbenchError(f"--{name.replace('_', '-')} must be at least {minimum}")
+        # a curve's bootstrap holds every replication's curve, its resampled draws and a sorted
+        # copy for the percentiles: about three float64 values per replication and grid point
+        bootstrap = {"the bootstrap's replications": 3 * 8 * self.reps * self.grid_points}
+        memory.check_fits(bootstrap, "--reps or --grid-points", "this report")
 
 
 @dataclass

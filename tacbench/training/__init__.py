@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from tacbench import envs, runs
+from tacbench import envs, memory, runs
 from tacbench.config import RunConfig
 from tacbench.errors import TacbenchError
 from tacbench.hardware import configure_process
@@ -78,7 +78,8 @@ def train(
     step."""
     configs = [resolve_compile(c) for c in configs]
     check_members(configs)
-    envs.env_info(configs[0].env)  # an unusable task fails before any directory is touched
+    info = envs.env_info(configs[0].env)  # an unusable task fails before any directory is touched
+    check_sizes(configs, info)
     with (
         disk_errors("the run's files"),
         planned_runs(configs, out, resume=resume, force=force) as (outcomes, active),
@@ -91,6 +92,21 @@ def train(
                     lambda step: bool(received) or (stop is not None and stop(step))
                 )
     return sorted(outcomes, key=lambda o: o.seed)
+
+
+def check_sizes(configs: Sequence[RunConfig], info: envs.EnvInfo) -> None:
+    """Refuse, before anything is written, a group whose networks, minibatches and replay
+    buffer would not fit this machine's memory, or that asks for more threads than it has
+    cores (:mod:`tacbench.memory`)."""
+    config = configs[0]
+    memory.check_threads(config.threads)
+    needs = memory.actor_critic_bytes(
+        info.obs_dim, info.act_dim, config.hidden_sizes, config.batch_size, len(configs)
+    )
+    rows = min(config.buffer_size, config.total_steps)
+    row_bytes = (info.obs_dim + info.act_dim + 2) * memory.FLOAT32 + 16  # + the (s, s') index
+    needs["the replay buffer"] = len(configs) * rows * row_bytes
+    memory.check_fits(needs, "--hidden-sizes, --batch-size or --buffer-size (or the members)")
 
 
 @contextmanager

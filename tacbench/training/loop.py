@@ -63,7 +63,7 @@ class GroupTrainer:
         self.rngs = [np.random.default_rng(s.numpy) for s in streams]
         self.envs = [envs.make_env(config.env) for _ in range(k)]
         self.eval_envs = [
-            [envs.make_env(config.env) for _ in range(config.eval_episodes)]
+            [envs.make_env(config.env) for _ in range(envs.eval_pool_size(config.eval_episodes))]
             for _ in range(k if config.eval_every > 0 else 0)
         ]
         columns = ("q", "updates", *self.metrics)
@@ -356,17 +356,16 @@ class GroupTrainer:
             return None
 
         def policy(obs: np.ndarray) -> np.ndarray:
-            full = np.zeros((len(self.envs), n_eps, obs_dim))
-            full[alive] = obs.reshape(len(alive), n_eps, obs_dim)
+            full = np.zeros((len(self.envs), len(obs) // len(alive), obs_dim))
+            full[alive] = obs.reshape(len(alive), -1, obs_dim)
             actions = self.agent.act_deterministic(full)[alive].reshape(len(obs), -1)
             return envs.to_env_action(actions, self.info)
 
-        returns, lengths = envs.evaluate(
+        returns, lengths = envs.evaluate_members(
             policy,
-            [env for k in alive for env in self.eval_envs[k]],
-            [s for k in alive for s in envs.eval_seeds(self.seeds[k], step, n_eps)],
+            [self.eval_envs[k] for k in alive],
+            [envs.eval_seeds(self.seeds[k], step, n_eps) for k in alive],
         )
-        returns, lengths = returns.reshape(len(alive), n_eps), lengths.reshape(len(alive), n_eps)
         for i, k in enumerate(alive):
             self.writers[k].eval_row(step, self.wall_s, returns[i].tolist(), lengths[i].tolist())
         return float(returns.mean())

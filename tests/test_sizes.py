@@ -1,0 +1,115 @@
+"""Sizes an argument can make arbitrarily large are refused before anything is written, with
+the estimate: networks, minibatches, replay buffers, threads, bootstrap replications."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tacbench import envs, memory, trainers
+from tacbench.errors import TacbenchError
+from tacbench.paper import paper_task
+from tacbench.report.build import ReportOptions
+from tests.helpers import TINY_HP, TINY_RUN, run_cli, tiny_configs, train
+
+pytestmark = pytest.mark.unit
+
+TOO_BIG = [
+    ("tac", {"hidden_sizes": (100_000, 100_000)}, "networks"),
+    ("tac", {"batch_size": 10**11}, "an update's activations"),
+    ("tac", {"buffer_size": 10**12, "total_steps": 10**12}, "the replay buffer"),
+    ("ddpg", {"hp": ("batch_size=1000000000000",)}, "an update's activations"),
+    ("ddpg", {"hp": ("buffer_size=1000000000000",)}, "the replay buffer"),
+    ("ppo", {"hp": ("net_arch=[100000,100000]",)}, "networks"),
+]
+
+
+@pytest.mark.parametrize(("learner", "settings", "part"), TOO_BIG)
+def test_a_run_too_big_for_the_machine_is_refused_before_anything_is_written(
+    tmp_path: Path, learner: str, settings: dict, part: str
+) -> None:
+    if learner == "tac":
+        configs = tiny_configs(learner, **settings)
+    else:
+        keys = {item.split("=")[0] for item in settings["hp"]}
+        hp = (*(i for i in TINY_HP[learner] if i.split("=")[0] not in keys), *settings["hp"])
+        configs, _ = trainers.make_configs(
+            learner, "Hopper-v4", paper_task("Hopper-v4"), (0,), TINY_RUN, hp=hp
+        )
+    with pytest.raises(TacbenchError, match="more than this machine's") as refused:
+        train(tmp_path / "out", configs)
+    assert part in str(refused.value) and "smaller" in str(refused.value)
+    assert not (tmp_path / "out").exists()
+
+
+def test_more_threads_than_cores_are_refused(tmp_path: Path) -> None:
+    cores = os.cpu_count() or 1
+    with pytest.raises(TacbenchError, match=f"more than this machine's {cores} cores"):
+        train(tmp_path / "out", tiny_configs("tac", threads=cores + 1))
+    assert not (tmp_path / "out").exists()
+
+
+def test_the_estimate_counts_parameters_and_activations() -> None:
+    assert memory.mlp_parameters([3, 4, 2]) == 3 * 4 + 4 + 4 * 2 + 2
+    needs = memory.actor_critic_bytes(11, 3, (300,), 100, members=2)
+    parameters = (
+        (11 * 300 + 300 + 300 * 6 + 6) + 2 * (14 * 300 + 300 + 301) + (11 * 300 + 300 + 301)
+    )
+    assert needs["networks"] == 2 * parameters * memory.PARAMETER_COPIES * 4
+
+
+def test_too_many_bootstrap_replications_are_refused(tmp_path: Path) -> None:
+    with pytest.raises(TacbenchError, match="--reps or --grid-points smaller"):
+        ReportOptions(tmp_path, tmp_path / "report", reps=10**12)
+
+
+def test_the_command_line_refuses_with_one_line_and_exit_2(tmp_path: Path) -> None:
+    args = ["run", "--env", "Hopper-v4", "--hidden-sizes", "100000,100000", "--out", str(tmp_path)]
+    refused = run_cli(args)
+    assert refused.returncode == 2
+    assert "GiB" in refused.stderr and "Traceback" not in refused.stderr
+
+
+def test_evaluation_reuses_its_pool_of_envs_in_waves() -> None:
+    seeds = [11, 12, 13, 14, 15]
+
+    def still(obs: np.ndarray) -> np.ndarray:
+        return np.zeros((len(obs), 1))
+
+    pool = [envs.make_env("Pendulum-v1") for _ in range(2)]
+    one_each = [envs.make_env("Pendulum-v1") for _ in seeds]
+    waves, at_once = envs.evaluate(still, pool, seeds), envs.evaluate(still, one_each, seeds)
+    np.testing.assert_array_equal(waves[0], at_once[0])
+    np.testing.assert_array_equal(waves[1], at_once[1])
+    assert envs.waves(25, 10) == [slice(0, 10), slice(10, 20), slice(20, 25)]
+
+
+PEAK = """
+import resource, sys, tempfile
+from tacbench import trainers
+from tacbench.paper import paper_task
+run = dict(total_steps=200, learning_starts=1000, eval_every=200, checkpoint_every=0,
+           eval_episodes=int(sys.argv[1]))
+configs, _ = trainers.make_configs("tac", "Hopper-v4", paper_task("Hopper-v4"), (0,), run,
+                                   qs=[1.5], alphas=[0.2])
+trainers.trainer_for("tac").train(configs, tempfile.mkdtemp(), quiet=True)
+print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)
+"""
+
+
+@pytest.mark.smoke
+def test_fifty_evaluation_episodes_peak_like_one() -> None:
+    def peak_kib(episodes: int) -> int:
+        done = subprocess.run(
+            [sys.executable, "-c", PEAK, str(episodes)], capture_output=True, text=True, check=True
+        )
+        return int(done.stdout.split()[-1])
+
+    one, fifty = peak_kib(1), peak_kib(50)
+    # an env is about 1.1 MB: fifty of them would add 55 MB, the pool of ten adds 10
+    assert fifty - one < 25 * 1024, (one, fifty)
