@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import io
 import random
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -35,6 +36,7 @@ from baselines.callbacks import LossLogger
 from baselines.config import BaselineConfig
 from tacbench import envs
 from tacbench.runs import checkpoints
+from tacbench.runs.resume_checks import LogDigest
 from tacbench.seeding import run_streams
 
 REPLAY_FIELDS = ("observations", "next_observations", "actions", "rewards", "dones", "timeouts")
@@ -119,10 +121,11 @@ def save(
     losses: LossLogger,
     wall_s: float,
     chunks: list[Path],
+    logs: Mapping[str, LogDigest],
 ) -> list[Path]:
     """Write the checkpoint generation at ``step`` (``since``: the previous checkpoint's step, 0
-    if none; ``chunks``: the replay chunks the previous generation lists) and return the
-    chunks this one lists."""
+    if none; ``chunks``: the replay chunks the previous generation lists; ``logs``: what the
+    run's CSVs hold, for the manifest) and return the chunks this one lists."""
     buffer = _replay_buffer(model)
     listed = []
     if buffer is not None:
@@ -153,18 +156,19 @@ def save(
     torch.save(state, data)
     state_file = directory / f"state-{step:012d}.pt"
     checkpoints.write_durably(state_file, lambda handle: handle.write(data.getbuffer()))
-    checkpoints.commit(directory, step, [state_file, model_file, *listed])
+    checkpoints.commit(directory, step, [state_file, model_file, *listed], logs)
     return listed
 
 
 def load(directory: Path) -> tuple[dict[str, Any] | None, list[Path], list[str]]:
     """The state of the newest intact checkpoint generation under ``directory``, the replay
     chunks it lists and notes on damaged generations passed over; ``(None, [], [])`` without
-    a checkpoint. A TacbenchError when there are checkpoints but none is intact."""
+    a checkpoint. A TacbenchError when there are checkpoints but none is intact. Newer
+    generations stay until the caller discards them (:func:`checkpoints.discard_after`), once
+    the run's CSVs are checked."""
     step, notes = checkpoints.choose([directory])
     if step is None:
         return None, [], []
-    checkpoints.discard_after(directory, step)
     state = torch.load(directory / f"state-{step:012d}.pt", weights_only=True)
     files = checkpoints.files_of(directory, step)
     return state, sorted(p for p in files if p.parent.name == "replay"), notes

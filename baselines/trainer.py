@@ -25,9 +25,9 @@ from baselines.config import BaselineConfig
 from tacbench import envs, memory, paper, runs
 from tacbench.errors import TacbenchError
 from tacbench.hardware import configure_process
-from tacbench.interrupts import StopCheck, stop_signals
+from tacbench.interrupts import SecondSignal, StopCheck, resume_command, stop_signals
 from tacbench.progress import Progress
-from tacbench.runs import Outcome, planned_runs
+from tacbench.runs import Outcome, checkpoints, planned_runs
 from tacbench.runs.checkpoints import disk_errors
 
 
@@ -81,6 +81,10 @@ def train(
                 outcome = run.learn(
                     lambda step: bool(received) or (stop is not None and stop(step))
                 )
+            except SecondSignal as stopped:
+                stopped.resume = resume_command(command)
+                run.writer.stopped_at_once(run.model.num_timesteps, stopped)
+                raise
             except Exception as err:
                 run.writer.crashed(run.model.num_timesteps, err)
                 raise
@@ -130,15 +134,20 @@ class _Run:
             envs.make_env(config.env)
             for _ in range(envs.eval_pool_size(config.eval_episodes) if config.eval_every else 0)
         ]
-        state, self.chunks, notes = checkpoint.load(self.writer.checkpoint_dir)
-        if state is not None and notes:
-            self.writer.note = f"resumed from step {state['step']}: " + "; ".join(notes)
+        folder = directory / "checkpoint"
+        state, self.chunks, notes = checkpoint.load(folder)
         if state is None:
             self.writer.open(metadata(config, command), None)
             self.model = algos.build_model(config, self.venv)
             self.step, self.wall_offset = 0, 0.0
         else:
-            self.writer.open(None, int(state["step"]))
+            step = int(state["step"])
+            plan = self.writer.check_resume(step, checkpoints.recorded_logs(folder, step))
+            checkpoints.discard_after(folder, step)  # only once the CSVs can continue
+            notes += plan.notes
+            if notes:
+                self.writer.note = f"resumed from step {step}: " + "; ".join(notes)
+            self.writer.open(None, plan)
             self.model = checkpoint.restore(
                 config,
                 self.writer.checkpoint_dir,
@@ -193,6 +202,7 @@ class _Run:
             self.losses,
             self.wall_s(),
             self.chunks,
+            self.writer.log_digests(),
         )
         self.checkpoint_step = step
         self.writer.status("running", step)
@@ -222,10 +232,8 @@ class _Run:
             )
         except Interrupted as stopped:
             step = int(stopped.args[0])
-            command = self.command or "train(..., resume=True)"
-            again = command if "--resume" in command.split() else f"{command} --resume"
-            reason = f"interrupted at step {step}; resume with: {again}"
-            self.writer.status("running", step, reason)
+            reason = f"interrupted at step {step}; resume with: {resume_command(self.command)}"
+            self.writer.status("interrupted", step, reason)
             return Outcome(config.seed, directory, "interrupted", step, reason)
         except (Diverged, ValueError) as err:
             if isinstance(err, ValueError) and "invalid values" not in str(err):

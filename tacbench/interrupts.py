@@ -1,5 +1,8 @@
-"""Ctrl-C and SIGTERM as a request to stop cleanly: every trainer and the sweep driver poll
-:func:`stop_signals`' record instead of dying mid-step, then checkpoint and stop."""
+"""Ctrl-C, SIGTERM and SIGHUP as a request to stop cleanly: every trainer and the sweep driver
+poll :func:`stop_signals`' record instead of dying mid-step, then checkpoint and stop. A second
+signal stops at once (:class:`SecondSignal`). Either way the command exits with 128 + the
+signal's number (130 Ctrl-C, 143 SIGTERM, 129 SIGHUP: :func:`exit_status`) and the runs it
+stopped record the state ``interrupted``; docs/results-schema.md tabulates the exit statuses."""
 
 from __future__ import annotations
 
@@ -11,12 +14,45 @@ from typing import Any
 
 StopCheck = Callable[[int], bool]  # polled with the step count; True: checkpoint and stop
 
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+# the stop signals received since the outermost stop_signals() began, in order, and its depth
+_received: list[int] = []
+_depth = [0]
+
+
+class SecondSignal(KeyboardInterrupt):
+    """A second stop signal: stop at once, without a checkpoint. ``resume`` is the command
+    that continues the stopped runs, where the trainer knows it."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+        self.resume = ""
+
+    @property
+    def exit_status(self) -> int:
+        """128 + the signal's number."""
+        return 128 + self.signum
+
+
+def exit_status() -> int:
+    """The exit status of a command that a stop signal interrupted: 128 + the number of the
+    first signal received by the last :func:`stop_signals` (130 when none was: a stop asked for
+    otherwise)."""
+    return 128 + (_received[0] if _received else signal.SIGINT)
+
+
+def resume_command(command: str) -> str:
+    """``command`` with ``--resume`` (the library call's equivalent when there is none)."""
+    command = command or "train(..., resume=True)"
+    return command if "--resume" in command.split() else f"{command} --resume"
+
 
 @contextmanager
 def stop_signals(*, second_interrupts: bool = True) -> Iterator[dict[str, int]]:
-    """Record SIGINT and SIGTERM while active instead of dying: the dict counts them
+    """Record SIGINT, SIGTERM and SIGHUP while active instead of dying: the dict counts them
     (``count``) and keeps the last one (``signal``), so a loop can checkpoint and stop. With
-    ``second_interrupts`` a second signal raises KeyboardInterrupt at once (no checkpoint).
+    ``second_interrupts`` a second signal raises :class:`SecondSignal` at once (no checkpoint).
     The previous handlers come back afterwards. No-op outside the main thread."""
     received: dict[str, int] = {}
     if threading.current_thread() is not threading.main_thread():
@@ -24,14 +60,19 @@ def stop_signals(*, second_interrupts: bool = True) -> Iterator[dict[str, int]]:
         return
 
     def handler(signum: int, _frame: Any) -> None:
+        _received.append(signum)
         if received and second_interrupts:
-            raise KeyboardInterrupt
+            raise SecondSignal(signum)
         received["count"] = received.get("count", 0) + 1
         received["signal"] = signum
 
-    previous = {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
+    if not _depth[0]:
+        _received.clear()
+    _depth[0] += 1
+    previous = {sig: signal.signal(sig, handler) for sig in STOP_SIGNALS}
     try:
         yield received
     finally:
+        _depth[0] -= 1
         for sig, old in previous.items():
             signal.signal(sig, old)

@@ -9,7 +9,7 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -162,10 +162,19 @@ def assert_same_results(a: Path, b: Path) -> None:
         assert ours[name] == theirs[name], name
 
 
-def interrupt_cli(args: Sequence[str], when: str, *, timeout: float = 60.0) -> tuple[int, str]:
-    """Run ``tacbench ARGS`` in a child process, send it SIGINT once a line of its output
-    contains ``when``; its exit status and everything it printed."""
-    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+def interrupt_cli(
+    args: Sequence[str],
+    when: str,
+    *,
+    signals: Sequence[int] = (signal.SIGINT,),
+    gap: float = 0.0,
+    env: Mapping[str, str] | None = None,
+    timeout: float = 60.0,
+) -> tuple[int, str]:
+    """Run ``tacbench ARGS`` in a child process (``env`` added to the environment), send it
+    ``signals`` one after the other (``gap`` seconds apart) once a line of its output contains
+    ``when``; its exit status and everything it printed."""
+    env = {**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})}
     command = [sys.executable, "-m", "tacbench", *args]
     proc = subprocess.Popen(
         command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env
@@ -175,7 +184,10 @@ def interrupt_cli(args: Sequence[str], when: str, *, timeout: float = 60.0) -> t
     for line in proc.stdout:
         seen.append(line)
         if when in line:
-            proc.send_signal(signal.SIGINT)
+            for number, sig in enumerate(signals):
+                if number:
+                    time.sleep(gap)
+                proc.send_signal(sig)
             break
     seen.append(proc.stdout.read())
     return proc.wait(timeout=timeout), "".join(seen)

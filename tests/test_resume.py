@@ -48,7 +48,7 @@ def test_stop_and_resume_equals_an_uninterrupted_run(
         assert (outcome.state, outcome.step) == ("interrupted", expected)
         assert "resume with" in outcome.message
         status = json.loads((outcome.directory / "status.json").read_text())
-        assert (status["state"], status["step"]) == ("running", expected)
+        assert (status["state"], status["step"]) == ("interrupted", expected)
     else:
         (outcome,) = train(tmp_path, configs, resume=True)
     assert outcome.state == "complete"
@@ -111,7 +111,7 @@ def test_ctrl_c_checkpoints_and_resume_completes(
     assert "interrupted at step" in output and "--resume" in output
     (run,) = (tmp_path / "runs").glob("*/Hopper-v4/*/seed0")
     status = json.loads((run / "status.json").read_text())
-    assert status["state"] == "running" and status["step"] < 2000
+    assert status["state"] == "interrupted" and status["step"] < 2000
     assert status["step"] % rollout == 0  # PPO stops at the end of its rollout
     assert checkpoint_state(run)["step"] == status["step"]
     resumed = run_cli([*args, "--resume"])

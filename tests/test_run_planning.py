@@ -52,6 +52,8 @@ def test_plan_runs_refuses_an_unfinished_run_without_resume_and_touches_nothing(
     (config,) = _configs(0)
     directory = runs.run_directory(tmp_path, config.algo, config.env, config.variant, 0)
     _store(directory, config, "running", 500)
+    (directory / "checkpoint").mkdir()
+    (directory / "checkpoint" / "manifest-000000000500.json").write_text("{}")
     with pytest.raises(TacbenchError, match="--resume"):
         plan_runs([config], tmp_path, resume=False, force=False)
     assert (directory / "status.json").exists()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import io
 import json
 from pathlib import Path
@@ -41,19 +42,28 @@ def test_csv_rows_are_flushed_at_once_and_keep_full_precision(tmp_path: Path) ->
     log.close()
 
 
-def test_reopening_cuts_rows_after_the_checkpoint_and_torn_lines(tmp_path: Path) -> None:
+def test_reopening_keeps_the_checked_bytes_and_continues_the_digest(tmp_path: Path) -> None:
     path = tmp_path / "train.csv"
-    path.write_text(
-        "step,wall_s,return,length\n10,0.1,1.0,10\n20,0.2,2.0,10\n30,0.3,3.0,10\n40,0.4"
-    )
-    log = runs.CsvLog(path, runs.TRAIN_COLUMNS, keep_until=20)
-    log.write([25, 0.25, 2.5, 5])
+    log = runs.CsvLog(path, runs.TRAIN_COLUMNS)
+    log.write([10, 0.1, 1.0, 10])
+    log.write([20, 0.2, 2.0, 10])
+    kept = path.read_bytes()
+    log.write([30, 0.3, 3.0, 10])
     log.close()
+    with path.open("a") as handle:
+        handle.write("40,0.4")  # a torn line
+    reopened = runs.CsvLog(path, runs.TRAIN_COLUMNS, kept)
+    reopened.write([25, 0.25, 2.5, 5])
+    reopened.close()
     assert path.read_text() == (
         "step,wall_s,return,length\n10,0.1,1.0,10\n20,0.2,2.0,10\n25,0.25,2.5,5\n"
     )
-    with pytest.raises(TacbenchError, match="expected"):
-        runs.CsvLog(path, runs.EVAL_COLUMNS, keep_until=20)
+    fresh = runs.CsvLog(tmp_path / "fresh.csv", runs.TRAIN_COLUMNS)
+    for row in ([10, 0.1, 1.0, 10], [20, 0.2, 2.0, 10], [25, 0.25, 2.5, 5]):
+        fresh.write(row)
+    assert fresh.digest().rows == 3
+    assert fresh.digest().sha256 == hashlib.sha256(path.read_bytes()).hexdigest()
+    fresh.close()
 
 
 def _run(tmp_path: Path, state: str, step: int, config: dict | None = None) -> Path:
@@ -63,6 +73,8 @@ def _run(tmp_path: Path, state: str, step: int, config: dict | None = None) -> P
     runs.atomic_write_json(
         directory / "status.json", {"state": state, "step": step, "reason": "nan in loss_v"}
     )
+    (directory / "checkpoint").mkdir(exist_ok=True)  # the generation its step stands for
+    (directory / "checkpoint" / f"manifest-{step:012d}.json").write_text("{}")
     return directory
 
 

@@ -174,7 +174,7 @@ def test_ctrl_c_checkpoints_and_the_same_command_resumes(tmp_path: Path) -> None
     assert proc.returncode == 130, output
     assert "stopping: every running run checkpoints and returns" in output
     status = _status(run)
-    assert status["state"] == "running" and 750 <= status["step"] < 3000
+    assert status["state"] == "interrupted" and 750 <= status["step"] < 3000
     assert status["reason"].startswith(f"interrupted at step {status['step']}; resume with: ")
     assert "tacbench sweep --preset smoke" in status["reason"]
     summary = json.loads((tmp_path / "sweep" / "summary.json").read_text())

@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING, Any
 import click
 
 from tacbench.errors import TacbenchError
+from tacbench.interrupts import SecondSignal, exit_status
 
 if TYPE_CHECKING:
     from tacbench.runs import Outcome
@@ -28,6 +29,14 @@ class Group(click.Group):
             return super().invoke(ctx)
         except TacbenchError as err:
             raise UserError(str(err)) from None
+        except SecondSignal as stopped:
+            resume = stopped.resume or "the same command (with --resume for tacbench run)"
+            click.echo(
+                f"stopped at once by a second {stopped}: every run keeps its last checkpoint; "
+                f"resume with: {resume}",
+                err=True,
+            )
+            ctx.exit(stopped.exit_status)
 
 
 def command_line(ctx: click.Context) -> str:
@@ -49,12 +58,13 @@ def command_line(ctx: click.Context) -> str:
 
 
 def report_outcomes(ctx: click.Context, outcomes: Sequence[Outcome]) -> None:
-    """One line per seed; exit status 130 if interrupted, 1 if a run failed."""
+    """One line per seed; exit status 128 + the stop signal's number if interrupted
+    (:func:`tacbench.interrupts.exit_status`), 1 if a run failed."""
     for outcome in outcomes:
         detail = f" ({outcome.message})" if outcome.message else ""
         click.echo(f"seed {outcome.seed}: {outcome.state}, {outcome.directory}{detail}")
     states = {outcome.state for outcome in outcomes}
     if "interrupted" in states:
-        ctx.exit(130)
+        ctx.exit(exit_status())
     if "failed" in states:
         ctx.exit(1)

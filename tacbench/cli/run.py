@@ -109,7 +109,7 @@ def run(
     directory.
 
     Exit status: 0 when every run is complete (or skipped), 1 when one failed (NaN/inf),
-    130 when interrupted (Ctrl-C or SIGTERM; rerun with --resume), 2 for a usage error.
+    130/143/129 when interrupted (Ctrl-C/SIGTERM/SIGHUP; rerun with --resume), 2 for a usage error.
     """
     from tacbench import envs, training  # torch only when this command runs
 

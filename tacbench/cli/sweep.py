@@ -107,7 +107,8 @@ def sweep(ctx: click.Context, preset: str, **p: Any) -> None:
     the same command to resume after Ctrl-C or a crash (docs/sweep.md).
 
     Exit status: 0 when every run is complete, 1 when a run failed more than --max-retries
-    times, 130 when interrupted (rerun to resume), 2 for a usage error.
+    times, 130/143/129 when interrupted (Ctrl-C/SIGTERM/SIGHUP; rerun to resume), 2 for a usage
+    error.
     """
     from tacbench.sweep import driver, presets, summary  # torch only when this command runs
 

@@ -34,7 +34,7 @@ METRIC_SOURCES: dict[str, tuple[str, str]] = {
 """Per metric: the CSV it is read from and the column that becomes ``return``."""
 
 CONTRACT_FILES = ("config.json", "status.json", "eval.csv", "train.csv")
-STATES = ("running", "complete", "failed")
+STATES = ("running", "interrupted", "complete", "failed")
 
 RUN_COLUMNS = (
     "run",

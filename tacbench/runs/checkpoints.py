@@ -1,8 +1,9 @@
 """Checkpoint generations that survive a crash, a damaged file and a full disk (both trainers).
 
 A checkpoint is a *generation*: the files a run's continuation needs at one step, and
-``manifest-<step>.json``, which lists each file with its size and SHA-256 and is written last,
-so a generation exists only once all its files do. Every file is written to a temporary name,
+``manifest-<step>.json``, which lists each file with its size and SHA-256 (and what each of
+the run's CSVs held then: :mod:`tacbench.runs.resume_checks`) and is written last, so a
+generation exists only once all its files do. Every file is written to a temporary name,
 flushed and synced to the device, renamed, and its folder synced after the rename
 (:func:`write_durably`). After a generation is committed, all but the newest
 :data:`GENERATIONS` generations are pruned, with every file that no kept generation lists; so
@@ -11,8 +12,8 @@ most one checkpoint interval.
 
 On resume, :func:`usable_steps` checks every file of every generation against its manifest;
 the trainer continues from the newest generation that all its members can use
-(:func:`choose` says which, and what was damaged), forgets the generations after it
-(:func:`discard_after`) and cuts the CSVs back to its step.
+(:func:`choose` says which, and what was damaged), checks the CSVs against it, then forgets
+the generations after it (:func:`discard_after`) and cuts the CSVs back to it.
 
 Test-only: ``TACBENCH_CHECKPOINT_PAUSE=<seconds>`` makes the writer sleep before it renames
 each file and before it writes the manifest, so that a test can kill it in the middle.
@@ -25,12 +26,13 @@ import hashlib
 import json
 import os
 import time
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import IO, Any
 
 from tacbench.errors import TacbenchError
+from tacbench.runs.resume_checks import LogDigest
 
 GENERATIONS = 2  # kept after each commit: the new one and the previous one
 MANIFEST = "manifest-{step:012d}.json"
@@ -106,12 +108,18 @@ def _manifests(folder: Path) -> dict[int, Path]:
     return dict(sorted(found.items()))
 
 
-def commit(folder: Path, step: int, files: Iterable[Path]) -> None:
+def commit(
+    folder: Path, step: int, files: Iterable[Path], logs: Mapping[str, LogDigest] | None = None
+) -> None:
     """Record the generation at ``step`` (its ``files``, all under ``folder`` and already
-    written durably): its manifest, then the pruning of older generations and unlisted files."""
+    written durably, and what each of the run's CSVs held then, ``logs``, by file name): its
+    manifest, then the pruning of older generations and unlisted files."""
     entries = {p.relative_to(folder).as_posix(): digest(p) for p in files}
     _pause()
-    payload = json.dumps({"step": step, "files": entries}, indent=1).encode()
+    record: dict[str, Any] = {"step": step, "files": entries}
+    if logs is not None:
+        record["logs"] = {name: log.to_dict() for name, log in logs.items()}
+    payload = json.dumps(record, indent=1).encode()
     write_durably(folder / MANIFEST.format(step=step), lambda handle: handle.write(payload))
     manifests = list(_manifests(folder).values())
     kept = manifests[-GENERATIONS:]
@@ -166,6 +174,19 @@ def discard_after(folder: Path, step: int) -> None:
             path.unlink()
 
 
+def recorded_logs(folder: Path, step: int) -> dict[str, LogDigest] | None:
+    """What the (intact) generation at ``step`` records of the run's CSVs, by file name; None
+    for a generation written before manifests recorded them."""
+    manifest = json.loads((folder / MANIFEST.format(step=step)).read_text())
+    logs = manifest.get("logs")
+    return None if logs is None else {name: LogDigest.from_dict(d) for name, d in logs.items()}
+
+
+def has_generations(folder: Path) -> bool:
+    """Whether ``folder`` holds any checkpoint generation (intact or not)."""
+    return folder.is_dir() and bool(_manifests(folder))
+
+
 def files_of(folder: Path, step: int) -> list[Path]:
     """The files of the (intact) generation at ``step``."""
     manifest = json.loads((folder / MANIFEST.format(step=step)).read_text())
@@ -179,6 +200,11 @@ def choose(folders: Sequence[Path]) -> tuple[int | None, list[str]]:
     none that every member can use; nothing is deleted."""
     usable, notes, any_checkpoint = [], [], False
     for folder in folders:
+        if folder.exists() and not folder.is_dir():
+            raise TacbenchError(
+                f"{folder} is a file, not a checkpoint folder; nothing was changed. Move it "
+                "away, or rerun with --force to start the run over."
+            )
         if (folder / "state.pt").exists():
             raise TacbenchError(
                 f"{folder} holds a checkpoint written by an older tacbench (state.pt, no "

@@ -4,15 +4,18 @@ events).
 
 JSON files are written durably (a temporary name, synced, renamed:
 :func:`tacbench.runs.checkpoints.write_durably`). CSV rows are appended and flushed one at a
-time; reopening a run for resume first cuts every CSV back to the checkpoint's step, so no row is
-ever duplicated and none is missing. docs/results-schema.md describes every file, column and
-field.
+time; each checkpoint records what every CSV holds, and a resume first checks every CSV against
+it and cuts it back to it (:mod:`tacbench.runs.resume_checks`), so no row is ever duplicated or
+missing, and a damaged CSV is refused before anything is written. docs/results-schema.md
+describes every file, column and field.
 """
 
 from __future__ import annotations
 
 import contextlib
 import csv
+import hashlib
+import io
 import json
 import math
 import os
@@ -24,13 +27,15 @@ from typing import IO, TYPE_CHECKING, Any, Literal
 
 from tacbench.errors import TacbenchError
 from tacbench.runs.checkpoints import DISK_ERRNOS, write_durably
+from tacbench.runs.resume_checks import LogDigest, ResumePlan, check_log
 
 if TYPE_CHECKING:
+    from tacbench.interrupts import SecondSignal
     from tacbench.runs.tensorboard import TensorBoardLog
 
 EVAL_COLUMNS = ("step", "wall_s", "return_mean", "return_std", "length_mean")
 TRAIN_COLUMNS = ("step", "wall_s", "return", "length")
-State = Literal["running", "complete", "failed"]
+State = Literal["running", "interrupted", "complete", "failed"]
 # the start of the reason of a run that an unexpected error ended (RunWriter.crashed): unlike a
 # diverged run's, its last checkpoint is worth resuming
 CRASHED = "crashed"
@@ -63,57 +68,68 @@ def ensure_writable(folder: Path) -> None:
 
 
 def read_json(path: Path) -> dict[str, Any]:
-    """A JSON object from ``path``."""
-    data = json.loads(Path(path).read_text())
+    """A JSON object from ``path``; a TacbenchError that says what to do when the file is
+    unreadable, not JSON (empty, torn, edited) or not an object."""
+    try:
+        data = json.loads(Path(path).read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        reason = os.strerror(err.errno).lower() if isinstance(err, OSError) and err.errno else ""
+        what = reason or (
+            "empty"
+            if isinstance(err, json.JSONDecodeError) and not err.doc.strip()
+            else "not valid JSON"
+        )
+        raise TacbenchError(
+            f"{path} is {what}; restore it, or rerun with --force to start the run over."
+        ) from None
     if not isinstance(data, dict):
-        raise TacbenchError(f"{path} is not a JSON object; delete it or rerun with --force.")
+        raise TacbenchError(f"{path} is not a JSON object; restore it, or rerun with --force.")
     return data
 
 
 class CsvLog:
-    """An append-only CSV: one row per :meth:`write`, flushed at once (floats at full precision).
+    """An append-only CSV: one row per :meth:`write`, flushed at once (floats at full precision),
+    with a running count and SHA-256 of what it holds (:meth:`digest`, which a checkpoint
+    records).
 
-    ``keep_until`` reopens an existing file for resume: rows whose first column (the step)
-    exceeds it, and a torn last line, are dropped first (atomically). Without it the file is
-    started afresh with its header.
+    ``kept`` reopens an existing file for resume with exactly those bytes (a checked prefix:
+    :func:`tacbench.runs.resume_checks.check_log`), replacing the file atomically first if it
+    holds more. Without it the file is started afresh with its header.
     """
 
-    def __init__(self, path: Path, columns: Sequence[str], keep_until: int | None = None):
+    def __init__(self, path: Path, columns: Sequence[str], kept: bytes | None = None):
         self.path = Path(path)
         self.columns = tuple(columns)
-        if keep_until is not None and self.path.exists():
-            self._truncate(keep_until)
-            self._handle: IO[str] = self.path.open("a", newline="")
-        else:
-            self._handle = self.path.open("w", newline="")
-            csv.writer(self._handle, lineterminator="\n").writerow(self.columns)
-            self._handle.flush()
-        self._writer = csv.writer(self._handle, lineterminator="\n")
-
-    def _truncate(self, keep_until: int) -> None:
-        text = self.path.read_text()
-        lines = text.split("\n")
-        if not text.endswith("\n"):
-            lines = lines[:-1]  # a torn last line (crash mid-write) never counts
-        header, rows = ",".join(self.columns), [line for line in lines[1:] if line]
-        if lines[0] != header:
-            raise TacbenchError(
-                f"{self.path} has columns {lines[0]!r}, expected {header!r}; use --force."
-            )
-        kept = [row for row in rows if int(float(row.split(",", 1)[0])) <= keep_until]
-        payload = ("\n".join([header, *kept]) + "\n").encode()
-        write_durably(self.path, lambda handle: handle.write(payload))
+        if kept is None:
+            kept = (",".join(self.columns) + "\n").encode()
+            write_durably(self.path, lambda handle: handle.write(kept))
+        elif self.path.stat().st_size != len(kept):
+            write_durably(self.path, lambda handle: handle.write(kept))
+        self._sha = hashlib.sha256(kept)
+        self._size = len(kept)
+        self._rows = kept.count(b"\n") - 1
+        self._handle: IO[bytes] = self.path.open("ab")
 
     def write(self, row: Sequence[Any]) -> None:
         """Append one row (same order as the columns) and flush it to the OS."""
         if len(row) != len(self.columns):
             raise ValueError(f"{self.path.name}: {len(row)} values for {len(self.columns)} columns")
+        text = io.StringIO()
+        csv.writer(text, lineterminator="\n").writerow(row)
+        line = text.getvalue().encode()
         try:
-            self._writer.writerow(row)
+            self._handle.write(line)
             self._handle.flush()
         except OSError as err:  # a full disk: name the file (a torn row is cut on resume)
             err.filename = err.filename or str(self.path)
             raise
+        self._sha.update(line)
+        self._size += len(line)
+        self._rows += 1
+
+    def digest(self) -> LogDigest:
+        """What the file holds now (every row written is flushed)."""
+        return LogDigest(self._rows, self._size, self._sha.hexdigest())
 
     def close(self) -> None:
         """Close the file."""
@@ -148,24 +164,52 @@ class RunWriter:
         path.mkdir(parents=True, exist_ok=True)
         return path
 
-    def open(self, metadata: Mapping[str, Any] | None, resume_step: int | None) -> None:
-        """Start a fresh run (``metadata`` for config.json) or reopen one, cutting its CSVs back
-        to ``resume_step``."""
+    def _csvs(self) -> dict[str, tuple[str, ...]]:
+        """Every CSV of the run by name (``eval`` for ``eval.csv``), with its columns."""
+        return {
+            "eval": EVAL_COLUMNS,
+            "train": TRAIN_COLUMNS,
+            "losses": self.loss_columns,
+            **{name: tuple(columns) for name, columns in self.extra.items()},
+        }
+
+    def check_resume(self, step: int, recorded: Mapping[str, LogDigest] | None) -> ResumePlan:
+        """Check every CSV against the checkpoint at ``step`` (``recorded``: what its manifest
+        says each held, by file name; None for an older generation) and say what a resume
+        keeps, writing nothing: a TacbenchError if a CSV cannot continue
+        (:func:`tacbench.runs.resume_checks.check_log`)."""
+        plan = ResumePlan(step)
+        for name, columns in self._csvs().items():
+            file = f"{name}.csv"
+            digest = None if recorded is None else recorded.get(file)
+            if recorded is not None and digest is None:
+                raise TacbenchError(
+                    f"cannot resume: the checkpoint at step {step} of {self.directory} records "
+                    f"no {file}; rerun with --force to start the run over."
+                )
+            plan.kept[name], notes = check_log(self.directory / file, columns, step, digest)
+            plan.notes += notes
+        return plan
+
+    def open(self, metadata: Mapping[str, Any] | None, resume: ResumePlan | None) -> None:
+        """Start a fresh run (``metadata`` for config.json) or reopen one as ``resume`` (from
+        :meth:`check_resume`) says."""
         self.directory.mkdir(parents=True, exist_ok=True)
         if metadata is not None:
             atomic_write_json(self.directory / "config.json", metadata)
-        for name, columns in (
-            ("eval", EVAL_COLUMNS),
-            ("train", TRAIN_COLUMNS),
-            ("losses", self.loss_columns),
-            *self.extra.items(),
-        ):
-            self._logs[name] = CsvLog(self.directory / f"{name}.csv", columns, resume_step)
+        for name, columns in self._csvs().items():
+            kept = None if resume is None else resume.kept[name]
+            self._logs[name] = CsvLog(self.directory / f"{name}.csv", columns, kept)
+        step = None if resume is None else resume.step
         if self.tensorboard:
             from tacbench.runs.tensorboard import TensorBoardLog  # protobuf: only when used
 
-            self._board = TensorBoardLog(self.directory / "tensorboard", resume_step)
-        self.status("running", resume_step or 0)
+            self._board = TensorBoardLog(self.directory / "tensorboard", step)
+        self.status("running", step or 0)
+
+    def log_digests(self) -> dict[str, LogDigest]:
+        """What every CSV holds now, by file name: a checkpoint records it."""
+        return {log.path.name: log.digest() for log in self._logs.values()}
 
     def eval_row(
         self, step: int, wall_s: float, returns: Sequence[float], lengths: Sequence[float]
@@ -222,6 +266,16 @@ class RunWriter:
         reason = f"{CRASHED} at step {step}: {what}; --resume continues from the last checkpoint"
         with contextlib.suppress(OSError):
             self.status("failed", self._status_step, reason)
+
+    def stopped_at_once(self, step: int, stopped: SecondSignal) -> None:
+        """Record a second stop signal at ``step``: status.json ``interrupted`` at the step it
+        last recorded (the last checkpoint's, where ``--resume`` continues from)."""
+        reason = (
+            f"stopped at once by a second {stopped} at step {step}, before a checkpoint; "
+            f"resume with: {stopped.resume} (from step {self._status_step})"
+        )
+        with contextlib.suppress(OSError):
+            self.status("interrupted", self._status_step, reason)
 
     def close(self) -> None:
         """Close the CSVs and the event file."""

@@ -12,6 +12,7 @@ from typing import Any, Literal, Protocol, TypeVar
 
 from tacbench.config import RESULT_NEUTRAL_FIELDS
 from tacbench.errors import TacbenchError
+from tacbench.runs import checkpoints
 from tacbench.runs.files import CRASHED, ensure_writable, read_json
 from tacbench.runs.locks import writing
 
@@ -51,26 +52,41 @@ def plan_run(
 ) -> DirectoryPlan:
     """Decide how a new command treats ``directory``; refuse (TacbenchError) when it must not
     touch it. Fields in ``neutral`` may differ between the stored config and the new one."""
+    _resume_or_force(resume, force)
     config_path = directory / "config.json"
     if force or not config_path.exists():
         return DirectoryPlan(
             "start", "--force: starting over" if force and directory.exists() else ""
         )
-    differences = differing_fields(read_json(config_path).get("config", {}), config, neutral)
+    stored = read_json(config_path).get("config")
+    if not isinstance(stored, dict):
+        raise TacbenchError(
+            f"{config_path} holds no run config; restore it, or rerun with --force to start the "
+            "run over."
+        )
+    differences = differing_fields(stored, config, neutral)
     if differences:
         raise TacbenchError(
             f"{directory} holds a run with another config ({'; '.join(differences)}). "
             "Pass --force to replace it, or --out to write somewhere else."
         )
     status_path = directory / "status.json"
-    status = read_json(status_path) if status_path.exists() else {"state": "running", "step": 0}
+    status: dict[str, Any] = (
+        read_json(status_path) if status_path.exists() else {"state": "running", "step": 0}
+    )
     step = status.get("step", 0)
+    if not isinstance(step, int) or isinstance(step, bool) or step < 0:
+        raise TacbenchError(
+            f"{status_path} records the step {step!r}, not a step count; restore it, or rerun "
+            "with --force to start the run over."
+        )
     if status.get("state") == "complete":
         return DirectoryPlan("skip", f"already complete ({step} steps); --force retrains it")
     if status.get("state") == "failed":
         reason = str(status.get("reason", ""))
         crashed = reason.startswith(CRASHED)
         if crashed and resume:
+            _check_checkpoint(directory, step)
             return DirectoryPlan("resume", "resuming a crashed run from its last checkpoint")
         again = "--resume continues it, --force retrains it" if crashed else "--force retrains it"
         return DirectoryPlan("skip", f"failed at step {step}: {reason}; {again}")
@@ -79,7 +95,28 @@ def plan_run(
             f"{directory} holds an unfinished run (step {step}). Add --resume to continue it, "
             "or --force to start over."
         )
+    _check_checkpoint(directory, step)
     return DirectoryPlan("resume", "resuming from its last checkpoint")
+
+
+def _resume_or_force(resume: bool, force: bool) -> None:
+    if resume and force:
+        raise TacbenchError(
+            "--resume continues a run and --force deletes it to start over: pass one of them."
+        )
+
+
+def _check_checkpoint(directory: Path, step: int) -> None:
+    """Refuse to resume a run whose status.json records progress (``step``) that no checkpoint
+    holds: it would start over from step 0 under the rows already written."""
+    checkpoint = directory / "checkpoint"
+    if step and not checkpoints.has_generations(checkpoint):
+        what = "is a file" if checkpoint.is_file() else "holds no checkpoint"
+        raise TacbenchError(
+            f"cannot resume {directory}: status.json records step {step}, but {checkpoint} "
+            f"{what}; nothing was changed. Restore the checkpoint, or rerun with --force to "
+            "start the run over."
+        )
 
 
 @dataclass(frozen=True)
@@ -139,6 +176,7 @@ def planned_runs(
 ) -> Iterator[tuple[list[Outcome], list[tuple[Config, Path]]]]:
     """:func:`plan_runs`, holding the lock of every run directory (:func:`locks.writing`) from
     before the plan to the end of the block, so that no other process writes them meanwhile."""
+    _resume_or_force(resume, force)
     ensure_writable(Path(out))
     directories = [run_directory(out, c.algo, c.env, c.variant, c.seed) for c in configs]
     with writing(directories):

@@ -24,7 +24,7 @@ from typing import IO, Any
 
 from tacbench import envs, hardware, runs
 from tacbench.errors import TacbenchError
-from tacbench.interrupts import stop_signals
+from tacbench.interrupts import exit_status, stop_signals
 from tacbench.runs.checkpoints import DiskError, disk_errors
 from tacbench.sweep import EXECUTORS, GROUPS, cost, executors, plan, slurm, state, summary
 from tacbench.sweep.presets import Preset
@@ -107,9 +107,10 @@ class SweepResult:
 
     @property
     def exit_code(self) -> int:
-        """130 interrupted, 1 a run failed for good, else 0."""
+        """128 + the stop signal's number when interrupted (130 for Ctrl-C,
+        :func:`tacbench.interrupts.exit_status`), 1 a run failed for good, else 0."""
         if self.interrupted:
-            return 130
+            return exit_status()
         return 1 if self.summary["counts"]["given_up"] or self.summary["counts"]["failed"] else 0
 
 

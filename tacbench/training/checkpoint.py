@@ -22,6 +22,7 @@ from typing import Any
 import torch
 
 from tacbench.runs import checkpoints
+from tacbench.runs.resume_checks import LogDigest
 from tacbench.tac.buffer import ReplayBuffer
 
 REPLAY = "replay"
@@ -85,11 +86,13 @@ def write_checkpoint(
     member: int,
     since: tuple[int, int],
     chunks: list[Path],
+    logs: Mapping[str, LogDigest],
 ) -> list[Path]:
     """Write member ``member``'s generation at ``state.step``: the replay chunk since ``since``
     (transitions, rows added at the previous checkpoint), ``state-<step>.pt``, then the
-    manifest; returns the chunks the generation lists (``chunks``, the previous generation's,
-    plus the new one, less those the buffer has overwritten)."""
+    manifest, which records what the run's CSVs hold (``logs``); returns the chunks the
+    generation lists (``chunks``, the previous generation's, plus the new one, less those the
+    buffer has overwritten)."""
     step = state.step
     replay = checkpoint_dir / REPLAY
     replay.mkdir(parents=True, exist_ok=True)
@@ -105,5 +108,5 @@ def write_checkpoint(
     torch.save(state.to_dict(), data)
     path = state_file(checkpoint_dir, step)
     checkpoints.write_durably(path, lambda handle: handle.write(data.getbuffer()))
-    checkpoints.commit(checkpoint_dir, step, [path, *listed])
+    checkpoints.commit(checkpoint_dir, step, [path, *listed], logs)
     return listed

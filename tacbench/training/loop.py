@@ -17,7 +17,7 @@ import torch
 
 from tacbench import envs, runs
 from tacbench.config import RunConfig
-from tacbench.interrupts import StopCheck
+from tacbench.interrupts import SecondSignal, StopCheck, resume_command
 from tacbench.members import members_label
 from tacbench.progress import Progress
 from tacbench.runs import Outcome, checkpoints
@@ -101,13 +101,22 @@ class GroupTrainer:
         use (:func:`checkpoints.choose`: a damaged one is passed over, and said so)."""
         folders = [d / "checkpoint" for d in directories]
         step, self.resume_notes = checkpoints.choose(folders)
+        plans = (
+            [None] * len(folders)
+            if step is None
+            else [
+                writer.check_resume(step, checkpoints.recorded_logs(folder, step))
+                for writer, folder in zip(self.writers, folders, strict=True)
+            ]
+        )  # every member's CSVs are checked before anything is written
         if step is not None:
             for folder in folders:
                 checkpoints.discard_after(folder, step)
-        for writer, config in zip(self.writers, self.configs, strict=True):
+        self.resume_notes += [note for plan in plans if plan for note in plan.notes]
+        for writer, config, plan in zip(self.writers, self.configs, plans, strict=True):
             if self.resume_notes:
                 writer.note = f"resumed from step {step}: " + "; ".join(self.resume_notes)
-            writer.open(self._metadata(config) if step is None else None, step)
+            writer.open(self._metadata(config) if plan is None else None, plan)
         if step is None:
             for k, env in enumerate(self.envs):
                 self.obs[k] = env.reset(seed=self.env_seeds[k])[0]
@@ -169,6 +178,11 @@ class GroupTrainer:
                     return outcomes + self._finish("interrupted")
                 outcomes += self.advance()
             return outcomes + self._finish("complete")
+        except SecondSignal as stopped:
+            stopped.resume = resume_command(self.command)
+            for k in self.alive:
+                self.writers[k].stopped_at_once(self.step, stopped)
+            raise
         except Exception as err:
             for k in self.alive:
                 self.writers[k].crashed(self.step, err)
@@ -200,16 +214,14 @@ class GroupTrainer:
             env.close()
 
     def _finish(self, state: str) -> list[Outcome]:
-        """Mark every live member complete, or interrupted (status "running", how to resume)."""
+        """Mark every live member complete, or interrupted (with how to resume)."""
         reason = ""
         if state == "interrupted":
-            command = self.command or "train(..., resume=True)"
-            resume = command if "--resume" in command.split() else f"{command} --resume"
-            reason = f"interrupted at step {self.step}; resume with: {resume}"
+            reason = f"interrupted at step {self.step}; resume with: {resume_command(self.command)}"
         outcomes = []
         for k in self.alive:
             writer = self.writers[k]
-            writer.status("complete" if state == "complete" else "running", self.step, reason)
+            writer.status("complete" if state == "complete" else "interrupted", self.step, reason)
             outcomes.append(Outcome(self.seeds[k], writer.directory, state, self.step, reason))
         return outcomes
 
@@ -390,8 +402,15 @@ class GroupTrainer:
                 pbt=None if self.population is None else self.population.member_state(k),
             )
             since = (self.chunk_added, int(self.chunk_rows[k]))
+            writer = self.writers[k]
             self.replay_chunks[k] = write_checkpoint(
-                self.writers[k].checkpoint_dir, state, self.buffer, k, since, self.replay_chunks[k]
+                writer.checkpoint_dir,
+                state,
+                self.buffer,
+                k,
+                since,
+                self.replay_chunks[k],
+                writer.log_digests(),
             )
             self.writers[k].status("running", self.step)
         if self.step > self.chunk_added:  # the next chunk starts where this one ended

@@ -1,0 +1,65 @@
+"""Signals on the command line: SIGTERM and SIGHUP stop like Ctrl-C (checkpoint, the state
+``interrupted``, exit 128 + the signal's number), and a second signal stops at once with the
+same exit status and the resume command, the run resumable from its last checkpoint."""
+
+from __future__ import annotations
+
+import json
+import signal
+from pathlib import Path
+
+import pytest
+
+from tests.helpers import checkpoint_state, interrupt_cli, run_cli
+
+pytestmark = pytest.mark.smoke
+
+ARGS = ["run", "--env", "Hopper-v4", "--learning-starts", "1000", "--eval-episodes", "1"]
+
+
+def _status(out: Path) -> dict:
+    (run,) = (out / "runs").glob("tac/Hopper-v4/*/seed0")
+    return json.loads((run / "status.json").read_text())
+
+
+@pytest.mark.parametrize(
+    ("sig", "code"), [(signal.SIGTERM, 143), (signal.SIGHUP, 129)], ids=["SIGTERM", "SIGHUP"]
+)
+def test_a_signal_checkpoints_records_interrupted_and_exits_128_plus_its_number(
+    tmp_path: Path, sig: int, code: int
+) -> None:
+    args = [*ARGS, "--steps", "2000", "--eval-every", "500", "--out", str(tmp_path)]
+    exit_code, output = interrupt_cli(args, "step 1000/", signals=[sig])
+    assert exit_code == code, output
+    status = _status(tmp_path)
+    assert status["state"] == "interrupted" and 1000 <= status["step"] < 2000
+    assert status["reason"].startswith(f"interrupted at step {status['step']}; resume with:")
+    (run,) = (tmp_path / "runs").glob("tac/Hopper-v4/*/seed0")
+    assert checkpoint_state(run)["step"] == status["step"]
+
+
+@pytest.mark.parametrize(
+    ("sig", "code"), [(signal.SIGINT, 130), (signal.SIGTERM, 143)], ids=["SIGINT", "SIGTERM"]
+)
+def test_a_second_signal_stops_at_once_with_the_resume_command(
+    tmp_path: Path, sig: int, code: int
+) -> None:
+    args = [*ARGS, "--steps", "1500", "--eval-every", "500", "--out", str(tmp_path)]
+    args += ["--checkpoint-every", "100000"]  # the first signal's checkpoint is the only one
+    exit_code, output = interrupt_cli(
+        args,
+        "step 1000/",
+        signals=[sig, sig],
+        gap=1.0,
+        env={"TACBENCH_CHECKPOINT_PAUSE": "3"},  # the second signal lands in that checkpoint
+    )
+    assert exit_code == code, output
+    name = signal.Signals(sig).name
+    assert f"stopped at once by a second {name}" in output and "--resume" in output
+    assert "Traceback" not in output and "Aborted" not in output
+    status = _status(tmp_path)
+    assert (status["state"], status["step"]) == ("interrupted", 0)  # no checkpoint was made
+    assert "resume with:" in status["reason"] and "(from step 0)" in status["reason"]
+    resumed = run_cli([*args, "--resume"])
+    assert resumed.returncode == 0, resumed.stdout + resumed.stderr
+    assert _status(tmp_path)["state"] == "complete"
