@@ -5,11 +5,13 @@ same exit status and the resume command, the run resumable from its last checkpo
 from __future__ import annotations
 
 import json
+import os
 import signal
 from pathlib import Path
 
 import pytest
 
+from tacbench.interrupts import exit_status, stop_signals
 from tests.helpers import checkpoint_state, interrupt_cli, run_cli
 
 pytestmark = pytest.mark.smoke
@@ -22,9 +24,8 @@ def _status(out: Path) -> dict:
     return json.loads((run / "status.json").read_text())
 
 
-@pytest.mark.parametrize(
-    ("sig", "code"), [(signal.SIGTERM, 143), (signal.SIGHUP, 129)], ids=["SIGTERM", "SIGHUP"]
-)
+# Ctrl-C's first signal is tests/test_resume.py's; SIGTERM's takes the same path
+@pytest.mark.parametrize(("sig", "code"), [(signal.SIGHUP, 129)], ids=["SIGHUP"])
 def test_a_signal_checkpoints_records_interrupted_and_exits_128_plus_its_number(
     tmp_path: Path, sig: int, code: int
 ) -> None:
@@ -38,9 +39,8 @@ def test_a_signal_checkpoints_records_interrupted_and_exits_128_plus_its_number(
     assert checkpoint_state(run)["step"] == status["step"]
 
 
-@pytest.mark.parametrize(
-    ("sig", "code"), [(signal.SIGINT, 130), (signal.SIGTERM, 143)], ids=["SIGINT", "SIGTERM"]
-)
+# a second Ctrl-C takes the same path, with 130
+@pytest.mark.parametrize(("sig", "code"), [(signal.SIGTERM, 143)], ids=["SIGTERM"])
 def test_a_second_signal_stops_at_once_with_the_resume_command(
     tmp_path: Path, sig: int, code: int
 ) -> None:
@@ -63,3 +63,14 @@ def test_a_second_signal_stops_at_once_with_the_resume_command(
     resumed = run_cli([*args, "--resume"])
     assert resumed.returncode == 0, resumed.stdout + resumed.stderr
     assert _status(tmp_path)["state"] == "complete"
+
+
+@pytest.mark.unit
+def test_the_exit_status_is_128_plus_the_first_signal() -> None:
+    with stop_signals() as received:
+        os.kill(os.getpid(), signal.SIGTERM)
+    assert received == {"count": 1, "signal": signal.SIGTERM}
+    assert exit_status() == 143
+    with stop_signals():
+        pass
+    assert exit_status() == 130  # no signal: a stop asked for otherwise
