@@ -1,0 +1,276 @@
+"""Verdicts with the fewest runs: group-sequential comparisons with AdaStop, and the smallest
+difference a "not distinguishable" verdict could have detected (docs/sequential.md).
+
+AdaStop (Mathieu et al., arXiv 2306.10882; the ``adastop`` package) compares methods from
+their runs' scores in interims: each interim adds ``n`` runs of every method still in an
+undecided comparison, and a permutation test with a group-sequential boundary decides each
+comparison (``larger``, ``smaller``) or lets it continue, at most ``K`` interims, keeping the
+family-wise error rate of all the task's comparisons at ``alpha``. A comparison still open
+after the last interim is what the package calls ``equal``; here it reads "not
+distinguishable", since AdaStop (with its default ``beta = 0``) never accepts equality early.
+
+:func:`run_sequential` feeds a method's scores in seed order (the order a sweep would train
+them) and records each interim; :func:`replay_study` does that for a committed study, to say
+how many runs each verdict needed against the fixed design it ran. :func:`detectable_difference`
+estimates, by resampling the observed runs, the smallest difference a permutation test at the
+given level finds with the given power, so that "not distinguishable" reads as "no difference
+larger than X" (Colas et al. 2018).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from tacbench.errors import TacbenchError
+
+DEFAULT_ALPHA = 0.05  # the issue's family-wise error rate; AdaStop's own default is 0.01
+DEFAULT_B = 10_000  # AdaStop's default number of random permutations
+NOT_DISTINGUISHABLE = "not distinguishable"
+Pair = tuple[str, str]
+
+
+@dataclass(frozen=True)
+class Interim:
+    """What the comparator decided after one interim: the runs each method had given by then
+    and each comparison's state (``larger``/``smaller``: the first method's mean against the
+    second's; ``continue``; after the last interim, undecided ones are
+    :data:`NOT_DISTINGUISHABLE`)."""
+
+    number: int  # 1-based
+    runs: dict[str, int]
+    decisions: dict[Pair, str]
+
+
+@dataclass(frozen=True)
+class SequentialResult:
+    """Every interim of one task's comparisons, with what they cost."""
+
+    methods: tuple[str, ...]
+    comparisons: tuple[Pair, ...]
+    n: int
+    K: int
+    alpha: float
+    interims: tuple[Interim, ...]
+
+    @property
+    def decisions(self) -> dict[Pair, str]:
+        """Each comparison's final verdict."""
+        return self.interims[-1].decisions
+
+    def decided_at(self, pair: Pair) -> int | None:
+        """The interim at which ``pair`` was decided (None: not distinguishable)."""
+        for interim in self.interims:
+            if interim.decisions[pair] in ("larger", "smaller"):
+                return interim.number
+        return None
+
+    @property
+    def runs_spent(self) -> int:
+        """Runs the procedure trained, over every method."""
+        return sum(self.interims[-1].runs.values())
+
+    @property
+    def fixed_runs(self) -> int:
+        """Runs of the fixed design of ``n x K`` seeds per method."""
+        return self.n * self.K * len(self.methods)
+
+
+def _comparator_class() -> type:
+    """adastop's ``MultipleAgentsComparator`` with its two-sided test's null distribution
+    fixed.
+
+    adastop 0.1.3 (and its repository's head, da3a9d4) compares the statistic
+    ``|mean difference|`` with quantiles of the permutation distribution of the *signed*
+    difference (``max_mean_diffs`` in ``partial_compare``), so with equal group sizes, whose
+    permutation distribution is symmetric, every comparison is tested at level 2 alpha: with
+    n = 3, K = 1 and alpha = 0.1 it rejects when the observed labelling is one of the 2 largest
+    of 20 in absolute value, 4 labellings of 20 (0.2), and on synthetic equal distributions the
+    measured family-wise error is about 2 alpha (tests/test_sequential.py). The fix is the
+    paper's statistic: the comparator takes the maximum of the *absolute* permuted
+    differences. It keeps the signed sums it accumulates across interims and returns their
+    absolute values to ``partial_compare``, which is all that reads them there.
+    """
+    from adastop import MultipleAgentsComparator
+
+    class TwoSidedComparator(MultipleAgentsComparator):
+        def compute_mean_diffs(self, k: int, Z: list[np.ndarray]) -> dict[str, np.ndarray]:
+            signed = super().compute_mean_diffs(k, Z)
+            return {key: np.abs(np.asarray(values)) for key, values in signed.items()}
+
+    return TwoSidedComparator
+
+
+def check_design(n: int, K: int, alpha: float, methods: Sequence[str], control: str | None) -> None:
+    """Refuse (TacbenchError) what AdaStop cannot run: n or K below 1, alpha outside (0, 1),
+    one method, or a control that is not among the methods."""
+    if n < 1 or K < 1:
+        raise TacbenchError(f"n and K must be at least 1 (got n={n}, K={K}).")
+    if not 0.0 < alpha < 1.0:
+        raise TacbenchError(f"alpha must lie in (0, 1) (got {alpha!r}).")
+    if len(methods) < 2:
+        raise TacbenchError(f"a comparison needs at least two methods (got {list(methods)}).")
+    if control is not None and control not in methods:
+        raise TacbenchError(f"the control {control!r} is not one of the methods {list(methods)}.")
+
+
+def comparisons_for(methods: Sequence[str], control: str | None) -> list[Pair]:
+    """Each method against ``control``, or every pair (in the order of ``methods``)."""
+    if control is not None:
+        return [(m, control) for m in methods if m != control]
+    return [(a, b) for i, a in enumerate(methods) for b in methods[i + 1 :]]
+
+
+def run_sequential(
+    scores: Mapping[str, Sequence[float]],
+    n: int,
+    K: int,
+    alpha: float = DEFAULT_ALPHA,
+    control: str | None = None,
+    B: int = DEFAULT_B,
+    seed: int = 0,
+) -> SequentialResult:
+    """AdaStop's comparisons of the methods of ``scores`` (each method's scores in the order
+    its runs would be trained; at least ``n x K`` each), interim by interim, each interim
+    giving the comparator ``n`` more scores of every method still in an undecided comparison.
+    ``seed`` fixes the comparator's random permutations, so a replay reaches the same
+    decisions."""
+    methods = list(scores)
+    check_design(n, K, alpha, methods, control)
+    short = [m for m in methods if len(scores[m]) < n * K]
+    if short:
+        raise TacbenchError(
+            f"{', '.join(short)} {'has' if len(short) == 1 else 'have'} fewer than n x K = "
+            f"{n * K} scores; lower n or K."
+        )
+    pairs = comparisons_for(methods, control)
+    index = {m: i for i, m in enumerate(methods)}
+    comparator = _comparator_class()(
+        n=n,
+        K=K,
+        B=B,
+        comparisons=np.array([(index[a], index[b]) for a, b in pairs]),
+        alpha=alpha,
+        seed=seed,
+    )
+    keys = {str(np.array([index[a], index[b]])): (a, b) for a, b in pairs}
+    given = dict.fromkeys(methods, 0)
+    interims: list[Interim] = []
+    for k in range(K):
+        still_open = (
+            [keys[key] for key, state in comparator.decisions.items() if state == "continue"]
+            if interims
+            else pairs
+        )
+        for method in {m for pair in still_open for m in pair}:
+            given[method] = n * (k + 1)
+        values = {m: np.asarray(scores[m][: given[m]], dtype=np.float64) for m in methods}
+        comparator.partial_compare(values, verbose=False)
+        decisions = {keys[key]: state for key, state in comparator.decisions.items()}
+        if k == K - 1:
+            decisions = {
+                p: NOT_DISTINGUISHABLE if d == "equal" else d for p, d in decisions.items()
+            }
+        interims.append(Interim(k + 1, dict(given), decisions))
+        if comparator.is_finished:
+            break
+    return SequentialResult(tuple(methods), tuple(pairs), n, K, alpha, tuple(interims))
+
+
+def study_scores(results: Path) -> pd.DataFrame:
+    """One row per complete TAC run of a study folder: env, variant, q, seed and its final
+    return (the report's: the mean of its last 10 evaluations), in seed order."""
+    from tacbench.report.load import load_runs
+    from tacbench.report.tables import DEFAULT_LAST, run_scores
+
+    runset = load_runs(results, "eval")
+    table = runset.runs.join(run_scores(runset.data, DEFAULT_LAST), on="run")
+    table = table[(table["algo"] == "tac") & ~table["partial"]]
+    return table[["env", "variant", "q", "seed", "final"]].sort_values(["env", "q", "seed"])
+
+
+def replay_study(
+    results: Path, n: int, K: int, alpha: float = DEFAULT_ALPHA, control_q: float = 1.0
+) -> dict[str, SequentialResult]:
+    """For each task of the study at ``results``: its runs replayed in seed order through
+    :func:`run_sequential`, each q against ``control_q``."""
+    table = study_scores(results)
+    replays = {}
+    for env, runs in table.groupby("env", sort=True):
+        by_q = {f"q={q:g}": group["final"].tolist() for q, group in runs.groupby("q", sort=True)}
+        replays[str(env)] = run_sequential(by_q, n, K, alpha, control=f"q={control_q:g}")
+    return replays
+
+
+def replay_table(replays: Mapping[str, SequentialResult]) -> pd.DataFrame:
+    """One row per comparison: task, comparison, verdict, the interim it was decided at and
+    the runs the two methods had given by then."""
+    rows = []
+    for env, result in replays.items():
+        last = result.interims[-1]
+        for pair in result.comparisons:
+            at = result.decided_at(pair)
+            runs = (result.interims[at - 1] if at else last).runs
+            rows.append(
+                {
+                    "env": env,
+                    "comparison": f"{pair[0]} vs {pair[1]}",
+                    "verdict": result.decisions[pair],
+                    "decided_at_interim": at,
+                    "runs_of_the_pair": runs[pair[0]] + runs[pair[1]],
+                }
+            )
+    return pd.DataFrame(rows)
+
+
+def detectable_difference(
+    control: Sequence[float],
+    other: Sequence[float],
+    alpha: float = DEFAULT_ALPHA,
+    power: float = 0.8,
+    resamples: int = 400,
+    permutations: int = 400,
+    seed: int = 0,
+) -> float:
+    """The smallest difference of means that a two-sided permutation test of the mean
+    difference, at level ``alpha``, finds with probability ``power`` on samples of these
+    sizes, estimated by resampling the observed runs: each resample draws both groups with
+    replacement from the runs (``other`` centred on ``control``'s mean, then shifted by the
+    difference tried), so their spread is the observed one. Bisection over the difference with
+    common random numbers; an upper bound when the test cannot reach ``alpha`` at these sizes
+    (then ``inf``)."""
+    a = np.asarray(control, dtype=np.float64)
+    b = np.asarray(other, dtype=np.float64)
+    if len(a) < 2 or len(b) < 2:
+        raise TacbenchError("a detectable difference needs at least two runs per method.")
+    if 2.0 / math.comb(len(a) + len(b), len(a)) > alpha:
+        return math.inf  # no labelling of these sizes reaches the level
+    rng = np.random.default_rng(seed)
+    draws_a = a[rng.integers(0, len(a), (resamples, len(a)))]
+    draws_b = (b - b.mean() + a.mean())[rng.integers(0, len(b), (resamples, len(b)))]
+    pooled = len(a) + len(b)
+    order = np.argsort(rng.random((permutations, pooled)), axis=1)
+
+    def power_at(delta: float) -> float:
+        both = np.concatenate([draws_a, draws_b + delta], axis=1)  # (resamples, pooled)
+        observed = np.abs(both[:, len(a) :].mean(1) - both[:, : len(a)].mean(1))
+        shuffled = both[:, order]  # (resamples, permutations, pooled)
+        null = np.abs(shuffled[:, :, len(a) :].mean(2) - shuffled[:, :, : len(a)].mean(2))
+        p = (1 + (null >= observed[:, None]).sum(1)) / (permutations + 1)
+        return float((p <= alpha).mean())
+
+    spread = float(np.std(np.concatenate([a - a.mean(), b - b.mean()]), ddof=1)) or 1.0
+    low, high = 0.0, spread
+    while power_at(high) < power:
+        low, high = high, 2 * high
+        if high > 1e3 * spread:
+            return math.inf
+    for _ in range(20):
+        middle = (low + high) / 2
+        low, high = (middle, high) if power_at(middle) < power else (low, middle)
+    return high

@@ -1,0 +1,133 @@
+"""Sequential comparisons (tacbench/sequential.py): AdaStop's procedure keeps the family-wise
+error rate at alpha on equal synthetic distributions (once its two-sided test is fixed), finds
+large true differences, replays the committed paper-q-grid study deterministically, and the
+detectable difference has the power it states."""
+
+from __future__ import annotations
+
+import itertools
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tacbench import sequential as sq
+from tacbench.errors import TacbenchError
+
+pytestmark = pytest.mark.unit
+
+STUDY = Path(__file__).resolve().parents[1] / "results" / "studies" / "paper-q-grid-100k"
+
+
+def _null_rejections(comparator: type, repeats: int, alpha: float) -> float:
+    """The share of ``repeats`` synthetic grids of three equal normal methods (4 runs each,
+    two interims of two) in which any comparison with the control is rejected."""
+    rng = np.random.default_rng(1)
+    rejected = 0
+    for repeat in range(repeats):
+        scores = {m: rng.normal(0.0, 1.0, 4) for m in (0, 1, 2)}
+        c = comparator(n=2, K=2, B=10_000, comparisons=np.array([(1, 0), (2, 0)]), alpha=alpha)
+        c.rng = np.random.RandomState(repeat)
+        for k in (1, 2):
+            c.partial_compare({m: v[: 2 * k] for m, v in scores.items()}, verbose=False)
+        rejected += any(d in ("larger", "smaller") for d in c.decisions.values())
+    return rejected / repeats
+
+
+def test_the_fixed_comparator_keeps_the_family_wise_error_rate() -> None:
+    from adastop import MultipleAgentsComparator
+
+    alpha, repeats = 0.1, 300
+    mc_error = 3 * math.sqrt(alpha * (1 - alpha) / repeats)  # three standard errors
+    assert _null_rejections(sq._comparator_class(), repeats, alpha) <= alpha + mc_error
+    # the package's own comparator tests each comparison at about twice the level
+    assert _null_rejections(MultipleAgentsComparator, repeats, alpha) > alpha + mc_error
+
+
+def test_over_every_labelling_the_fixed_test_rejects_alpha_of_them() -> None:
+    from adastop import MultipleAgentsComparator
+
+    values = np.array([0.3, 1.1, 2.7, 3.2, 4.9, 6.4])
+
+    def rejected(comparator: type) -> int:
+        count = 0
+        for chosen in itertools.combinations(range(6), 3):
+            c = comparator(n=3, K=1, comparisons=np.array([(0, 1)]), alpha=0.1, seed=0)
+            scores = {"a": values[list(chosen)], "b": np.delete(values, list(chosen))}
+            c.partial_compare(scores, verbose=False)
+            count += c.decisions["[0 1]"] != "equal"
+        return count
+
+    assert rejected(sq._comparator_class()) == 2  # 2 of 20 labellings: alpha = 0.1
+    assert rejected(MultipleAgentsComparator) == 4  # the package's: 2 alpha
+
+
+def test_a_large_true_difference_is_found_and_its_sign_is_right() -> None:
+    rng = np.random.default_rng(2)
+    found = 0
+    for repeat in range(40):
+        scores = {"a": rng.normal(0.0, 1.0, 6), "b": rng.normal(3.0, 1.0, 6)}
+        result = sq.run_sequential(scores, n=3, K=2, alpha=0.05, control="a", seed=repeat)
+        found += result.decisions[("b", "a")] == "larger"
+    assert found >= 36  # a fixed test of 6 runs each has power above 0.99 at 3 standard deviations
+
+
+def test_an_early_decision_stops_spending_runs() -> None:
+    # 4 runs each per interim: 70 labellings, so the first interim can reach alpha / K
+    scores = {"a": [0.0, 0.1, 0.2, 0.3] * 2, "b": [9.0, 9.1, 9.2, 9.3] * 2}
+    result = sq.run_sequential(scores, n=4, K=2, alpha=0.1, control="a")
+    assert result.decided_at(("b", "a")) == 1
+    assert result.runs_spent == 8 and result.fixed_runs == 16
+    assert len(result.interims) == 1
+
+
+def test_the_replay_of_the_committed_study_is_deterministic_and_honest() -> None:
+    first = sq.replay_table(sq.replay_study(STUDY, n=5, K=1))
+    again = sq.replay_table(sq.replay_study(STUDY, n=5, K=1))
+    assert first.equals(again)
+    verdicts = dict(zip(first["env"] + " " + first["comparison"], first["verdict"], strict=True))
+    assert verdicts["HalfCheetah-v4 q=2 vs q=1"] == "smaller"  # the failure is decided
+    assert verdicts["HalfCheetah-v4 q=1.5 vs q=1"] == sq.NOT_DISTINGUISHABLE
+    # one run per method per interim cannot reach alpha = 0.05 two-sided (2 / 2^5 > 0.05)
+    sequential = sq.replay_table(sq.replay_study(STUDY, n=1, K=5))
+    assert set(sequential["verdict"]) == {sq.NOT_DISTINGUISHABLE}
+
+
+def test_the_detectable_difference_has_the_power_it_states() -> None:
+    rng = np.random.default_rng(3)
+    control, other = rng.normal(0.0, 1.0, 8), rng.normal(0.0, 1.0, 8)
+    delta = sq.detectable_difference(control, other, alpha=0.05, power=0.8, seed=4)
+    assert 0.5 < delta < 4.0
+    # fresh samples from the resampled runs, shifted by delta: about 80 % rejected
+    check = np.random.default_rng(5)
+    rejected, repeats, labellings = 0, 300, 300
+    for _ in range(repeats):
+        a = check.choice(control, 8)
+        b = check.choice(other - other.mean() + control.mean(), 8) + delta
+        both = np.concatenate([a, b])
+        observed = abs(b.mean() - a.mean())
+        null = [abs(np.diff([g.mean() for g in np.split(check.permutation(both), 2)])[0])]
+        null += [
+            abs(np.diff([g.mean() for g in np.split(check.permutation(both), 2)])[0])
+            for _ in range(labellings - 1)
+        ]
+        rejected += (1 + sum(n >= observed for n in null)) / (labellings + 1) <= 0.05
+    assert abs(rejected / repeats - 0.8) < 0.1
+    assert sq.detectable_difference([0.0, 1.0], [0.5, 0.7]) == math.inf  # 2 vs 2: p >= 1/3
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"n": 0, "K": 2}, "n and K must be at least 1"),
+        ({"n": 2, "K": 2, "alpha": 1.5}, "alpha must lie in"),
+        ({"n": 2, "K": 2, "control": "c"}, "the control 'c' is not one of"),
+        ({"n": 3, "K": 2}, "fewer than n x K = 6 scores"),
+    ],
+)
+def test_a_design_it_cannot_run_is_refused(kwargs: dict, message: str) -> None:
+    with pytest.raises(TacbenchError, match=message):
+        sq.run_sequential({"a": [1.0] * 4, "b": [2.0] * 4}, **kwargs)
+    with pytest.raises(TacbenchError, match="at least two methods"):
+        sq.run_sequential({"a": [1.0] * 4}, n=2, K=2)
