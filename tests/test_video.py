@@ -113,15 +113,15 @@ def test_a_video_streams_its_frames_so_five_episodes_peak_like_one(
     (outcome,) = train(tmp_path, tiny_configs("tac", "HalfCheetah-v4", total_steps=500))
     policy = video.load_policy(outcome.directory)
 
-    def peak(episodes: int) -> int:  # HalfCheetah never ends early: 61 frames an episode
+    def peak(episodes: int) -> int:  # HalfCheetah never ends early: 31 frames an episode
         tracemalloc.start()
-        frames = video.episode_frames(policy, episodes, width=96, height=72, max_steps=60)
+        frames = video.episode_frames(policy, episodes, width=96, height=72, max_steps=30)
         count = video.write_video(frames, tmp_path / f"{episodes}.mp4", fps=30)
         _, top = tracemalloc.get_traced_memory()
         tracemalloc.stop()
-        assert count == episodes * 61
+        assert count == episodes * 31
         return top
 
     one, five = peak(1), peak(5)
-    frame = 96 * 72 * 3  # bytes; five episodes held whole would be 305 frames, 6.3 MB
+    frame = 96 * 72 * 3  # bytes; five episodes held whole would be 155 frames, 3.2 MB
     assert five < one + 20 * frame, (one, five)
