@@ -20,8 +20,13 @@ RUNS = {
     "paper-q-grid-100k": 2 * 9 * 5,
     "paper-q-grid-100k-ant": 9 * 5,
     "paper-q-grid-100k-swimmer": 9 * 5,
-    "authors-versions-100k": 1 * 5 * 5,  # HalfCheetah, per version so far: 5 q x 5 seeds
+    # HalfCheetah, one folder per version of the authors' code: 5 q x 5 seeds
+    "authors-versions-100k/authors-2019-01-07b": 5 * 5,
+    "authors-versions-100k/authors-2019-01-11b": 5 * 5,
 }
+# runs recorded as failed (a non-finite loss), at the step they failed: in this version q = 3
+# and 5 overflow float32 at their first update
+FAILED = {"authors-versions-100k/authors-2019-01-11b": (2 * 5, 1_000)}
 
 
 def _tables(study: str) -> list[str]:
@@ -34,7 +39,10 @@ def test_the_study_holds_its_runs_complete(study: str) -> None:
     folder = STUDIES / study
     statuses = [json.loads(p.read_text()) for p in folder.glob("runs/tac/*/*/seed*/status.json")]
     assert len(statuses) == RUNS[study]
-    assert {(s["state"], s["step"]) for s in statuses} == {("complete", 100_000)}
+    failed, at = FAILED.get(study, (0, 0))
+    ends = [(s["state"], s["step"]) for s in statuses]
+    assert ends.count(("failed", at)) == failed
+    assert ends.count(("complete", 100_000)) == RUNS[study] - failed
     assert not list(folder.glob("runs/**/checkpoint"))  # CSV and JSON only
 
 
@@ -59,7 +67,7 @@ def regenerated(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     """Each study's report, made again with the CLI's defaults."""
     outs = {}
     for study in RUNS:
-        out = tmp_path_factory.mktemp(study)
+        out = tmp_path_factory.mktemp(study.replace("/", "-"))
         write_report(analyse(ReportOptions(results=STUDIES / study, out=out)))
         outs[study] = out
     return outs
