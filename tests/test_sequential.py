@@ -38,7 +38,7 @@ def _null_rejections(comparator: type, repeats: int, alpha: float) -> float:
 def test_the_fixed_comparator_keeps_the_family_wise_error_rate() -> None:
     from adastop import MultipleAgentsComparator
 
-    alpha, repeats = 0.1, 300
+    alpha, repeats = 0.1, 200
     mc_error = 3 * math.sqrt(alpha * (1 - alpha) / repeats)  # three standard errors
     assert _null_rejections(sq._comparator_class(), repeats, alpha) <= alpha + mc_error
     # the package's own comparator tests each comparison at about twice the level
@@ -101,7 +101,7 @@ def test_the_detectable_difference_has_the_power_it_states() -> None:
     assert 0.5 < delta < 4.0
     # fresh samples from the resampled runs, shifted by delta: about 80 % rejected
     check = np.random.default_rng(5)
-    rejected, repeats, labellings = 0, 300, 300
+    rejected, repeats, labellings = 0, 200, 200
     for _ in range(repeats):
         a = check.choice(control, 8)
         b = check.choice(other - other.mean() + control.mean(), 8) + delta
