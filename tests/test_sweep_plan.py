@@ -251,11 +251,18 @@ def test_reset_failed_and_stop_hook(tmp_path: Path) -> None:
     )
     worker.reset_failed(tmp_path)
     status = runs.read_json(tmp_path / "status.json")
+    # no checkpoint: the retry starts afresh, so the status says step 0 (a resume would refuse
+    # a step that no checkpoint holds)
     assert (status["state"], status["step"], status["reason"]) == (
         "running",
-        7,
+        0,
         "retrying after: nan",
     )
+    runs.atomic_write_json(tmp_path / "status.json", {"state": "failed", "step": 7, "reason": "x"})
+    (tmp_path / "checkpoint").mkdir()
+    (tmp_path / "checkpoint" / "manifest-000000000005.json").write_text("{}")
+    worker.reset_failed(tmp_path)
+    assert runs.read_json(tmp_path / "status.json")["step"] == 5  # where the retry resumes
     calls: list[int] = []
     hook = worker.StopHook(lambda step: calls.append(step) or step >= 5, every_s=3600)
     assert [hook(s) for s in range(10)] == [False] * 10  # asked once, at step 0

@@ -184,7 +184,15 @@ def recorded_logs(folder: Path, step: int) -> dict[str, LogDigest] | None:
 
 def has_generations(folder: Path) -> bool:
     """Whether ``folder`` holds any checkpoint generation (intact or not)."""
-    return folder.is_dir() and bool(_manifests(folder))
+    return newest_step(folder) is not None
+
+
+def newest_step(folder: Path) -> int | None:
+    """The step of the newest checkpoint generation under ``folder`` (intact or not; None:
+    none)."""
+    if not folder.is_dir():
+        return None
+    return max(_manifests(folder), default=None)
 
 
 def files_of(folder: Path, step: int) -> list[Path]:

@@ -29,6 +29,7 @@ from typing import TYPE_CHECKING, Any
 
 from tacbench import runs, trainers
 from tacbench.errors import TacbenchError
+from tacbench.runs import checkpoints
 from tacbench.runs.checkpoints import FULL_ERRNOS, DiskError
 from tacbench.sweep.plan import Unit
 
@@ -125,14 +126,17 @@ def _train(job: Job, stop: StopHook) -> list[Outcome]:
 
 
 def reset_failed(directory: Path) -> None:
-    """Set a failed run's status back to "running" so that its trainer resumes it from its last
-    checkpoint (or starts it afresh if it has none); the reason names the failure retried."""
+    """Set a failed run's status back to "running", at the step of its last checkpoint (0 when it
+    has none), so that its trainer resumes it from there (or starts it afresh); the reason names
+    the failure retried."""
     path = directory / "status.json"
     if not path.exists():
         return
     status = runs.read_json(path)
     if status.get("state") == "failed":
-        status.update(state="running", reason=f"retrying after: {status.get('reason', '')}")
+        resumes_at = checkpoints.newest_step(directory / "checkpoint") or 0
+        reason = f"retrying after: {status.get('reason', '')}"
+        status.update(state="running", step=resumes_at, reason=reason)
         status["updated"] = runs.now_iso()
         runs.atomic_write_json(path, status)
 
