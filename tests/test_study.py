@@ -23,6 +23,7 @@ RUNS = {
     # HalfCheetah, one folder per version of the authors' code: 5 q x 5 seeds
     "authors-versions-100k/authors-2019-01-07b": 5 * 5,
     "authors-versions-100k/authors-2019-01-11b": 5 * 5,
+    "authors-versions-100k/authors-2019-01-16c": 5 * 5,
 }
 # runs recorded as failed (a non-finite loss), at the step they failed: in this version q = 3
 # and 5 overflow float32 at their first update
