@@ -142,7 +142,7 @@ class _Run:
             self.step, self.wall_offset = 0, 0.0
         else:
             step = int(state["step"])
-            plan = self.writer.check_resume(step, checkpoints.recorded_logs(folder, step))
+            plan = self.writer.check_resume(step)
             checkpoints.discard_after(folder, step)  # only once the CSVs can continue
             notes += plan.notes
             if notes:
@@ -182,11 +182,8 @@ class _Run:
             actions, _ = self.model.predict(obs, deterministic=True)
             return np.asarray(actions, dtype=np.float64)
 
-        returns, lengths = envs.evaluate(
-            policy,
-            self.eval_envs,
-            envs.eval_seeds(self.config.seed, step, self.config.eval_episodes),
-        )
+        seeds = envs.eval_seeds(self.config.seed, step, self.config.eval_episodes)
+        [returns], [lengths] = envs.evaluate_members(policy, [self.eval_envs], [seeds])
         self.writer.eval_row(step, self.wall_s(), returns.tolist(), lengths.tolist())
         return float(returns.mean())
 

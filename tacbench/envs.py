@@ -242,20 +242,13 @@ def evaluate_members(
 def evaluate(
     policy: Policy, envs: Sequence[gym.Env[Any, Any]], seeds: Sequence[int]
 ) -> tuple[FloatArray, FloatArray]:
-    """One episode per seed, reset with it, on ``envs`` (reused in waves of ``len(envs)``
-    episodes when there are more seeds than envs), each wave's envs stepped in lockstep.
+    """One episode on each of ``envs``, reset with its seed, all stepped in lockstep (more
+    episodes than envs: :func:`evaluate_members`, in waves).
 
-    ``policy`` maps an ``(n, obs_dim)`` array (one row per env of the wave, finished ones
-    included) to ``(n, act_dim)`` actions in the env's units; it should be deterministic.
-    Returns the episode returns and lengths. The envs are evaluation-only instances: training
-    is unaffected.
+    ``policy`` maps an ``(n, obs_dim)`` array (one row per env, finished ones included) to
+    ``(n, act_dim)`` actions in the env's units; it should be deterministic. Returns the
+    episode returns and lengths. The envs are evaluation-only instances: training is unaffected.
     """
-    if len(seeds) > len(envs):
-        done = [
-            evaluate(policy, envs[: wave.stop - wave.start], seeds[wave])
-            for wave in waves(len(seeds), len(envs))
-        ]
-        return np.concatenate([r for r, _ in done]), np.concatenate([n for _, n in done])
     if len(envs) != len(seeds):
         raise ValueError("evaluate needs one seed per env")
     obs = np.stack(

@@ -83,7 +83,8 @@ def test_evaluation_reuses_its_pool_of_envs_in_waves() -> None:
 
     pool = [envs.make_env("Pendulum-v1") for _ in range(2)]
     one_each = [envs.make_env("Pendulum-v1") for _ in seeds]
-    waves, at_once = envs.evaluate(still, pool, seeds), envs.evaluate(still, one_each, seeds)
+    waves = envs.evaluate_members(still, [pool], [seeds])
+    at_once = envs.evaluate_members(still, [one_each], [seeds])
     np.testing.assert_array_equal(waves[0], at_once[0])
     np.testing.assert_array_equal(waves[1], at_once[1])
     assert envs.waves(25, 10) == [slice(0, 10), slice(10, 20), slice(20, 25)]

@@ -182,11 +182,6 @@ def recorded_logs(folder: Path, step: int) -> dict[str, LogDigest] | None:
     return None if logs is None else {name: LogDigest.from_dict(d) for name, d in logs.items()}
 
 
-def has_generations(folder: Path) -> bool:
-    """Whether ``folder`` holds any checkpoint generation (intact or not)."""
-    return newest_step(folder) is not None
-
-
 def newest_step(folder: Path) -> int | None:
     """The step of the newest checkpoint generation under ``folder`` (intact or not; None:
     none)."""

@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any, Literal
 
 from tacbench.errors import TacbenchError
-from tacbench.runs.checkpoints import DISK_ERRNOS, write_durably
+from tacbench.runs.checkpoints import DISK_ERRNOS, recorded_logs, write_durably
 from tacbench.runs.resume_checks import LogDigest, ResumePlan, check_log
 
 if TYPE_CHECKING:
@@ -100,10 +100,9 @@ class CsvLog:
     def __init__(self, path: Path, columns: Sequence[str], kept: bytes | None = None):
         self.path = Path(path)
         self.columns = tuple(columns)
-        if kept is None:
-            kept = (",".join(self.columns) + "\n").encode()
-            write_durably(self.path, lambda handle: handle.write(kept))
-        elif self.path.stat().st_size != len(kept):
+        fresh = kept is None
+        kept = (",".join(self.columns) + "\n").encode() if kept is None else kept
+        if fresh or self.path.stat().st_size != len(kept):
             write_durably(self.path, lambda handle: handle.write(kept))
         self._sha = hashlib.sha256(kept)
         self._size = len(kept)
@@ -173,11 +172,12 @@ class RunWriter:
             **{name: tuple(columns) for name, columns in self.extra.items()},
         }
 
-    def check_resume(self, step: int, recorded: Mapping[str, LogDigest] | None) -> ResumePlan:
-        """Check every CSV against the checkpoint at ``step`` (``recorded``: what its manifest
-        says each held, by file name; None for an older generation) and say what a resume
-        keeps, writing nothing: a TacbenchError if a CSV cannot continue
-        (:func:`tacbench.runs.resume_checks.check_log`)."""
+    def check_resume(self, step: int) -> ResumePlan:
+        """Check every CSV against the (intact) checkpoint generation at ``step``, whose
+        manifest records what each held (an older generation records nothing: then the rows up
+        to ``step`` are kept), and say what a resume keeps, writing nothing: a TacbenchError if
+        a CSV cannot continue (:func:`tacbench.runs.resume_checks.check_log`)."""
+        recorded = recorded_logs(self.directory / "checkpoint", step)
         plan = ResumePlan(step)
         for name, columns in self._csvs().items():
             file = f"{name}.csv"

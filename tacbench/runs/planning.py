@@ -110,7 +110,7 @@ def _check_checkpoint(directory: Path, step: int) -> None:
     """Refuse to resume a run whose status.json records progress (``step``) that no checkpoint
     holds: it would start over from step 0 under the rows already written."""
     checkpoint = directory / "checkpoint"
-    if step and not checkpoints.has_generations(checkpoint):
+    if step and checkpoints.newest_step(checkpoint) is None:
         what = "is a file" if checkpoint.is_file() else "holds no checkpoint"
         raise TacbenchError(
             f"cannot resume {directory}: status.json records step {step}, but {checkpoint} "

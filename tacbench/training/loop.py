@@ -104,10 +104,7 @@ class GroupTrainer:
         plans = (
             [None] * len(folders)
             if step is None
-            else [
-                writer.check_resume(step, checkpoints.recorded_logs(folder, step))
-                for writer, folder in zip(self.writers, folders, strict=True)
-            ]
+            else [writer.check_resume(step) for writer in self.writers]
         )  # every member's CSVs are checked before anything is written
         if step is not None:
             for folder in folders:
