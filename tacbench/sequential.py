@@ -23,6 +23,7 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -32,6 +33,8 @@ from tacbench.errors import TacbenchError
 DEFAULT_ALPHA = 0.05  # the issue's family-wise error rate; AdaStop's own default is 0.01
 DEFAULT_B = 10_000  # AdaStop's default number of random permutations
 NOT_DISTINGUISHABLE = "not distinguishable"
+DECIDED = ("larger", "smaller")
+RECORD_FILE = "sequential.json"  # in <out>/sweep/: what a sweep --until-decided decided
 Pair = tuple[str, str]
 
 
@@ -66,7 +69,7 @@ class SequentialResult:
     def decided_at(self, pair: Pair) -> int | None:
         """The interim at which ``pair`` was decided (None: not distinguishable)."""
         for interim in self.interims:
-            if interim.decisions[pair] in ("larger", "smaller"):
+            if interim.decisions[pair] in DECIDED:
                 return interim.number
         return None
 
@@ -126,6 +129,95 @@ def comparisons_for(methods: Sequence[str], control: str | None) -> list[Pair]:
     return [(a, b) for i, a in enumerate(methods) for b in methods[i + 1 :]]
 
 
+class SequentialComparison:
+    """One task's comparisons, fed interim by interim (what ``tacbench sweep --until-decided``
+    and :func:`run_sequential` do).
+
+    Before each interim, :meth:`runs_needed` says how many runs each method must have given
+    (``n`` more for every method still in an undecided comparison); :meth:`add` takes at least
+    that many scores per method, in the order the runs were trained, and decides. The
+    comparator is seeded by ``seed``, so adding the same scores again reaches the same
+    decisions: a sweep rebuilds it from the scores it recorded.
+    """
+
+    def __init__(
+        self,
+        methods: Sequence[str],
+        n: int,
+        K: int,
+        alpha: float = DEFAULT_ALPHA,
+        control: str | None = None,
+        B: int = DEFAULT_B,
+        seed: int = 0,
+    ) -> None:
+        check_design(n, K, alpha, methods, control)
+        self.methods = tuple(methods)
+        self.n, self.K, self.alpha = n, K, alpha
+        self.pairs = tuple(comparisons_for(methods, control))
+        index = {m: i for i, m in enumerate(methods)}
+        self._comparator = _comparator_class()(
+            n=n,
+            K=K,
+            B=B,
+            comparisons=np.array([(index[a], index[b]) for a, b in self.pairs]),
+            alpha=alpha,
+            seed=seed,
+        )
+        self._keys = {str(np.array([index[a], index[b]])): (a, b) for a, b in self.pairs}
+        self.interims: list[Interim] = []
+
+    @property
+    def finished(self) -> bool:
+        """Every comparison decided, or the last interim done."""
+        return len(self.interims) == self.K or (
+            bool(self.interims) and bool(self._comparator.is_finished)
+        )
+
+    def open_pairs(self) -> list[Pair]:
+        """The comparisons still undecided (all of them before the first interim)."""
+        if not self.interims:
+            return list(self.pairs)
+        return [p for p, d in self.interims[-1].decisions.items() if d == "continue"]
+
+    def runs_needed(self) -> dict[str, int]:
+        """The runs each method must have given for the next interim: ``n`` more than before
+        for a method in an undecided comparison, as many as before for the others."""
+        if self.finished:
+            raise TacbenchError("the comparisons are finished; no further interim is needed.")
+        given = dict(self.interims[-1].runs) if self.interims else dict.fromkeys(self.methods, 0)
+        k = len(self.interims) + 1
+        for method in {m for pair in self.open_pairs() for m in pair}:
+            given[method] = self.n * k
+        return given
+
+    def add(self, scores: Mapping[str, Sequence[float]]) -> Interim:
+        """Decide the next interim from the first :meth:`runs_needed` scores of each method."""
+        needed = self.runs_needed()
+        short = [m for m in self.methods if len(scores.get(m, ())) < needed[m]]
+        if short:
+            raise TacbenchError(
+                f"interim {len(self.interims) + 1} needs "
+                + ", ".join(f"{needed[m]} scores of {m}" for m in short)
+                + f" (got {', '.join(str(len(scores.get(m, ()))) for m in short)})."
+            )
+        values = {m: np.asarray(scores[m][: needed[m]], dtype=np.float64) for m in self.methods}
+        self._comparator.partial_compare(values, verbose=False)
+        decisions = {self._keys[key]: state for key, state in self._comparator.decisions.items()}
+        if len(self.interims) == self.K - 1:
+            decisions = {
+                p: NOT_DISTINGUISHABLE if d == "equal" else d for p, d in decisions.items()
+            }
+        interim = Interim(len(self.interims) + 1, needed, decisions)
+        self.interims.append(interim)
+        return interim
+
+    def result(self) -> SequentialResult:
+        """The interims so far, with what they cost."""
+        return SequentialResult(
+            self.methods, self.pairs, self.n, self.K, self.alpha, tuple(self.interims)
+        )
+
+
 def run_sequential(
     scores: Mapping[str, Sequence[float]],
     n: int,
@@ -136,50 +228,19 @@ def run_sequential(
     seed: int = 0,
 ) -> SequentialResult:
     """AdaStop's comparisons of the methods of ``scores`` (each method's scores in the order
-    its runs would be trained; at least ``n x K`` each), interim by interim, each interim
-    giving the comparator ``n`` more scores of every method still in an undecided comparison.
-    ``seed`` fixes the comparator's random permutations, so a replay reaches the same
-    decisions."""
-    methods = list(scores)
-    check_design(n, K, alpha, methods, control)
-    short = [m for m in methods if len(scores[m]) < n * K]
+    its runs would be trained; at least ``n x K`` each), interim by interim
+    (:class:`SequentialComparison`). ``seed`` fixes the comparator's random permutations, so a
+    replay reaches the same decisions."""
+    comparison = SequentialComparison(list(scores), n, K, alpha, control, B, seed)
+    short = [m for m in scores if len(scores[m]) < n * K]
     if short:
         raise TacbenchError(
             f"{', '.join(short)} {'has' if len(short) == 1 else 'have'} fewer than n x K = "
             f"{n * K} scores; lower n or K."
         )
-    pairs = comparisons_for(methods, control)
-    index = {m: i for i, m in enumerate(methods)}
-    comparator = _comparator_class()(
-        n=n,
-        K=K,
-        B=B,
-        comparisons=np.array([(index[a], index[b]) for a, b in pairs]),
-        alpha=alpha,
-        seed=seed,
-    )
-    keys = {str(np.array([index[a], index[b]])): (a, b) for a, b in pairs}
-    given = dict.fromkeys(methods, 0)
-    interims: list[Interim] = []
-    for k in range(K):
-        still_open = (
-            [keys[key] for key, state in comparator.decisions.items() if state == "continue"]
-            if interims
-            else pairs
-        )
-        for method in {m for pair in still_open for m in pair}:
-            given[method] = n * (k + 1)
-        values = {m: np.asarray(scores[m][: given[m]], dtype=np.float64) for m in methods}
-        comparator.partial_compare(values, verbose=False)
-        decisions = {keys[key]: state for key, state in comparator.decisions.items()}
-        if k == K - 1:
-            decisions = {
-                p: NOT_DISTINGUISHABLE if d == "equal" else d for p, d in decisions.items()
-            }
-        interims.append(Interim(k + 1, dict(given), decisions))
-        if comparator.is_finished:
-            break
-    return SequentialResult(tuple(methods), tuple(pairs), n, K, alpha, tuple(interims))
+    while not comparison.finished:
+        comparison.add(scores)
+    return comparison.result()
 
 
 def study_scores(results: Path) -> pd.DataFrame:
@@ -207,30 +268,93 @@ def replay_study(
     return replays
 
 
-def replay_table(replays: Mapping[str, SequentialResult]) -> pd.DataFrame:
-    """One row per comparison: task, comparison, verdict, the interim it was decided at and
-    the runs the two methods had given by then."""
+def decision_table(results: Mapping[str, SequentialResult]) -> pd.DataFrame:
+    """One row per task and comparison: ``env``, ``method``, ``against``, ``decision``, the
+    ``interim`` it was decided at (None: not distinguishable) and the ``runs`` its two methods
+    had given by then."""
     rows = []
-    for env, result in replays.items():
+    for env, result in results.items():
         last = result.interims[-1]
         for pair in result.comparisons:
             at = result.decided_at(pair)
-            runs = (result.interims[at - 1] if at else last).runs
+            given = (result.interims[at - 1] if at else last).runs
             rows.append(
                 {
                     "env": env,
-                    "comparison": f"{pair[0]} vs {pair[1]}",
-                    "verdict": result.decisions[pair],
-                    "decided_at_interim": at,
-                    "runs_of_the_pair": runs[pair[0]] + runs[pair[1]],
+                    "method": pair[0],
+                    "against": pair[1],
+                    "decision": result.decisions[pair],
+                    "interim": at,
+                    "runs": given[pair[0]] + given[pair[1]],
                 }
             )
-    return pd.DataFrame(rows)
+    columns = ["env", "method", "against", "decision", "interim", "runs"]
+    return pd.DataFrame(rows, columns=columns)
+
+
+def spending_table(results: Mapping[str, SequentialResult]) -> pd.DataFrame:
+    """One row per task: interims done, runs spent, and the runs of the fixed ``n x K`` design."""
+    rows = [
+        {
+            "env": env,
+            "interims": len(result.interims),
+            "runs": result.runs_spent,
+            "fixed_design_runs": result.fixed_runs,
+        }
+        for env, result in results.items()
+    ]
+    return pd.DataFrame(rows, columns=["env", "interims", "runs", "fixed_design_runs"])
+
+
+def decision_text(results: Mapping[str, SequentialResult]) -> str:
+    """Each task's decisions and the runs they cost, against the fixed design, as lines."""
+    lines = []
+    for env, result in results.items():
+        done = len(result.interims)
+        lines.append(
+            f"{env}: {done} interim{'s' if done > 1 else ''}, {result.runs_spent} runs (a fixed "
+            f"design of {result.n} x {result.K} seeds: {result.fixed_runs})"
+        )
+        for row in decision_table({env: result}).to_dict("records"):
+            decided = (
+                f" (interim {row['interim']:g}, {row['runs']} runs)"
+                if row["decision"] in DECIDED
+                else ""
+            )
+            lines.append(f"  {row['method']} vs {row['against']}: {row['decision']}{decided}")
+    return "\n".join(lines)
+
+
+def results_of_record(record: Mapping[str, Any]) -> dict[str, SequentialResult]:
+    """Each task's interims as a sequential sweep recorded them (``sweep/sequential.json``,
+    :mod:`tacbench.sweep.until_decided`)."""
+    design = record["design"]
+    results = {}
+    for env, interims in record["interims"].items():
+        if not interims:
+            continue
+        kept = tuple(
+            Interim(
+                interim["number"],
+                {m: len(seeds) for m, seeds in interim["seeds"].items()},
+                {(d["method"], d["against"]): d["decision"] for d in interim["decisions"]},
+            )
+            for interim in interims
+        )
+        results[env] = SequentialResult(
+            tuple(record["methods"][env]),
+            tuple(kept[0].decisions),
+            design["n"],
+            design["K"],
+            design["alpha"],
+            kept,
+        )
+    return results
 
 
 def detectable_difference(
-    control: Sequence[float],
-    other: Sequence[float],
+    control: Sequence[float] | np.ndarray,
+    other: Sequence[float] | np.ndarray,
     alpha: float = DEFAULT_ALPHA,
     power: float = 0.8,
     resamples: int = 400,

@@ -83,15 +83,16 @@ def test_an_early_decision_stops_spending_runs() -> None:
 
 
 def test_the_replay_of_the_committed_study_is_deterministic_and_honest() -> None:
-    first = sq.replay_table(sq.replay_study(STUDY, n=5, K=1))
-    again = sq.replay_table(sq.replay_study(STUDY, n=5, K=1))
+    first = sq.decision_table(sq.replay_study(STUDY, n=5, K=1))
+    again = sq.decision_table(sq.replay_study(STUDY, n=5, K=1))
     assert first.equals(again)
-    verdicts = dict(zip(first["env"] + " " + first["comparison"], first["verdict"], strict=True))
+    names = first["env"] + " " + first["method"] + " vs " + first["against"]
+    verdicts = dict(zip(names, first["decision"], strict=True))
     assert verdicts["HalfCheetah-v4 q=2 vs q=1"] == "smaller"  # the failure is decided
     assert verdicts["HalfCheetah-v4 q=1.5 vs q=1"] == sq.NOT_DISTINGUISHABLE
     # one run per method per interim cannot reach alpha = 0.05 two-sided (2 / 2^5 > 0.05)
-    sequential = sq.replay_table(sq.replay_study(STUDY, n=1, K=5))
-    assert set(sequential["verdict"]) == {sq.NOT_DISTINGUISHABLE}
+    sequential = sq.decision_table(sq.replay_study(STUDY, n=1, K=5))
+    assert set(sequential["decision"]) == {sq.NOT_DISTINGUISHABLE}
 
 
 def test_the_detectable_difference_has_the_power_it_states() -> None:

@@ -100,6 +100,38 @@ _OVERRIDES = cli_settings(RunConfig, sweep=True)
     show_default=True,
     help="Results folder: runs/... as `tacbench run`, and sweep/ (state, summary, logs).",
 )
+@click.option(
+    "--until-decided",
+    is_flag=True,
+    help="Train in interims until AdaStop decides each task's comparisons (docs/sequential.md).",
+)
+@click.option(
+    "--interim-runs",
+    type=int,
+    default=None,
+    help="--until-decided: runs each open method gets per interim (AdaStop's n).  [default: 5]",
+)
+@click.option(
+    "--interims",
+    type=int,
+    default=None,
+    help="--until-decided: at most this many interims (AdaStop's K).  [default: 2, so at most "
+    "the paper's ten seeds]",
+)
+@click.option(
+    "--fwer",
+    type=float,
+    default=None,
+    help="--until-decided: family-wise error rate of a task's comparisons (not TAC's --alpha).  "
+    "[default: 0.05]",
+)
+@click.option(
+    "--control",
+    default=None,
+    help="--until-decided: what each method is compared with: a method as the report names it "
+    "('SAC (TAC q=1)', 'TD3') or q=1.5, best-q (TAC at the paper's best q), or pairs (every "
+    "pair).  [default: best-q when the grid has baselines, else q=1]",
+)
 @click.option("--dry-run", is_flag=True, help="Print the plan and cost estimate; train nothing.")
 @click.pass_context
 def sweep(ctx: click.Context, preset: str, **p: Any) -> None:
@@ -139,6 +171,13 @@ def sweep(ctx: click.Context, preset: str, **p: Any) -> None:
         slurm_args=p["slurm_args"],
         time_limit=p["time_limit"],
     )
+    sequential = {k: p[k] for k in ("interim_runs", "interims", "fwer", "control")}
+    if p["until_decided"]:
+        _until_decided(ctx, grid, p["out"], options, sequential, p["dry_run"])
+        return
+    given = [f"--{k.replace('_', '-')}" for k, v in sequential.items() if v is not None]
+    if given:
+        raise click.UsageError(f"{', '.join(given)} only apply with --until-decided.")
     if p["dry_run"]:
         work, _ = driver.load_plan(grid, p["out"], options, save=False)
         click.echo(summary.describe_plan(work, options.worker_count(), options.group))
@@ -147,3 +186,30 @@ def sweep(ctx: click.Context, preset: str, **p: Any) -> None:
     click.echo(result.text)
     click.echo(f"wrote {p['out'] / 'sweep' / 'summary.json'} and summary.txt")
     ctx.exit(result.exit_code)
+
+
+def _until_decided(
+    ctx: click.Context,
+    grid: Any,
+    out: Path,
+    options: Any,
+    given: dict[str, Any],
+    dry_run: bool,
+) -> None:
+    """``--until-decided``: the sequential sweep, or its dry run."""
+    from tacbench.sweep import until_decided
+
+    defaults = until_decided.Design()
+    design = until_decided.Design(
+        n=given["interim_runs"] if given["interim_runs"] is not None else defaults.n,
+        K=given["interims"] if given["interims"] is not None else defaults.K,
+        alpha=given["fwer"] if given["fwer"] is not None else defaults.alpha,
+        control=given["control"] or "",
+    )
+    if dry_run:
+        click.echo(until_decided.describe_design(grid, out, options, design))
+        return
+    outcome = until_decided.run_until_decided(grid, out, options, design)
+    click.echo(outcome.text)
+    click.echo(f"wrote {out / 'sweep' / 'sequential.json'}, summary.json and summary.txt")
+    ctx.exit(outcome.exit_code)

@@ -46,6 +46,14 @@ from tacbench.report.tables import (
     run_scores,
     summary_table,
 )
+from tacbench.runs import read_json
+from tacbench.sequential import (
+    RECORD_FILE,
+    SequentialResult,
+    decision_table,
+    results_of_record,
+    spending_table,
+)
 
 FORMATS: tuple[str, ...] = ("png", "svg", "pdf")
 DEFAULT_GRID_POINTS = 200
@@ -103,6 +111,8 @@ class Report:
     methods: list[str]
     qs: dict[str, float]
     trajectories: pd.DataFrame  # TAC q=auto: each member's q over training
+    sequential: pd.DataFrame  # sweep --until-decided: each comparison's decision (or empty)
+    spending: pd.DataFrame  # ... and each task's runs against the fixed design
     figures: dict[str, Figure] = field(default_factory=dict)
 
     @property
@@ -142,6 +152,12 @@ def _in_order(frame: pd.DataFrame, envs: list[str], methods: list[str]) -> pd.Da
     ).reset_index(drop=True)
 
 
+def _sequential_results(results: Path) -> dict[str, SequentialResult]:
+    """What ``<results>/sweep/sequential.json`` recorded (nothing without one)."""
+    path = results / "sweep" / RECORD_FILE
+    return results_of_record(read_json(path)) if path.exists() else {}
+
+
 def analyse(options: ReportOptions) -> Report:
     """Load the runs under ``options.results`` and compute every table, statistic and figure."""
     metric = cast(Metric, options.metric)
@@ -170,6 +186,7 @@ def analyse(options: ReportOptions) -> Report:
     q_methods += [m for m in methods if m.startswith(Q_AUTO_LABEL)]
     improvement = improvement_over_q1(independent, [*q_methods, BEST_Q_LABEL], options.reps, rng)
     envs = sorted((str(e) for e in runs["env"].unique()), key=task_sort_key)
+    recorded = _sequential_results(options.results)
     methods = [m for m in methods if m in set(extended["method"])]
     report = Report(
         options=options,
@@ -191,6 +208,8 @@ def analyse(options: ReportOptions) -> Report:
         methods=methods,
         qs=qs,
         trajectories=q_trajectories(runs, runset.root),
+        sequential=decision_table(recorded),
+        spending=spending_table(recorded),
     )
     report.figures = make_figures(report)
     return report

@@ -273,6 +273,19 @@ def _read_run(run_dir: Path, metric: Metric) -> tuple[dict[str, Any], tuple[np.n
     return row, series
 
 
+def final_return(run_dir: Path, last: int) -> float:
+    """A complete run's final return as the report computes it: the mean of its last ``last``
+    evaluation returns (``eval.csv``). TacbenchError, with the reason, for a run that is not
+    complete or cannot be read."""
+    try:
+        row, (_, value, _) = _read_run(run_dir, "eval")
+    except _Unreadable as err:
+        raise TacbenchError(f"{run_dir}: {err}") from None
+    if row["partial"]:
+        raise TacbenchError(f"{run_dir} is not complete (step {row['step_reached']:g}).")
+    return float(np.mean(value[-last:]))
+
+
 def load_runs(results: Path | str, metric: Metric = "eval") -> RunSet:
     """Load every run directory under ``results`` (see :func:`runs_root`) for one metric.
 

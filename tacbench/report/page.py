@@ -12,6 +12,7 @@ from tacbench.bootstrap import CONFIDENCE
 from tacbench.report.build import Report
 from tacbench.report.render import Bullets, Code, Image, Section, Table, Text
 from tacbench.report.stats import ALL_TASKS
+from tacbench.sequential import NOT_DISTINGUISHABLE
 
 TITLE = "tacbench report"
 
@@ -140,8 +141,19 @@ def _improvement_display(report: Report) -> pd.DataFrame:
             "P(method > q = 1) [95 % CI]": [
                 _ci(p, lo, hi) for p, lo, hi in zip(i["p"], i["low"], i["high"], strict=True)
             ],
+            "verdict": i["verdict"],
+            "mean difference": [_num(v) for v in i["difference"]],
+            "detectable (80 % power)": [
+                _detectable(v, d) for v, d in zip(i["detectable"], i["verdict"], strict=True)
+            ],
         }
     )
+
+
+def _detectable(value: float, verdict: str) -> str:
+    if verdict != NOT_DISTINGUISHABLE:
+        return ""
+    return "beyond these run counts" if math.isinf(value) else _num(value)
 
 
 def _how_to_read(report: Report) -> list[str]:
@@ -170,7 +182,13 @@ def _how_to_read(report: Report) -> list[str]:
         "resampled within each task), computed with rliable's estimators.",
         "P(method > q = 1) is the chance that a random run of the method beats a random run of "
         "TAC q = 1 with the same alpha on the same task (0.5 = no difference); an interval "
-        "that excludes 0.5 is evidence of a difference.",
+        "that excludes 0.5 is evidence of a difference (verdict larger or smaller; each "
+        "comparison on its own, not corrected for the table's many comparisons, unlike the "
+        "family-wise sequential decisions), else the "
+        "verdict is 'not distinguishable' and 'detectable (80 % power)' says how large a "
+        "difference of mean final returns these run counts would have found: the smallest one a "
+        "two-sided permutation test at 5 % finds in 80 % of resamples of the observed runs "
+        "(docs/sequential.md), so the verdict reads 'no difference larger than that'.",
         "Performance profiles: the fraction of runs whose normalised final score exceeds tau; "
         "a curve above another is better everywhere.",
         *(
@@ -265,6 +283,42 @@ def _runs_section(report: Report) -> list[Table | Text]:
     return blocks
 
 
+def _sequential_section(report: Report) -> list[Section]:
+    """The decisions of a sequential sweep (``sweep --until-decided``), where one ran here."""
+    if report.sequential.empty:
+        return []
+    d = report.sequential
+    decisions = pd.DataFrame(
+        {
+            "task": d["env"],
+            "method": d["method"],
+            "against": d["against"],
+            "decision": d["decision"],
+            "decided at interim": ["" if pd.isna(v) else f"{v:g}" for v in d["interim"]],
+            "runs of the pair": d["runs"],
+        }
+    )
+    spent = report.spending.rename(
+        columns={"env": "task", "runs": "runs spent", "fixed_design_runs": "fixed design"}
+    )
+    return [
+        Section(
+            "Sequential decisions",
+            [
+                Text(
+                    "`tacbench sweep --until-decided` trained these runs in interims and "
+                    "AdaStop decided each comparison from the runs' final returns, the "
+                    "family-wise error rate shared by a task's comparisons "
+                    "(`sweep/sequential.json`, docs/sequential.md). 'not distinguishable': "
+                    "still open after the last interim."
+                ),
+                Table(decisions, "Decisions per task"),
+                Table(spent, "Runs spent, against the fixed design of n x K seeds per method"),
+            ],
+        )
+    ]
+
+
 def sections(report: Report) -> list[Section]:
     """The whole page, in order."""
     anchors = report.anchors.assign(
@@ -321,6 +375,7 @@ def sections(report: Report) -> list[Section]:
                 Image("profiles", "Score distributions with 95 % bands."),
             ],
         ),
+        *_sequential_section(report),
         Section("Runs", _runs_section(report)),
         Section("Provenance", _provenance(report)),
     ]

@@ -23,6 +23,7 @@ import pandas as pd
 from rliable import metrics
 
 from tacbench.bootstrap import interval, scalar_interval
+from tacbench.sequential import NOT_DISTINGUISHABLE, detectable_difference
 
 DEFAULT_REPS = 2000
 """Bootstrap replications. With 2,000 the Monte-Carlo standard deviation of each interval endpoint
@@ -31,6 +32,20 @@ at least 1,000 for percentile intervals, and rliable uses 2,000 for performance 
 
 ALL_TASKS = "all tasks"
 """The ``env`` value of rows aggregated over tasks."""
+IMPROVEMENT_COLUMNS = [
+    "method",
+    "env",
+    "tasks",
+    "p",
+    "low",
+    "high",
+    "verdict",
+    "difference",
+    "detectable",
+]
+"""The improvement table: P(method > q = 1) [low, high], its verdict, and per task the
+difference of mean final returns and, where not distinguishable, the smallest difference these
+run counts detect with 80 % power (two-sided permutation test at 5 %)."""
 Estimate = tuple[float, float, float]
 """(point estimate, lower 95 % bound, upper 95 % bound)."""
 
@@ -186,7 +201,7 @@ def improvement_over_q1(
 
     Each TAC method is compared, task by task, with the q = 1 runs that share its alpha and its
     alpha mode (fixed, or learned: --alpha auto); tasks without such runs are left out.
-    ``env`` is ``"all tasks"`` on the aggregate rows.
+    ``env`` is ``"all tasks"`` on the aggregate rows. Columns: :data:`IMPROVEMENT_COLUMNS`.
     """
     rows = []
     for method in methods:
@@ -203,8 +218,19 @@ def improvement_over_q1(
             envs.append(env)
         for env, x, y in zip(envs, xs, ys, strict=True):
             p, low, high = probability_of_improvement([x], [y], reps, rng)
+            verdict = improvement_verdict(low, high)
             rows.append(
-                {"method": method, "env": env, "tasks": 1, "p": p, "low": low, "high": high}
+                {
+                    "method": method,
+                    "env": env,
+                    "tasks": 1,
+                    "p": p,
+                    "low": low,
+                    "high": high,
+                    "verdict": verdict,
+                    "difference": float(np.mean(x) - np.mean(y)),
+                    "detectable": _detectable(y, x) if verdict == NOT_DISTINGUISHABLE else np.nan,
+                }
             )
         if len(xs) > 1:
             p, low, high = probability_of_improvement(xs, ys, reps, rng)
@@ -216,9 +242,30 @@ def improvement_over_q1(
                     "p": p,
                     "low": low,
                     "high": high,
+                    "verdict": improvement_verdict(low, high),
+                    "difference": np.nan,
+                    "detectable": np.nan,
                 }
             )
-    return pd.DataFrame(rows, columns=["method", "env", "tasks", "p", "low", "high"])
+    return pd.DataFrame(rows, columns=IMPROVEMENT_COLUMNS)
+
+
+def improvement_verdict(low: float, high: float) -> str:
+    """``larger`` or ``smaller`` where the 95 % interval of P(X > Y) excludes 0.5, else
+    :data:`~tacbench.sequential.NOT_DISTINGUISHABLE`."""
+    if low > 0.5:
+        return "larger"
+    if high < 0.5:
+        return "smaller"
+    return NOT_DISTINGUISHABLE
+
+
+def _detectable(reference: np.ndarray, runs: np.ndarray) -> float:
+    """The smallest difference of mean final returns these run counts detect with 80 % power
+    (:func:`tacbench.sequential.detectable_difference`); NaN below two runs a side."""
+    if min(len(reference), len(runs)) < 2:
+        return np.nan
+    return detectable_difference(reference, runs)
 
 
 def profile_table(

@@ -41,6 +41,11 @@ def _tables(report: Report) -> dict[str, pd.DataFrame]:
         "improvement": report.improvement,
         "profiles": report.profiles,
         "q_ranges": report.q_ranges,
+        **(
+            {"sequential_decisions": report.sequential, "sequential_spending": report.spending}
+            if not report.sequential.empty
+            else {}
+        ),
     }
 
 

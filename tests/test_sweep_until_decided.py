@@ -1,0 +1,204 @@
+"""``tacbench sweep --until-decided``: interims, decisions, what they cost and resuming.
+
+Most tests train nothing: ``train`` writes each run of an interim's grid as a complete run
+directory whose final return is a known function of q and seed, so the decisions are known.
+One test trains the smoke grid for real through the CLI, the local executor and the report.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import pytest
+from click.testing import CliRunner
+
+from tacbench import runs
+from tacbench.cli import cli
+from tacbench.errors import TacbenchError
+from tacbench.sweep import driver, plan, until_decided
+from tacbench.sweep.presets import Narrowing, Preset, get_preset, narrow
+from tacbench.sweep.until_decided import Design, run_until_decided
+
+pytestmark = pytest.mark.unit
+
+HOPPER = narrow(get_preset("paper-q-grid"), Narrowing(tasks=("Hopper",), q=(1.0, 2.0, 5.0)))
+
+
+def level(q: float, seed: int) -> float:
+    """The fake final return: q = 5 far below q = 1 and 2, which are alike."""
+    return (100.0 if q == 5.0 else 1000.0) + (seed * 7919 % 97)
+
+
+class FakeTrain:
+    """Writes every run of the grid that is not complete as complete, with eval returns of
+    ``level(q, seed)``; ``stop_after`` runs written, it stops as an interrupted sweep would."""
+
+    def __init__(self, stop_after: int | None = None) -> None:
+        self.stop_after = stop_after
+        self.trained: list[str] = []
+
+    def __call__(
+        self, grid: Preset, out: Path, options: driver.Options, stream: Any
+    ) -> driver.SweepResult:
+        for run in plan.build_runs(grid):
+            if plan.read_status(out, run).state == "complete":
+                continue
+            if self.stop_after is not None and len(self.trained) >= self.stop_after:
+                counts = {"given_up": 0, "failed": 0}
+                return driver.SweepResult({"counts": counts}, "stopped", interrupted=True)
+            _write_complete(out, run, level(run.config.q, run.config.seed))
+            self.trained.append(run.key)
+        return driver.SweepResult({"counts": {"given_up": 0, "failed": 0}}, "done", False)
+
+
+def _write_complete(out: Path, run: plan.Run, value: float) -> None:
+    c = run.config
+    directory = out / run.key
+    directory.mkdir(parents=True)
+    identity = {"algo": c.algo, "env": c.env, "variant": c.variant, "seed": c.seed, "q": c.q}
+    config = {**identity, "alpha": 0.2, "total_steps": c.total_steps, "config": c.to_dict()}
+    runs.atomic_write_json(directory / "config.json", config)
+    runs.atomic_write_json(directory / "status.json", {"state": "complete", "step": c.total_steps})
+    steps = range(c.total_steps - 9, c.total_steps + 1)
+    rows = [f"{step},1.0,{value!r},0.0,1000" for step in steps]
+    header = "step,wall_s,return_mean,return_std,length_mean"
+    (directory / "eval.csv").write_text("\n".join([header, *rows]) + "\n")
+
+
+def test_seeds_are_the_presets_then_further_ones_at_its_spacing() -> None:
+    assert until_decided.seed_order((0, 10), 4) == (0, 10, 20, 30)
+    assert until_decided.seed_order(tuple(range(0, 100, 10)), 12)[-3:] == (90, 100, 110)
+    assert until_decided.seed_order((0, 10, 20), 2) == (0, 10)
+
+
+def test_methods_are_labelled_as_the_report_labels_them_and_the_control_is_resolved() -> None:
+    tasks = until_decided.methods_of(HOPPER)
+    assert [m.label for m in tasks["Hopper-v4"]] == ["SAC (TAC q=1)", "TAC q=2", "TAC q=5"]
+    methods = tasks["Hopper-v4"]
+    assert until_decided.default_control(HOPPER) == "SAC (TAC q=1)"
+    assert until_decided.control_of(Design(control="q=2"), "Hopper-v4", methods) == "TAC q=2"
+    assert until_decided.control_of(Design(control="pairs"), "Hopper-v4", methods) is None
+    with pytest.raises(TacbenchError, match=r"choose one of SAC .*TAC q=5, best-q or pairs"):
+        until_decided.control_of(Design(control="TD3"), "Hopper-v4", methods)
+    comparison = narrow(get_preset("paper-comparison"), Narrowing(tasks=("HalfCheetah",)))
+    assert until_decided.default_control(comparison) == "best-q"
+    cheetah = until_decided.methods_of(comparison)["HalfCheetah-v4"]
+    labels = [m.label for m in cheetah]
+    assert labels == ["TAC q=1.5", "SAC (TAC q=1)", "DDPG", "TD3", "PPO", "TRPO"]
+    best = until_decided.control_of(Design(control="best-q"), "HalfCheetah-v4", cheetah)
+    assert best == "TAC q=1.5"
+    assert until_decided.control_of(Design(control="td3"), "HalfCheetah-v4", cheetah) == "TD3"
+    with pytest.raises(TacbenchError, match="--control q=x: HalfCheetah-v4 has no such method"):
+        until_decided.control_of(Design(control="q=x"), "HalfCheetah-v4", cheetah)
+
+
+def test_bad_designs_are_refused_with_what_to_change(tmp_path: Path) -> None:
+    with pytest.raises(TacbenchError, match="--interim-runs and --interims"):
+        Design(n=0)
+    with pytest.raises(TacbenchError, match="--fwer"):
+        Design(alpha=1.5)
+    never = Design(n=2, K=2, alpha=0.05)
+    with pytest.raises(TacbenchError, match=r"can ever be decided.*--interim-runs 3 can"):
+        run_until_decided(HOPPER, tmp_path, driver.Options(), never, train=FakeTrain())
+    assert not (tmp_path / "runs").exists()
+
+
+def test_a_decided_comparison_stops_spending_runs(tmp_path: Path) -> None:
+    train = FakeTrain()
+    outcome = run_until_decided(HOPPER, tmp_path, driver.Options(), Design(n=5, K=2), train=train)
+    result = outcome.results["Hopper-v4"]
+    assert result.decisions == {
+        ("TAC q=2", "SAC (TAC q=1)"): "not distinguishable",
+        ("TAC q=5", "SAC (TAC q=1)"): "smaller",
+    }
+    assert result.decided_at(("TAC q=5", "SAC (TAC q=1)")) == 1
+    assert result.runs_spent == 5 + 10 + 10 < result.fixed_runs == 30
+    q5 = sorted(key for key in train.trained if "/q5-" in key)
+    assert [key.rsplit("seed", 1)[1] for key in q5] == ["0", "10", "20", "30", "40"]
+    record = json.loads((tmp_path / "sweep" / "sequential.json").read_text())
+    assert record["design"]["control"] == "SAC (TAC q=1)"
+    second = record["interims"]["Hopper-v4"][1]
+    assert second["seeds"]["TAC q=5"] == [0, 10, 20, 30, 40]
+    assert second["scores"]["TAC q=2"] == [level(2.0, s) for s in range(0, 100, 10)]
+    summary = json.loads((tmp_path / "sweep" / "summary.json").read_text())
+    assert summary["counts"]["complete"] == 25
+    rows = {r["method"]: r for r in summary["sequential"]}
+    assert rows["TAC q=5"] == {
+        "env": "Hopper-v4",
+        "method": "TAC q=5",
+        "against": "SAC (TAC q=1)",
+        "decision": "smaller",
+        "interim": 1,
+        "runs": 10,
+    }
+    assert "25 runs (a fixed design of 5 x 2 seeds: 30)" in outcome.text
+
+
+def test_a_sweep_stopped_mid_interim_continues_to_the_same_decisions(tmp_path: Path) -> None:
+    whole = run_until_decided(
+        HOPPER, tmp_path / "a", driver.Options(), Design(n=5, K=2), train=FakeTrain()
+    )
+    stopped = FakeTrain(stop_after=17)  # interim 1's 15 runs and 2 of interim 2's 10
+    first = run_until_decided(
+        HOPPER, tmp_path / "b", driver.Options(), Design(n=5, K=2), train=stopped
+    )
+    assert first.exit_code == 130 and "rerun the same command" in first.text
+    again = FakeTrain()
+    second = run_until_decided(
+        HOPPER, tmp_path / "b", driver.Options(), Design(n=5, K=2), train=again
+    )
+    assert len(again.trained) == 8  # only what interim 2 still lacked
+    assert second.results["Hopper-v4"] == whole.results["Hopper-v4"]
+    assert second.exit_code == 0
+
+
+def test_a_record_of_another_design_or_an_edited_decision_is_refused(tmp_path: Path) -> None:
+    run_until_decided(HOPPER, tmp_path, driver.Options(), Design(n=5, K=2), train=FakeTrain())
+    with pytest.raises(TacbenchError, match=r"another sequential design.*another --out"):
+        run_until_decided(HOPPER, tmp_path, driver.Options(), Design(n=5, K=3))
+    path = tmp_path / "sweep" / "sequential.json"
+    record = json.loads(path.read_text())
+    record["interims"]["Hopper-v4"][0]["decisions"][1]["decision"] = "continue"
+    path.write_text(json.dumps(record))
+    with pytest.raises(TacbenchError, match=r"replays to .*not the recorded"):
+        run_until_decided(HOPPER, tmp_path, driver.Options(), Design(n=5, K=2))
+
+
+def test_the_dry_run_states_the_most_it_can_cost(tmp_path: Path) -> None:
+    text = until_decided.describe_design(HOPPER, tmp_path, driver.Options(), Design(n=5, K=2))
+    assert "Hopper-v4: 3 methods (each against SAC (TAC q=1))" in text
+    assert "earliest possible decision: interim 1" in text
+    assert "at most 30 runs, the same as a fixed design of 5 x 2 seeds" in text
+    assert "cost estimate:" in text
+    assert not (tmp_path / "sweep").exists()
+
+
+def test_sequential_flags_need_until_decided() -> None:
+    result = CliRunner().invoke(cli, ["sweep", "--preset", "smoke", "--interims", "3"])
+    assert result.exit_code == 2
+    assert "--interims only apply with --until-decided" in result.output
+
+
+def test_an_adaptive_smoke_sweep_trains_decides_resumes_and_reports(tmp_path: Path) -> None:
+    """The real thing, as small as a decidable design gets: TAC q = 1 and 2 on Hopper, two
+    interims of two runs, family-wise error rate 0.2 (lower cannot decide with 8 runs)."""
+    out = tmp_path / "results"
+    command = ["sweep", "--preset", "smoke", "--algo", "tac", "--until-decided"]
+    command += ["--interim-runs", "2", "--fwer", "0.2", "--workers", "1", "--out", str(out)]
+    first = CliRunner().invoke(cli, command)
+    assert first.exit_code == 0, first.output
+    record = json.loads((out / "sweep" / "sequential.json").read_text())
+    interims = record["interims"]["Hopper-v4"]
+    assert [i["seeds"]["TAC q=2"] for i in interims][-1][:2] == [0, 10]
+    scores = interims[-1]["scores"]["SAC (TAC q=1)"]
+    assert all(math.isfinite(s) for s in scores)
+    again = CliRunner().invoke(cli, command)
+    assert again.exit_code == 0 and "interim" not in again.output.split("Hopper-v4:")[0]
+    assert first.output.splitlines()[-3:] == again.output.splitlines()[-3:]
+    report = CliRunner().invoke(cli, ["report", "--results", str(out), "--out", str(out / "r")])
+    assert report.exit_code == 0, report.output
+    page = (out / "r" / "report.md").read_text()
+    assert "Sequential decisions" in page and "TAC q=2" in page
