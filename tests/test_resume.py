@@ -137,12 +137,12 @@ def test_a_mixed_group_stopped_and_resumed_continues_every_member_exactly(
 ) -> None:
     """Members at q = 1 and 2 (q = 1 and the cap in one group) with two seeds each; in the
     reference profile each updates at its own episode ends, from its first one (every step
-    of a finished episode is an update from the start: 1,000 steps, stopped at 430 and 730)."""
+    of a finished episode is an update from the start: 600 steps, stopped at 260 and 430)."""
     settings: dict[str, Any] = {}
     stops = (730, 1234)  # in the warm-up and while learning
     if profile == "reference":
-        settings = {"profile": profile, "hidden_sizes": (32,), "total_steps": 1000}
-        stops = (430, 730)
+        settings = {"profile": profile, "hidden_sizes": (32,), "total_steps": 600}
+        stops = (260, 430)
     configs = tiny_configs("tac", seeds=[0, 10], qs=[1.0, 2.0], **settings)
     reference = train(tmp_path / "reference", configs)
     resumed = _stopped_twice_then_resumed(tmp_path / "resumed", configs, stops)

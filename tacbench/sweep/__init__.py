@@ -5,6 +5,8 @@ without loading torch or Gymnasium.
 - :mod:`~tacbench.sweep.presets`: the grids, each value with its source, and narrowing;
 - :mod:`~tacbench.sweep.plan`: runs, their state on disk, actions and units of work;
 - :mod:`~tacbench.sweep.driver`: the loop (schedule, record failures, retry, summarize);
+- :mod:`~tacbench.sweep.until_decided`: ``--until-decided``, the driver interim by interim until
+  AdaStop decides each task's comparisons;
 - :mod:`~tacbench.sweep.executors`: a local process pool, or Ray tasks;
 - :mod:`~tacbench.sweep.slurm`: Slurm job arrays through submitit;
 - :mod:`~tacbench.sweep.worker`: what a worker process, Ray task or Slurm job runs;
