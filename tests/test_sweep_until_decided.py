@@ -8,7 +8,6 @@ One test trains the smoke grid for real through the CLI, the local executor and 
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 from typing import Any
 
@@ -21,6 +20,7 @@ from tacbench.errors import TacbenchError
 from tacbench.sweep import driver, plan, until_decided
 from tacbench.sweep.presets import Narrowing, Preset, get_preset, narrow
 from tacbench.sweep.until_decided import Design, run_until_decided
+from tests.helpers import interrupt_cli
 
 pytestmark = pytest.mark.unit
 
@@ -96,6 +96,10 @@ def test_methods_are_labelled_as_the_report_labels_them_and_the_control_is_resol
 
 
 def test_bad_designs_are_refused_with_what_to_change(tmp_path: Path) -> None:
+    alone = narrow(HOPPER, Narrowing(q=(2.0,)))
+    with pytest.raises(TacbenchError, match=r"Hopper-v4 has one \(TAC q=2\)"):
+        run_until_decided(alone, tmp_path / "one", driver.Options(), Design(), train=FakeTrain())
+    assert not (tmp_path / "one").exists()
     with pytest.raises(TacbenchError, match="--interim-runs and --interims"):
         Design(n=0)
     with pytest.raises(TacbenchError, match="--fwer"):
@@ -182,23 +186,31 @@ def test_sequential_flags_need_until_decided() -> None:
     assert "--interims only apply with --until-decided" in result.output
 
 
-def test_an_adaptive_smoke_sweep_trains_decides_resumes_and_reports(tmp_path: Path) -> None:
+def test_an_adaptive_smoke_sweep_trains_is_stopped_resumes_and_reports(tmp_path: Path) -> None:
     """The real thing, as small as a decidable design gets: TAC q = 1 and 2 on Hopper, two
-    interims of two runs, family-wise error rate 0.2 (lower cannot decide with 8 runs)."""
-    out = tmp_path / "results"
-    command = ["sweep", "--preset", "smoke", "--algo", "tac", "--until-decided"]
-    command += ["--interim-runs", "2", "--fwer", "0.2", "--workers", "1", "--out", str(out)]
-    first = CliRunner().invoke(cli, command)
-    assert first.exit_code == 0, first.output
+    interims of two runs, family-wise error rate 0.2 (lower cannot decide with 8 runs),
+    stopped by Ctrl-C while its second interim trains, then run again, against one run
+    straight through."""
+    args = ["sweep", "--preset", "smoke", "--algo", "tac", "--until-decided"]
+    args += ["--interim-runs", "2", "--fwer", "0.2", "--workers", "1", "--out"]
+    straight = CliRunner().invoke(cli, [*args, str(tmp_path / "straight")])
+    assert straight.exit_code == 0, straight.output
+    out = tmp_path / "stopped"
+    code, output = interrupt_cli([*args, str(out)], "runs 4/8")  # interim 2 is training
+    assert code == 130, output
+    assert "interim 2 stopped; rerun the same command to continue it" in output
+    again = CliRunner().invoke(cli, [*args, str(out)])
+    assert again.exit_code == 0, again.output
+    assert "interim 1 of 2" not in again.output  # interim 1 is not trained or decided again
     record = json.loads((out / "sweep" / "sequential.json").read_text())
-    interims = record["interims"]["Hopper-v4"]
-    assert [i["seeds"]["TAC q=2"] for i in interims][-1][:2] == [0, 10]
-    scores = interims[-1]["scores"]["SAC (TAC q=1)"]
-    assert all(math.isfinite(s) for s in scores)
-    again = CliRunner().invoke(cli, command)
-    assert again.exit_code == 0 and "interim" not in again.output.split("Hopper-v4:")[0]
-    assert first.output.splitlines()[-3:] == again.output.splitlines()[-3:]
+    expected = json.loads((tmp_path / "straight" / "sweep" / "sequential.json").read_text())
+    assert record == expected  # the same seeds, final returns and decisions
+    seeds = [interim["seeds"]["TAC q=2"] for interim in record["interims"]["Hopper-v4"]]
+    assert seeds == [[0, 10], [0, 10, 20, 30]]
+    assert straight.output.splitlines()[-3:-1] == again.output.splitlines()[-3:-1]
     report = CliRunner().invoke(cli, ["report", "--results", str(out), "--out", str(out / "r")])
     assert report.exit_code == 0, report.output
     page = (out / "r" / "report.md").read_text()
     assert "Sequential decisions" in page and "TAC q=2" in page
+    spending = (out / "r" / "sequential_spending.csv").read_text().splitlines()
+    assert spending == ["env,interims,runs,fixed_design_runs", "Hopper-v4,2,8,8"]

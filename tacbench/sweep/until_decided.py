@@ -118,8 +118,14 @@ def methods_of(preset: Preset) -> dict[str, list[Method]]:
 
 
 def control_of(design: Design, env: str, methods: Sequence[Method]) -> str | None:
-    """The label of ``env``'s control (None: every pair), or TacbenchError naming the choices."""
+    """The label of ``env``'s control (None: every pair), or TacbenchError naming the choices
+    (also for a task with a single method: nothing to compare)."""
     labels = [m.label for m in methods]
+    if len(labels) < 2:
+        raise TacbenchError(
+            f"--until-decided compares the methods of a task, and {env} has one ("
+            f"{', '.join(labels)}); keep more of the preset's q values or algorithms."
+        )
     wanted = design.control
     if wanted == PAIRS:
         return None
@@ -262,7 +268,6 @@ def run_until_decided(
     """Train ``preset`` into ``out`` interim by interim until every task's comparisons are
     decided or ``design.K`` interims are done (the module doc). ``train`` trains one interim's
     grid (a sweep; tests pass their own)."""
-    runs.ensure_writable(out)
     design = replace(design, control=design.control or default_control(preset))
     tasks = methods_of(preset)
     controls = {env: control_of(design, env, methods) for env, methods in tasks.items()}
@@ -270,6 +275,7 @@ def run_until_decided(
     if not any(record.interims.values()):
         check_decidable(design, tasks)
     compared = comparisons(record, controls)
+    runs.ensure_writable(out)
     last: driver.SweepResult | None = None
     while needed := {env: c.runs_needed() for env, c in compared.items() if not c.finished}:
         chosen = [(m, needed[env][m.label]) for env in needed for m in tasks[env]]
