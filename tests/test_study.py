@@ -14,8 +14,8 @@ from tacbench.report import ReportOptions, analyse, write_report
 pytestmark = pytest.mark.smoke
 
 STUDIES = Path(__file__).resolve().parents[1] / "results" / "studies"
-# study folder -> its TAC runs, each of 100,000 steps: the paper's 9 q x 5 seeds per task, and
-# the authors' code versions
+# study folder -> its runs, each of 100,000 steps: the paper's 9 q x 5 seeds per task, the
+# authors' code versions, and the comparison with the baselines
 RUNS = {
     "paper-q-grid-100k": 2 * 9 * 5,
     "paper-q-grid-100k-ant": 9 * 5,
@@ -24,6 +24,9 @@ RUNS = {
     "authors-versions-100k/authors-2019-01-07b": 5 * 5,
     "authors-versions-100k/authors-2019-01-11b": 5 * 5,
     "authors-versions-100k/authors-2019-01-16c": 5 * 5,
+    "authors-versions-100k/authors-2019-01-22": 5 * 5,
+    # Hopper: PPO and TRPO x 5 seeds, and TAC q = 1 and 2 from paper-q-grid-100k
+    "comparison-100k": 4 * 5,
 }
 # runs recorded as failed (a non-finite loss), at the step they failed: in this version q = 3
 # and 5 overflow float32 at their first update
@@ -38,7 +41,7 @@ def _tables(study: str) -> list[str]:
 @pytest.mark.parametrize("study", RUNS)
 def test_the_study_holds_its_runs_complete(study: str) -> None:
     folder = STUDIES / study
-    statuses = [json.loads(p.read_text()) for p in folder.glob("runs/tac/*/*/seed*/status.json")]
+    statuses = [json.loads(p.read_text()) for p in folder.glob("runs/*/*/*/seed*/status.json")]
     assert len(statuses) == RUNS[study]
     failed, at = FAILED.get(study, (0, 0))
     ends = [(s["state"], s["step"]) for s in statuses]
@@ -72,3 +75,26 @@ def regenerated(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
         write_report(analyse(ReportOptions(results=STUDIES / study, out=out)))
         outs[study] = out
     return outs
+
+
+def test_the_last_code_repeats_final_plot_on_halfcheetah() -> None:
+    """docs/authors-versions.md: 24 of 25 runs of 2019-01-22 evaluate as 2019-01-16c's."""
+    final_plot = STUDIES / "authors-versions-100k" / "authors-2019-01-16c"
+    last = STUDIES / "authors-versions-100k" / "authors-2019-01-22"
+    same = []
+    for path in sorted(final_plot.glob("runs/tac/*/*/seed*/eval.csv")):
+        relative = path.relative_to(final_plot).as_posix().replace("20190116c", "20190122")
+        returns = [line.split(",")[2] for line in path.read_text().splitlines()]
+        again = [line.split(",")[2] for line in (last / relative).read_text().splitlines()]
+        same.append(returns == again)
+    assert (len(same), sum(same)) == (25, 24)
+
+
+def test_the_comparisons_tac_runs_are_the_q_grid_studys() -> None:
+    """docs/results.md: the comparison study reuses TAC's Hopper runs, not retrains them."""
+    comparison = STUDIES / "comparison-100k"
+    copies = sorted(p for p in comparison.glob("runs/tac/**/*") if p.is_file())
+    assert len(copies) == 2 * 5 * 5  # q = 1 and 2, 5 seeds, 5 files each
+    for path in copies:
+        original = STUDIES / "paper-q-grid-100k" / path.relative_to(comparison)
+        assert path.read_bytes() == original.read_bytes(), path
