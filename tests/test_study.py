@@ -25,8 +25,9 @@ RUNS = {
     "authors-versions-100k/authors-2019-01-11b": 5 * 5,
     "authors-versions-100k/authors-2019-01-16c": 5 * 5,
     "authors-versions-100k/authors-2019-01-22": 5 * 5,
-    # Hopper: PPO and TRPO x 5 seeds, and TAC q = 1 and 2 from paper-q-grid-100k
-    "comparison-100k": 4 * 5,
+    # Hopper and HalfCheetah: PPO and TRPO x 5 seeds, and TAC at q = 1 and the paper's best q
+    # (2 and 1.5) from paper-q-grid-100k
+    "comparison-100k": 2 * 4 * 5,
 }
 # runs recorded as failed (a non-finite loss), at the step they failed: in this version q = 3
 # and 5 overflow float32 at their first update
@@ -94,7 +95,7 @@ def test_the_comparisons_tac_runs_are_the_q_grid_studys() -> None:
     """docs/results.md: the comparison study reuses TAC's Hopper runs, not retrains them."""
     comparison = STUDIES / "comparison-100k"
     copies = sorted(p for p in comparison.glob("runs/tac/**/*") if p.is_file())
-    assert len(copies) == 2 * 5 * 5  # q = 1 and 2, 5 seeds, 5 files each
+    assert len(copies) == 2 * 2 * 5 * 5  # two tasks, two q, 5 seeds, 5 files each
     for path in copies:
         original = STUDIES / "paper-q-grid-100k" / path.relative_to(comparison)
         assert path.read_bytes() == original.read_bytes(), path
