@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -31,10 +32,12 @@ def write_run(
     status_step: int | None = None,
     reason: str = "",
     train: tuple[Sequence[float], Sequence[float]] | None = None,
+    settings: dict[str, Any] | None = None,
 ) -> Path:
     """Write ``root/runs/<algo>/<env>/<variant>/seed<k>/`` with config, status, eval and train.
 
-    ``train`` defaults to one training episode per evaluation step with the same return.
+    ``train`` defaults to one training episode per evaluation step with the same return;
+    ``settings`` (the run's whole config, as a sweep compares it) to algo, env and seed.
     """
     path = root / "runs" / algo / env / variant / f"seed{seed}"
     path.mkdir(parents=True, exist_ok=True)
@@ -53,7 +56,7 @@ def write_run(
         "git_commit": "abc1234",
         "host": "testhost",
         "created": f"2025-01-01T00:00:{seed % 60:02d}",
-        "config": {"algo": algo, "env": env, "seed": seed},
+        "config": settings or {"algo": algo, "env": env, "seed": seed},
     }
     (path / "config.json").write_text(json.dumps(config))
     status = {

@@ -14,13 +14,13 @@ from typing import Any
 import pytest
 from click.testing import CliRunner
 
-from tacbench import runs
 from tacbench.cli import cli
 from tacbench.errors import TacbenchError
 from tacbench.sweep import driver, plan, until_decided
 from tacbench.sweep.presets import Narrowing, Preset, get_preset, narrow
 from tacbench.sweep.until_decided import Design, run_until_decided
 from tests.helpers import interrupt_cli
+from tests.report_fixtures import write_run
 
 pytestmark = pytest.mark.unit
 
@@ -56,16 +56,19 @@ class FakeTrain:
 
 def _write_complete(out: Path, run: plan.Run, value: float) -> None:
     c = run.config
-    directory = out / run.key
-    directory.mkdir(parents=True)
-    identity = {"algo": c.algo, "env": c.env, "variant": c.variant, "seed": c.seed, "q": c.q}
-    config = {**identity, "alpha": 0.2, "total_steps": c.total_steps, "config": c.to_dict()}
-    runs.atomic_write_json(directory / "config.json", config)
-    runs.atomic_write_json(directory / "status.json", {"state": "complete", "step": c.total_steps})
-    steps = range(c.total_steps - 9, c.total_steps + 1)
-    rows = [f"{step},1.0,{value!r},0.0,1000" for step in steps]
-    header = "step,wall_s,return_mean,return_std,length_mean"
-    (directory / "eval.csv").write_text("\n".join([header, *rows]) + "\n")
+    write_run(
+        out,
+        algo=c.algo,
+        env=c.env,
+        variant=c.variant,
+        seed=c.seed,
+        steps=range(c.total_steps - 9, c.total_steps + 1),
+        returns=[value] * 10,
+        q=c.q,
+        alpha=0.2,
+        total_steps=c.total_steps,
+        settings=c.to_dict(),
+    )
 
 
 def test_seeds_are_the_presets_then_further_ones_at_its_spacing() -> None:

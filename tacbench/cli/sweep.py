@@ -199,12 +199,9 @@ def _until_decided(
     """``--until-decided``: the sequential sweep, or its dry run."""
     from tacbench.sweep import until_decided
 
-    defaults = until_decided.Design()
+    fields = {"n": "interim_runs", "K": "interims", "alpha": "fwer", "control": "control"}
     design = until_decided.Design(
-        n=given["interim_runs"] if given["interim_runs"] is not None else defaults.n,
-        K=given["interims"] if given["interims"] is not None else defaults.K,
-        alpha=given["fwer"] if given["fwer"] is not None else defaults.alpha,
-        control=given["control"] or "",
+        **{field: given[flag] for field, flag in fields.items() if given[flag] is not None}
     )
     if dry_run:
         click.echo(until_decided.describe_design(grid, out, options, design))

@@ -24,6 +24,7 @@ import numpy as np
 import pandas as pd
 
 from tacbench.errors import TacbenchError
+from tacbench.report.tables import run_scores
 
 Metric = Literal["eval", "train"]
 
@@ -278,12 +279,13 @@ def final_return(run_dir: Path, last: int) -> float:
     evaluation returns (``eval.csv``). TacbenchError, with the reason, for a run that is not
     complete or cannot be read."""
     try:
-        row, (_, value, _) = _read_run(run_dir, "eval")
+        row, (step, value, _) = _read_run(run_dir, "eval")
     except _Unreadable as err:
         raise TacbenchError(f"{run_dir}: {err}") from None
     if row["partial"]:
         raise TacbenchError(f"{run_dir} is not complete (step {row['step_reached']:g}).")
-    return float(np.mean(value[-last:]))
+    series = pd.DataFrame({"run": 0, "step": step, "return": value})
+    return float(run_scores(series, last)["final"].iloc[0])
 
 
 def load_runs(results: Path | str, metric: Metric = "eval") -> RunSet:

@@ -16,6 +16,7 @@ decisions), then continues with the interim that was cut off; its runs resume li
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, replace
@@ -78,10 +79,13 @@ class Method:
     label: str
     entry: Entry
 
+    def first(self, count: int) -> Entry:
+        """Its entry narrowed to its first ``count`` seeds (:func:`seed_order`)."""
+        return replace(self.entry, seeds=seed_order(self.entry.seeds, count))
+
     def runs(self, count: int) -> list[plan.Run]:
-        """Its first ``count`` runs, in seed order (:func:`seed_order`)."""
-        seeds = seed_order(self.entry.seeds, count)
-        return plan.build_runs(Preset("", "", (replace(self.entry, seeds=seeds),)))
+        """Its first ``count`` runs, in seed order."""
+        return plan.build_runs(Preset("", "", (self.first(count),)))
 
 
 def seed_order(seeds: Sequence[int], count: int) -> tuple[int, ...]:
@@ -144,9 +148,11 @@ def control_of(design: Design, env: str, methods: Sequence[Method]) -> str | Non
     return found[0]
 
 
+@functools.cache
 def earliest_decision(design: Design, methods: int, paired: bool) -> int | None:
     """The first interim at which the design can decide a comparison at all: when every run of
-    one method beats every run of the other (None: never, whatever the runs give)."""
+    one method beats every run of the other (None: never, whatever the runs give). Cached:
+    tasks with as many methods share the answer, and AdaStop takes seconds to give it."""
     names = [f"m{i}" for i in range(methods)]
     scores = {m: [1e6 * i + j for j in range(design.n * design.K)] for i, m in enumerate(names)}
     control = None if paired else names[0]
@@ -310,10 +316,7 @@ def run_until_decided(
 
 def _grid(preset: Preset, chosen: Sequence[tuple[Method, int]]) -> Preset:
     """``preset`` holding exactly the first ``count`` runs of each chosen method."""
-    entries = tuple(
-        replace(m.entry, seeds=seed_order(m.entry.seeds, count)) for m, count in chosen if count
-    )
-    return replace(preset, entries=entries)
+    return replace(preset, entries=tuple(m.first(count) for m, count in chosen if count))
 
 
 def _decision_list(decisions: dict[Pair, str]) -> list[dict[str, str]]:
