@@ -1,9 +1,9 @@
 """``tacbench bench``: TAC's training loop against stable-baselines3's SAC, side by side.
 
-Every contestant trains on the same task with the paper's networks and update rate (one hidden
-layer of 300 ReLU units, batch 100, Adam lr 1e-3, one update per environment step, a 1M
-replay buffer) in this one process, under the same thread count and heap setting
-(:func:`tacbench.hardware.configure_process`). After ``learning_starts`` steps of random
+Every contestant trains on the same task with the paper's networks (one hidden layer of 300 ReLU
+units, or ``--hidden-sizes``) and update rate (batch 100, Adam lr 1e-3, one update per
+environment step, a 1M replay buffer) in this one process, under the same thread count and heap
+setting (:func:`tacbench.hardware.configure_process`). After ``learning_starts`` steps of random
 actions (not timed) and a few updates of warm-up (where ``torch.compile`` compiles), the
 contestants take turns: each round, each one trains ``steps / rounds`` more steps while its
 time is measured. Taking turns spreads a shared machine's load over all of them, so the
@@ -90,11 +90,17 @@ class BenchOptions:
     eager: bool = True
     device: str = "cpu"
     threads: int = 1
+    hidden_sizes: tuple[int, ...] | None = None  # None: the paper's (one layer of 300)
 
     def __post_init__(self) -> None:
         for name in ("members", "rounds", "threads"):
             if getattr(self, name) < 1:
                 raise TacbenchError(f"--{name} must be at least 1.")
+        if self.hidden_sizes is not None and (not self.hidden_sizes or min(self.hidden_sizes) < 1):
+            raise TacbenchError(
+                f"--hidden-sizes must be positive layer widths (got {self.hidden_sizes}); "
+                "--hidden-sizes 400,300 for example."
+            )
         if self.steps < self.rounds:
             raise TacbenchError("--steps must be at least --rounds (steps are split into rounds).")
         if self.learning_starts < 1:
@@ -129,8 +135,14 @@ def _tac_configs(options: BenchOptions, contestant: Contestant) -> list[RunConfi
         compile="on" if contestant.compile else "off",
         device=options.device,
         threads=options.threads,
+        **_network_overrides(options),
     )
     return configs
+
+
+def _network_overrides(options: BenchOptions) -> dict[str, Any]:
+    """The config override of ``--hidden-sizes``, if given (else the paper's networks)."""
+    return {} if options.hidden_sizes is None else {"hidden_sizes": options.hidden_sizes}
 
 
 @contextlib.contextmanager
@@ -140,7 +152,9 @@ def _sb3_sac(options: BenchOptions) -> Iterator[Advance]:
 
     from stable_baselines3 import SAC
 
-    q_alpha = make_run_configs(options.env, paper.paper_task(options.env), [0])[0][0]
+    q_alpha = make_run_configs(
+        options.env, paper.paper_task(options.env), [0], **_network_overrides(options)
+    )[0][0]
     env = envs.make_env(options.env)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # SB3's notes on the env wrapper and on v4 tasks
@@ -240,9 +254,11 @@ def table(results: list[BenchResult]) -> str:
 def summary(results: list[BenchResult], options: BenchOptions, before: dict[str, Any]) -> str:
     """The table with a header that says what was measured, where and under what load."""
     after = machine()
+    sizes = options.hidden_sizes or paper.HYPERPARAMETERS.hidden_sizes
+    widths = ", ".join(str(w) for w in sizes)
     head = (
-        f"{options.env}, batch 100, 1x300 ReLU, one update per step, {options.threads} torch "
-        f"thread(s), device {options.device}; {options.rounds} rounds of "
+        f"{options.env}, batch 100, ReLU hidden layers ({widths}), one update per step, "
+        f"{options.threads} torch thread(s), device {options.device}; {options.rounds} rounds of "
         f"{max(1, options.steps // options.rounds)} steps after {options.learning_starts} "
         f"random steps and {WARMUP_UPDATES} warm-up updates.\n"
         f"{after['date']}, {after['cpu']}, {after['cores']} cores; load average "

@@ -73,3 +73,50 @@ def test_bench_command_refuses_bad_options() -> None:
     result = CliRunner().invoke(cli, ["bench", "--steps", "1", "--rounds", "3"])
     assert result.exit_code == 2
     assert "--steps must be at least --rounds" in result.output
+
+
+def test_hidden_sizes_reach_tac_and_sb3_and_bad_widths_are_refused() -> None:
+    from tacbench.bench import _network_overrides, _tac_configs
+
+    options = BenchOptions(env="Pendulum-v1", members=2, hidden_sizes=(16, 8))
+    assert _network_overrides(options) == {"hidden_sizes": (16, 8)}
+    configs = _tac_configs(options, Contestant("TAC", 2, tac=True))
+    assert [c.hidden_sizes for c in configs] == [(16, 8), (16, 8)]
+    assert _network_overrides(BenchOptions()) == {}  # the paper's networks
+    with pytest.raises(TacbenchError, match="--hidden-sizes 400,300"):
+        BenchOptions(hidden_sizes=(300, 0))
+
+
+def test_bench_profile_splits_an_update_into_products_and_the_rest(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from tacbench import update_profile
+
+    monkeypatch.setattr(update_profile, "PROFILED_UPDATES", 3)  # a profile, not a measurement
+    monkeypatch.setattr(update_profile, "PEAK_SIZE", 256)
+    out = tmp_path / "profile.json"
+    args = ["bench", "--profile", "--no-compile-profile", "--env", "Pendulum-v1"]
+    args += ["--members", "2", "--hidden-sizes", "16,8", "--json", str(out)]
+    result = CliRunner().invoke(cli, args)
+    assert result.exit_code == 0, result.output
+    assert "| where | calls/update |" in result.output
+    profiles = json.loads(out.read_text())["profiles"]
+    assert [p["members"] for p in profiles] == [1, 2]
+    for profile in profiles:
+        rows = {r["what"]: r for r in profile["rows"]}
+        # Pendulum (3 observations, 1 action): the policy's first layer, 3 -> 16 for a batch of
+        # 100, is a baddbmm of (K, 100, 3) @ (K, 3, 16) in the eager update
+        k = profile["members"]
+        first = rows[f"product {k}x100x3 @ {k}x3x16"]
+        assert first["calls"] >= 1 and first["gflops"] > 0
+        assert rows["Adam"]["calls"] == 1
+        # the rows add up to the profiled update
+        total = sum(r["us"] for r in profile["rows"])
+        assert total == pytest.approx(profile["profiled_update_us"], rel=1e-6)
+        assert profile["peak_gflops"] > 0
+
+
+def test_product_flops_counts_two_per_multiply_add() -> None:
+    from tacbench.update_profile import _product_flops
+
+    assert _product_flops([[5, 100, 400], [5, 400, 300]]) == 2 * 5 * 100 * 400 * 300

@@ -3,8 +3,14 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
+
+from tacbench.cli.options import NumberTuple
+
+if TYPE_CHECKING:
+    from tacbench.bench import BenchOptions
 
 
 @click.command()
@@ -40,6 +46,22 @@ import click
 )
 @click.option("--threads", type=int, default=1, show_default=True, help="torch CPU threads.")
 @click.option(
+    "--hidden-sizes",
+    type=NumberTuple(int, "400,300"),
+    default=None,
+    help="Hidden layer widths of every contestant's networks [default: the paper's 300].",
+)
+@click.option(
+    "--profile",
+    is_flag=True,
+    help="Instead of the race: where one update's time goes (products by shape with their "
+    "GFLOP/s against this core's peak, elementwise kernels, Adam, the rest), at 1 and --members "
+    "members, compiled unless --no-compile-profile.",
+)
+@click.option(
+    "--no-compile-profile", is_flag=True, help="With --profile: profile the eager update."
+)
+@click.option(
     "--json",
     "json_path",
     type=click.Path(dir_okay=False, path_type=Path),
@@ -58,6 +80,9 @@ def bench(
     no_eager: bool,
     device: str,
     threads: int,
+    hidden_sizes: tuple[int, ...] | None,
+    profile: bool,
+    no_compile_profile: bool,
     json_path: Path | None,
 ) -> None:
     """TAC (uncompiled and, with --compile, compiled; one and --members members) against
@@ -82,10 +107,35 @@ def bench(
         eager=not no_eager,
         device=training.resolve_device(device),
         threads=threads,
+        hidden_sizes=hidden_sizes,
     )
+    if profile:
+        _profile(options, not no_compile_profile, json_path)
+        return
     before = measure.machine()
     results = measure.run_bench(options, report=lambda line: click.echo(line, err=True))
     click.echo(measure.summary(results, options, before))
     if json_path is not None:
         json_path.write_text(json.dumps(measure.results_json(results, options), indent=1) + "\n")
+        click.echo(f"wrote {json_path}")
+
+
+def _profile(options: BenchOptions, compile_: bool, json_path: Path | None) -> None:
+    """``--profile``: the update's profile at 1 and ``options.members`` members."""
+    import json
+
+    from tacbench import bench as measure
+    from tacbench import paper
+    from tacbench.update_profile import profile_table, profile_update
+
+    sizes = options.hidden_sizes or paper.HYPERPARAMETERS.hidden_sizes
+    results = []
+    for members in dict.fromkeys((1, options.members)):
+        click.echo(f"profiling the update of {members} member(s) ...", err=True)
+        result = profile_update(options.env, members, sizes, compile_)
+        results.append(result)
+        click.echo(profile_table(result) + "\n")
+    if json_path is not None:
+        record = {"machine": measure.machine(), "profiles": results}
+        json_path.write_text(json.dumps(record, indent=1) + "\n")
         click.echo(f"wrote {json_path}")

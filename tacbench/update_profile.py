@@ -1,0 +1,221 @@
+"""``tacbench bench --profile``: where one TAC update's time goes, and how close its matrix
+products run to this core's rate.
+
+The update is run on a synthetic minibatch (no environment) with the members, networks and
+compile setting asked for, then profiled with ``torch.profiler``. Its time is split into the
+matrix products, by shape, each with its achieved GFLOP/s; the compiled graph's fused
+elementwise kernels; Adam; the target average; and the rest (Python, dispatch, Dynamo's guards
+and the kernels too small to name). The peak it is compared with is a large square product on
+one thread, measured in the same process.
+
+Inductor's kernels are only visible to the profiler through its Python wrapper, so the compiled
+update is profiled without the C++ wrapper (``cpp_wrapper``) that training uses; the update's
+time without the profiler is measured with the wrapper, as training runs it, and both are shown.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections import defaultdict
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+
+PEAK_SIZE = 2048  # the square product whose rate stands for the core's peak
+PROFILED_UPDATES = 50  # updates timed, and then profiled
+BATCH = 100  # the paper's minibatch
+
+
+@dataclass(frozen=True)
+class Row:
+    """One line of the profile: what, how many calls per update, microseconds per update and,
+    for a product, its GFLOP/s."""
+
+    what: str
+    calls: float
+    us: float
+    gflops: float | None = None
+
+
+def best_seconds(fn: Callable[[], Any], repeats: int, rounds: int = 5) -> float:
+    """The fastest of ``rounds`` means of ``repeats`` calls of ``fn``, in seconds per call."""
+    for _ in range(min(repeats, 5)):
+        fn()
+    best = math.inf
+    for _ in range(rounds):
+        start = time.perf_counter()
+        for _ in range(repeats):
+            fn()
+        best = min(best, (time.perf_counter() - start) / repeats)
+    return best
+
+
+def peak_gflops(size: int | None = None) -> float:
+    """GFLOP/s of one ``size`` x ``size`` (default :data:`PEAK_SIZE`) float32 product on this
+    process's threads."""
+    size = size or PEAK_SIZE
+    a, b = torch.randn(size, size), torch.randn(size, size)
+    return 2 * size**3 / best_seconds(lambda: a @ b, repeats=3) / 1e9
+
+
+def _minibatch(k: int, obs_dim: int, act_dim: int) -> dict[str, np.ndarray]:
+    rng = np.random.default_rng(0)
+    shape = (k, BATCH)
+    return {
+        "obs": rng.standard_normal((*shape, obs_dim), dtype=np.float32),
+        "action": rng.uniform(-1, 1, (*shape, act_dim)).astype(np.float32),
+        "reward": rng.standard_normal(shape, dtype=np.float32),
+        "next_obs": rng.standard_normal((*shape, obs_dim), dtype=np.float32),
+        "terminated": np.zeros(shape, dtype=np.float32),
+    }
+
+
+def _update(
+    env: str, members: int, hidden_sizes: Sequence[int], compile: bool
+) -> Callable[[], Any]:
+    """One update of ``members`` fresh TAC members of ``env``'s dimensions, as a closure."""
+    from tacbench import envs, paper
+    from tacbench.members import make_run_configs
+    from tacbench.tac.agent import TacAgent
+    from tacbench.tac.maths import coefficients
+    from tacbench.tac.update import update
+
+    info = envs.env_info(env)
+    configs, _ = make_run_configs(
+        env,
+        paper.paper_task(env),
+        list(range(0, 10 * members, 10)),
+        hidden_sizes=tuple(hidden_sizes),
+        compile="on" if compile else "off",
+    )
+    cpu = torch.device("cpu")
+    agent = TacAgent(info.obs_dim, info.act_dim, configs[0], [c.seed for c in configs], cpu)
+    c = coefficients([x.q for x in configs], [x.alpha for x in configs], cpu)
+    minibatch = _minibatch(members, info.obs_dim, info.act_dim)
+    return lambda: update(agent, minibatch, c)
+
+
+def _product_flops(shapes: Sequence[Sequence[int]]) -> int:
+    """FLOPs of a ``bmm`` of ``(M, n, k) @ (M, k, m)``."""
+    (m, n, k), (_, _, cols) = shapes[0], shapes[1]
+    return 2 * m * n * k * cols
+
+
+def profile_rows(step: Callable[[], Any], updates: int) -> tuple[list[Row], float]:
+    """The profile of ``updates`` calls of ``step``: rows per update, and the profiled
+    microseconds per update."""
+    from torch.profiler import ProfilerActivity, profile
+
+    with profile(activities=[ProfilerActivity.CPU], record_shapes=True) as prof:
+        start = time.perf_counter()
+        for _ in range(updates):
+            step()
+        wall_us = (time.perf_counter() - start) / updates * 1e6
+    products: dict[str, list[float]] = defaultdict(lambda: [0.0, 0.0, 0.0])
+    kinds = {"elementwise (compiled kernels)": [0.0, 0.0], "Adam": [0.0, 0.0]}
+    kinds["target average"] = [0.0, 0.0]
+    for event in prof.key_averages(group_by_input_shape=True):
+        name, us, calls = event.key, event.self_cpu_time_total / updates, event.count / updates
+        if name in ("aten::bmm", "aten::mm", "aten::baddbmm", "aten::addmm"):
+            shapes = [s for s in event.input_shapes if s][:2]
+            if name in ("aten::baddbmm", "aten::addmm"):
+                shapes = [s for s in event.input_shapes if s][1:3]
+            if len(shapes[0]) == 2:
+                shapes = [[1, *s] for s in shapes]
+            label = "x".join(map(str, shapes[0])) + " @ " + "x".join(map(str, shapes[1]))
+            entry = products[label]
+            entry[0] += calls
+            entry[1] += us
+            entry[2] += _product_flops(shapes) * calls
+        elif name.startswith("graph_") and "cpp_fused" in name:
+            kinds["elementwise (compiled kernels)"][0] += calls
+            kinds["elementwise (compiled kernels)"][1] += us
+        elif name == "aten::_fused_adam_":
+            kinds["Adam"][0] += calls
+            kinds["Adam"][1] += us
+        elif name == "aten::lerp_":
+            kinds["target average"][0] += calls
+            kinds["target average"][1] += us
+    rows = [
+        Row(f"product {label}", calls, us, flops / us / 1e3)
+        for label, (calls, us, flops) in sorted(products.items(), key=lambda kv: -kv[1][1])
+    ]
+    rows += [Row(what, calls, us) for what, (calls, us) in kinds.items()]
+    named = sum(r.us for r in rows)
+    rows.append(Row("the rest (Python, dispatch, guards, small ops)", 0, wall_us - named))
+    return rows, wall_us
+
+
+def profile_update(
+    env: str, members: int, hidden_sizes: Sequence[int], compile: bool
+) -> dict[str, Any]:
+    """Peak, the update's unprofiled time (as training runs it) and its profile over
+    :data:`PROFILED_UPDATES` updates, for one thread."""
+    from tacbench.tac import gradient
+
+    torch.set_num_threads(1)
+    updates = PROFILED_UPDATES
+    step = _update(env, members, hidden_sizes, compile)
+    unprofiled_us = best_seconds(step, repeats=max(10, updates)) * 1e6
+    wrapper = gradient.CPU_COMPILE_OPTIONS["cpp_wrapper"]
+    kernel_profile = torch._inductor.config.cpp.enable_kernel_profile
+    try:  # a second agent compiled with its kernels visible to the profiler
+        gradient.CPU_COMPILE_OPTIONS["cpp_wrapper"] = False
+        torch._inductor.config.cpp.enable_kernel_profile = True
+        visible = _update(env, members, hidden_sizes, compile)
+        best_seconds(visible, repeats=10, rounds=1)
+        rows, profiled_us = profile_rows(visible, updates)
+    finally:
+        gradient.CPU_COMPILE_OPTIONS["cpp_wrapper"] = wrapper
+        torch._inductor.config.cpp.enable_kernel_profile = kernel_profile
+    return {
+        "env": env,
+        "members": members,
+        "hidden_sizes": list(hidden_sizes),
+        "compile": compile,
+        "peak_size": PEAK_SIZE,
+        "peak_gflops": peak_gflops(),
+        "update_us": unprofiled_us,
+        "profiled_update_us": profiled_us,
+        "rows": [vars(r) for r in rows],
+    }
+
+
+def profile_table(result: dict[str, Any]) -> str:
+    """The profile as a Markdown table, with the peak and the products' share."""
+    peak = result["peak_gflops"]
+    total = result["profiled_update_us"]
+    lines = [
+        f"{result['env']}, {result['members']} member(s), hidden layers "
+        f"{tuple(result['hidden_sizes'])}, batch {BATCH}, "
+        f"{'compiled' if result['compile'] else 'eager'}, one thread. Update: "
+        f"{result['update_us'] / 1e3:.2f} ms as training runs it, "
+        f"{total / 1e3:.2f} ms profiled. Peak (a {result['peak_size']}x{result['peak_size']} "
+        "product): "
+        f"{peak:.1f} GFLOP/s.",
+        "",
+        "| where | calls/update | us/update | share | GFLOP/s | of peak |",
+        "|---|---|---|---|---|---|",
+    ]
+    for row in result["rows"]:
+        rate = row["gflops"]
+        lines.append(
+            f"| {row['what']} | {row['calls']:.0f} | {row['us']:.0f} | "
+            f"{row['us'] / total:.0%} | "
+            + (f"{rate:.1f} | {rate / peak:.0%} |" if rate is not None else "- | - |")
+        )
+    product_rows = [r for r in result["rows"] if r["gflops"] is not None]
+    flops = sum(r["gflops"] * r["us"] * 1e3 for r in product_rows)
+    product_us = sum(r["us"] for r in product_rows)
+    if product_us:
+        lines += [
+            "",
+            f"products: {flops / 1e9:.3f} GFLOP per update in {product_us / 1e3:.2f} ms "
+            f"({flops / product_us / 1e3:.1f} GFLOP/s, {flops / product_us / 1e3 / peak:.0%} of "
+            f"peak); the whole update runs at {flops / total / 1e3:.1f} GFLOP/s.",
+        ]
+    return "\n".join(lines)
