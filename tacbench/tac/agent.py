@@ -102,7 +102,7 @@ class TacAgent:
         ]
         self.gradient: Gradient = eager_gradient  # one (compiled) gradient for every chunk
         if config.compile == "on":
-            static = [t for p in params for t in (p.data, p.grad, p.target)]
+            static = [t for p in params for t in (p.data, p.target)]
             self.gradient = compiled_gradient(device, static)
         self.chunks = [Chunk(members, p) for members, p in zip(chunks, params, strict=True)]
         self.alive = torch.ones(k, dtype=torch.bool, device=device)

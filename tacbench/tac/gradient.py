@@ -48,7 +48,7 @@ Gradient = Callable[..., tuple[torch.Tensor, torch.Tensor]]  # -> (gradient, met
 
 
 def total_loss(
-    theta: torch.Tensor,
+    blocks: Sequence[torch.Tensor],
     target: torch.Tensor,
     layout: FlatLayout,
     target_layout: FlatLayout,
@@ -60,11 +60,11 @@ def total_loss(
     eps_next: torch.Tensor | None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """The sum of the live members' four losses (five with a learned alpha) at parameters
-    ``theta`` (flat, of ``layout``; the target networks' ``target`` of ``target_layout``), which
-    autograd differentiates, and the detached metrics ``(K, len(METRICS))`` (plus
-    ``ALPHA_METRICS`` with a learned alpha). Members never mix, so each member's gradient is
-    its own losses'."""
-    nets, target_net = layout.networks(theta), target_layout.layers(target)
+    ``blocks`` (the blocks of ``layout``, in order; the target networks' flat ``target`` of
+    ``target_layout``), which autograd differentiates, and the detached metrics
+    ``(K, len(METRICS))`` (plus ``ALPHA_METRICS`` with a learned alpha). Members never mix, so
+    each member's gradient is its own losses'."""
+    nets, target_net = layout.networks_of(blocks), target_layout.layers(target)
     losses = tac_losses(nets, target_net, batch, eps, c, s, eps_next)
     per_member = torch.stack([losses.q1, losses.q2, losses.v, losses.pi], dim=-1)
     metrics = [per_member.detach(), losses.diagnostics]
@@ -76,18 +76,39 @@ def total_loss(
     return total, torch.cat(metrics, dim=-1)
 
 
-def eager_gradient(theta: torch.Tensor, *args: Any) -> tuple[torch.Tensor, torch.Tensor]:
-    """:func:`total_loss`'s gradient with respect to ``theta`` by ``torch.autograd.grad``, and
-    the metrics."""
+def _flat(grads: Sequence[torch.Tensor]) -> torch.Tensor:
+    """The blocks' gradients as one flat tensor of their layout."""
+    return torch.cat([g.reshape(-1) for g in grads])
+
+
+# The gradient is taken with respect to the blocks, not the flat buffer they are views of: the
+# gradient of a view of the flat tensor is a zero-padded copy of the whole buffer, and summing
+# one per block cost a pass over the buffer per block (2.5 ms of a 10 ms update with (400, 300)
+# networks; docs/performance.md, "Where the time goes").
+
+
+def eager_gradient(
+    theta: torch.Tensor, target: torch.Tensor, layout: FlatLayout, *args: Any
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`total_loss`'s gradient with respect to the flat parameters ``theta`` (of
+    ``layout``) by ``torch.autograd.grad``, and the metrics."""
     with torch.enable_grad():
-        leaf = theta.detach().requires_grad_()
-        total, metrics = total_loss(leaf, *args)
-        (grad,) = torch.autograd.grad(total, leaf)
-    return grad, metrics
+        blocks = [block.detach().requires_grad_() for block in layout.views(theta)]
+        total, metrics = total_loss(blocks, target, layout, *args)
+        # with twin-q targets V trains on nothing: its blocks' gradient is zero, as by func.grad
+        grads = torch.autograd.grad(total, blocks, allow_unused=True, materialize_grads=True)
+    return _flat(grads), metrics
 
 
-traceable_gradient: Gradient = torch.func.grad(total_loss, has_aux=True)
-""":func:`eager_gradient` by ``torch.func.grad``, which ``torch.compile`` can trace."""
+_block_gradient = torch.func.grad(total_loss, has_aux=True)
+
+
+def traceable_gradient(
+    theta: torch.Tensor, target: torch.Tensor, layout: FlatLayout, *args: Any
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`eager_gradient` by ``torch.func.grad``, which ``torch.compile`` can trace."""
+    grads, metrics = _block_gradient(layout.views(theta), target, layout, *args)
+    return _flat(grads), metrics
 
 
 def compiled_gradient(device: torch.device, static: Sequence[torch.Tensor] = ()) -> Gradient:
@@ -98,9 +119,9 @@ def compiled_gradient(device: torch.device, static: Sequence[torch.Tensor] = ())
     if device.type == "cuda":
         for tensor in static:
             torch._dynamo.mark_static_address(tensor)
-        current = [torch.compile(traceable_gradient, mode="reduce-overhead")]
+        current = [torch.compile(traceable_gradient, dynamic=False, mode="reduce-overhead")]
     else:
-        current = [torch.compile(traceable_gradient, options=CPU_COMPILE_OPTIONS)]
+        current = [torch.compile(traceable_gradient, dynamic=False, options=CPU_COMPILE_OPTIONS)]
 
     def gradient(*args: Any) -> tuple[torch.Tensor, torch.Tensor]:
         try:

@@ -67,9 +67,13 @@ class FlatLayout(NamedTuple):
         return sum(math.prod(shape) for shape in self.shapes[:block])
 
     def networks(self, flat: torch.Tensor) -> Networks:
-        """Policy, critic pair and V views of a flat tensor of this layout (the parameters, a
-        gradient, or the tensor that autograd differentiates), and log alpha if it has it."""
-        blocks = self.views(flat)
+        """Policy, critic pair and V views of a flat tensor of this layout (the parameters or a
+        gradient), and log alpha if it has it."""
+        return self.networks_of(self.views(flat))
+
+    def networks_of(self, blocks: Sequence[torch.Tensor]) -> Networks:
+        """:meth:`networks` from the blocks themselves, in order (the tensors that autograd
+        differentiates)."""
         n = 2 * self.n_layers
         log_alpha = blocks[3 * n] if len(blocks) > 3 * n else None
         return Networks(

@@ -74,11 +74,11 @@ def gradients(
     """The metrics of :func:`update` and the gradient of every trained parameter (named as in
     :meth:`TacAgent.member_state`) for one minibatch and noise, by the agent's gradient (compiled
     if its update is), without changing any weight. For comparing the paths."""
-    metrics: list[torch.Tensor | None] = [
-        _gradient(agent, chunk, batch, eps, agent.alive[chunk.members], c, eps_next)
-        for chunk in agent.chunks
-    ]
-    named = [chunk.params.named_gradients() for chunk in agent.chunks]
+    metrics: list[torch.Tensor | None] = []
+    named = []
+    for chunk in agent.chunks:  # each chunk's gradient read before the next one's is taken
+        metrics.append(_gradient(agent, chunk, batch, eps, agent.alive[chunk.members], c, eps_next))
+        named.append({k: g.clone() for k, g in chunk.params.named_gradients().items()})
     grads = {name: torch.cat([g[name] for g in named]) for name in named[0]}
     return _in_member_order(agent, metrics), grads
 
@@ -92,8 +92,8 @@ def _gradient(
     c: Coefficients,
     eps_next: torch.Tensor | None,
 ) -> torch.Tensor:
-    """The chunk's members' losses and their gradient, written into ``chunk.params.grad`` (zero
-    for members not ``trained``); returns their metrics."""
+    """The chunk's members' losses and their gradient, which becomes ``chunk.params.grad`` (zero
+    for members not ``trained``) until the next one; returns their metrics."""
     m, p = chunk.members, chunk.params
     with torch.no_grad():
         grad, metrics = agent.gradient(
@@ -108,7 +108,9 @@ def _gradient(
             agent.settings,
             None if eps_next is None else eps_next[m],
         )
-        p.grad.copy_(grad)
+    # the gradient graph's own output, not a copy (a pass over every parameter): it is read by
+    # Adam before the next gradient of this graph is taken (on a GPU, it overwrites it)
+    p.grad = grad
     return metrics
 
 
