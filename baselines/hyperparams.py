@@ -23,6 +23,7 @@ from typing import Any
 
 import yaml
 
+from tacbench import paper
 from tacbench.errors import TacbenchError
 
 ALGOS = ("ddpg", "td3", "sac-sb3", "ppo", "trpo")
@@ -308,13 +309,24 @@ def load_table(algo: str) -> dict[str, dict[str, Any]]:
 
 
 def resolve(algo: str, env_id: str, task: str | None) -> tuple[dict[str, Any], list[str]]:
-    """The table's values for ``env_id`` (paper task name ``task``) and the sections used."""
+    """The table's values for ``env_id`` (paper task name ``task``) and the sections used.
+
+    Another version of a paper task (``Hopper-v5``) with no section of its own takes the section
+    of the task's id in the default suite (``Hopper-v4``, where RL Zoo tuned it), and says so."""
     table = load_table(algo)
-    sections = ["default", *(name for name in (task, env_id) if name and name in table)]
+    suite_id = paper.ENV_IDS.get(task or "")
+    by_id = env_id
+    if env_id not in table and suite_id and suite_id != env_id and suite_id in table:
+        by_id = suite_id
+    names = ["default", *(name for name in (task, by_id) if name and name in table)]
     values: dict[str, Any] = {}
-    for name in sections:
+    for name in names:
         for key, value in table[name].items():
             values[key] = coerce(algo, key, value)
+    sections = [
+        f"{name} (carried over to {env_id})" if name != env_id and name == by_id else name
+        for name in names
+    ]
     missing = sorted(set(ALGO_KEYS[algo]) - set(values))
     if missing:
         raise TacbenchError(f"baselines/hyperparams/{algo}.yaml sets no value for {missing}.")

@@ -22,7 +22,7 @@ import numpy.typing as npt
 from gymnasium.envs.mujoco.mujoco_env import MujocoEnv
 
 from tacbench.errors import TacbenchError
-from tacbench.paper import ENV_IDS, paper_task, suite_task
+from tacbench.paper import DEFAULT_SUITE, ENV_IDS, SUITES, paper_task, suite_task
 
 FloatArray = npt.NDArray[np.float64]
 Policy = Callable[[FloatArray], FloatArray]
@@ -144,10 +144,11 @@ def to_env_action(squashed: npt.ArrayLike, info: EnvInfo) -> FloatArray:
     return low + (np.asarray(squashed, dtype=np.float64) + 1.0) * 0.5 * (high - low)
 
 
-def suite_table() -> list[dict[str, Any]]:
-    """One row per paper task: its id, sizes, episode limit and whether it loads here."""
+def suite_table(suite: str = DEFAULT_SUITE) -> list[dict[str, Any]]:
+    """One row per paper task of ``suite`` (:data:`tacbench.paper.SUITES`): its id, sizes,
+    episode limit and whether it loads here."""
     rows = []
-    for task, env_id in ENV_IDS.items():
+    for task, env_id in SUITES[suite].items():
         row: dict[str, Any] = {"task": task, "env": env_id}
         try:
             info = env_info(env_id)

@@ -56,6 +56,9 @@ def make_run_configs(
     if not seeds:
         raise TacbenchError("give at least one --seed.")
     paper_q, paper_alpha, q_source, alpha_source = paper_defaults(task)
+    if task is not None and env != paper.ENV_IDS[task]:  # another version (--suite v5)
+        carried = f", tuned on {task}-v2 and carried over to {env} unchanged"
+        q_source, alpha_source = q_source + carried, alpha_source + carried
     notes = []
     if not qs:
         notes.append(f"q = {paper_q:g}: {q_source}")

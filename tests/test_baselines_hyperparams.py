@@ -80,6 +80,18 @@ def test_zoo_values_are_applied_per_environment() -> None:
     assert sections == ["default", "Humanoid"] and humanoid["ent_coef"] == 0.05
 
 
+def test_another_version_of_a_task_takes_the_suites_section_and_says_so() -> None:
+    v4, _ = hyperparams.resolve("ppo", "Hopper-v4", "Hopper")
+    v5, sections = hyperparams.resolve("ppo", "Hopper-v5", "Hopper")
+    assert v5 == v4
+    assert sections == ["default", "Hopper-v4 (carried over to Hopper-v5)"]
+    configs, _, notes = make_configs("td3", "Hopper-v5", "Hopper", [0])
+    assert configs[0].hyperparams["learning_rate"] == 3e-4  # the zoo's Hopper value
+    assert "Hopper-v4 (carried over to Hopper-v5)" in notes[0]
+    # a task the paper did not run has no suite section to take
+    assert hyperparams.resolve("ppo", "Walker2d-v5", None)[1] == ["default"]
+
+
 def test_overrides_are_parsed_as_yaml_and_checked() -> None:
     parsed = hyperparams.parse_overrides(
         "td3",

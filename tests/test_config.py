@@ -241,3 +241,13 @@ def test_q_auto_notes_the_cap_once_and_not_for_its_starting_qs() -> None:
         "Hopper-v4", "Hopper", seeds, alphas=[0.2], q_mode="auto", q_range=(0.5, 1.5)
     )
     assert not any("capped" in note for note in low)
+
+
+def test_another_version_of_a_paper_task_says_its_q_and_alpha_are_carried_over() -> None:
+    configs, notes = make_run_configs("Hopper-v5", "Hopper", [0])
+    assert (configs[0].q, configs[0].alpha) == (2.0, 0.2)
+    carried = "tuned on Hopper-v2 and carried over to Hopper-v5 unchanged"
+    assert notes[0].startswith("q = 2: the paper's best q for Hopper") and carried in notes[0]
+    assert notes[1].startswith("alpha = 0.2:") and carried in notes[1]
+    _, suite_notes = make_run_configs("Hopper-v4", "Hopper", [0])
+    assert not any("carried over" in note for note in suite_notes)

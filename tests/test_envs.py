@@ -150,3 +150,13 @@ def test_other_mujoco_warnings_still_reach_the_user() -> None:
     data.qpos[:] = np.nan
     with pytest.warns(RuntimeWarning, match="MuJoCo: Nan, Inf or huge value in QPOS"):
         mujoco.mj_step(model, data)
+
+
+def test_envs_command_lists_the_v5_suite_and_says_the_papers_values_are_carried_over() -> None:
+    result = CliRunner().invoke(cli, ["envs", "--suite", "v5"])
+    assert result.exit_code == 0, result.output
+    rows = {line.split()[0]: line.split() for line in result.output.splitlines()[1:7]}
+    assert {row[1] for row in rows.values()} == {f"{task}-v5" for task in paper.ENV_IDS}
+    assert rows["Ant"][1:7] == ["Ant-v5", "105", "8", "1000", "0.2", "1.5"]
+    assert all(row[-1] == "yes" for row in rows.values())
+    assert "carried over to v5 unchanged" in result.output

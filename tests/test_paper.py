@@ -105,5 +105,9 @@ def test_task_names() -> None:
     assert paper.task_name("Humanoid-v4") == "Humanoid" and paper.task_name("Custom") == "Custom"
     assert paper.suite_task("hopper") == paper.suite_task("HOPPER-V4") == "Hopper"
     assert paper.suite_task("Hopper-v5") is None
+    assert paper.suite_task("hopper-V5", "v5") == paper.suite_task("Hopper", "v5") == "Hopper"
+    assert paper.suite_task("Hopper-v4", "v5") is None
+    assert paper.SUITES["v4"] is paper.ENV_IDS
+    assert dict(paper.SUITES["v5"]) == {task: f"{task}-v5" for task in paper.TASKS}
     assert paper.TASK_FACTS["Hopper"].best_q_label == "2 (slightly better)"
     assert paper.TASK_FACTS["HalfCheetah"].best_q_label == "1.5"

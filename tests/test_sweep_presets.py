@@ -96,7 +96,9 @@ def test_tac_flags_follow_one_rule_for_baselines_as_in_tacbench_run() -> None:
 @pytest.mark.parametrize(
     ("by", "message"),
     [
-        ({"tasks": ("Hopper-v5",)}, "the presets train the paper's tasks"),
+        ({"tasks": ("Hopper-v5",)}, "Hopper-v5 is in suite v5: add --suite v5"),
+        ({"tasks": ("Hopper-v4",), "suite": "v5"}, "here of suite v5: HalfCheetah .HalfCheetah-v5"),
+        ({"suite": "v3"}, "--suite v3: choose one of v4, v5"),
         ({"q": (4.0,)}, "--q 4: not in this preset, which has 0.5, 0.7, 1, 1.2"),
         ({"seeds": (5,)}, "--seed 5: not in this preset"),
         ({"algos": ("sac-sb3",)}, "--algo sac-sb3: not in this preset"),
@@ -113,3 +115,30 @@ def test_narrowing_to_nothing_and_unknown_preset() -> None:
     with pytest.raises(TacbenchError, match="choose one of paper-q-grid"):
         get_preset("paper")
     assert list(PRESETS) == ["paper-q-grid", "paper-comparison", "smoke"]
+
+
+def test_suite_v5_trains_every_task_on_its_v5_id_with_the_papers_values() -> None:
+    v4 = _runs("paper-comparison", seeds=(0,))
+    v5 = _runs("paper-comparison", seeds=(0,), suite="v5")
+    assert sorted({r.config.env for r in v5}) == sorted(f"{task}-v5" for task in ENV_IDS)
+    assert len(v5) == len(v4)
+    for old, new in zip(v4, v5, strict=True):  # the same runs, task for task, on v5
+        assert new.config.env == old.config.env.rsplit("-", 1)[0] + "-v5"
+        assert getattr(new.config, "q", None) == getattr(old.config, "q", None)
+        assert getattr(new.config, "alpha", None) == getattr(old.config, "alpha", None)
+    hopper = _runs("paper-q-grid", tasks=("hopper-v5",), seeds=(0,), suite="v5")
+    assert {r.config.env for r in hopper} == {"Hopper-v5"}
+    assert {r.config.alpha for r in hopper} == {TASK_FACTS["Hopper"].alpha}
+
+
+def test_sweep_command_takes_the_suite(tmp_path: object) -> None:
+    from click.testing import CliRunner
+
+    from tacbench.cli import cli
+
+    args = ["sweep", "--preset", "smoke", "--suite", "v5", "--dry-run", "--out", str(tmp_path)]
+    result = CliRunner().invoke(cli, args)
+    assert result.exit_code == 0, result.output
+    assert "tac Hopper-v5: 2 units" in result.output and "Hopper-v4" not in result.output
+    refused = CliRunner().invoke(cli, [*args[:3], "--env", "Hopper-v5", "--dry-run"])
+    assert refused.exit_code != 0 and "add --suite v5" in refused.output

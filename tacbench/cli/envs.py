@@ -8,7 +8,14 @@ from tacbench import paper
 
 
 @click.command(name="envs")
-def envs_command() -> None:
+@click.option(
+    "--suite",
+    type=click.Choice(list(paper.SUITES)),
+    default=paper.DEFAULT_SUITE,
+    show_default=True,
+    help="The tasks' Gymnasium version: v4 (the studies') or v5 (Gymnasium's recommendation).",
+)
+def envs_command(suite: str) -> None:
     """List the paper's task suite with its Gymnasium ids and the paper's alpha and best q."""
     from tacbench.envs import suite_table
 
@@ -17,13 +24,19 @@ def envs_command() -> None:
         f"{'best q':<20} loads"
     )
     click.echo(header)
-    for row in suite_table():
+    for row in suite_table(suite):
         facts = paper.TASK_FACTS[row["task"]]
         click.echo(
             f"{row['task']:<12} {row['env']:<16} {row['obs']!s:>4} {row['act']!s:>4} "
             f"{row['limit']!s:>6} {facts.alpha:>6g}  {facts.best_q_label:<20} {row['ok']}"
         )
     click.echo(
-        "alpha and best q: paper appendix, per-task table. Any other registered Gymnasium id "
-        "with continuous actions also works with --env (default q = 1, alpha = 0.2)."
+        "alpha and best q: paper appendix, per-task table"
+        + (
+            f" (tuned by the paper on the v2 tasks; carried over to {suite} unchanged)"
+            if suite != paper.DEFAULT_SUITE
+            else ""
+        )
+        + ". Any other registered Gymnasium id with continuous actions also works with --env "
+        "(default q = 1, alpha = 0.2)."
     )

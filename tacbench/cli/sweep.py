@@ -12,7 +12,7 @@ from typing import Any
 
 import click
 
-from tacbench import trainers
+from tacbench import paper, trainers
 from tacbench.cli.common import command_line
 from tacbench.cli.options import ResultsFolder, cli_settings, setting_options
 from tacbench.config import RunConfig
@@ -31,6 +31,14 @@ _OVERRIDES = cli_settings(RunConfig, sweep=True)
     "TAC q=1, DDPG, TD3, PPO, TRPO), smoke (tiny budgets). Sources: docs/sweep.md.",
 )
 @click.option("--env", "envs", multiple=True, help="Repeatable: keep only these tasks (Ant).")
+@click.option(
+    "--suite",
+    type=click.Choice(list(paper.SUITES)),
+    default=paper.DEFAULT_SUITE,
+    show_default=True,
+    help="The tasks' Gymnasium version: v4 (the studies', closest to the paper's v2) or v5 "
+    "(Gymnasium's recommendation for new work; the paper's alpha and best q carried over).",
+)
 @click.option("--q", "qs", type=float, multiple=True, help="Repeatable: keep only these TAC q.")
 @click.option(
     "--algo",
@@ -153,6 +161,7 @@ def sweep(ctx: click.Context, preset: str, **p: Any) -> None:
             p["algos"],
             p["seeds"],
             {name: value for name, value in overrides.items() if value is not None},
+            p.pop("suite"),
         ),
     )
     options = driver.Options(

@@ -20,7 +20,6 @@ from typing import TYPE_CHECKING, Any, Literal
 from tacbench import runs, trainers
 from tacbench.config import RESULT_NEUTRAL_FIELDS, RunConfig
 from tacbench.errors import TacbenchError
-from tacbench.paper import ENV_IDS
 from tacbench.sweep.presets import Preset
 
 if TYPE_CHECKING:
@@ -128,7 +127,7 @@ def build_runs(preset: Preset, *, device: str = "cpu", threads: int = 1) -> list
     for entry in preset.entries:
         settings = {**entry.settings, "device": device, "threads": threads}
         for task in entry.tasks:
-            env_id = ENV_IDS[task]
+            env_id = entry.env_id(task)
             configs = [
                 config
                 for config in trainers.make_configs(

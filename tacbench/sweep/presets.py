@@ -52,6 +52,11 @@ class Entry:
     settings: Mapping[str, Any] = field(default_factory=lambda: MappingProxyType({}))
     hp: tuple[str, ...] = ()
     label: str = ""
+    suite: str = paper.DEFAULT_SUITE  # which Gymnasium version of the tasks (paper.SUITES)
+
+    def env_id(self, task: str) -> str:
+        """The Gymnasium id this entry trains ``task`` on."""
+        return paper.SUITES[self.suite][task]
 
     def q_values(self, task: str) -> tuple[float, ...]:
         """The q values this entry trains on ``task`` (TAC only; empty for a baseline)."""
@@ -137,6 +142,7 @@ class Narrowing:
     algos: tuple[str, ...] = ()
     seeds: tuple[int, ...] = ()
     settings: Mapping[str, Any] = field(default_factory=lambda: MappingProxyType({}))
+    suite: str = paper.DEFAULT_SUITE  # --suite: the tasks' Gymnasium version (paper.SUITES)
 
 
 def get_preset(name: str) -> Preset:
@@ -151,10 +157,12 @@ def narrow(preset: Preset, by: Narrowing) -> Preset:
     occur in the preset), with ``by.settings`` replacing the preset's. A TAC setting given for
     a baseline's entry becomes its equivalent hyperparameter or is refused, as in ``tacbench
     run`` (:func:`tacbench.trainers.tac_flags_for_baseline`). A ``--q`` keeps TAC entries only:
-    baselines have no q."""
-    entries = preset.entries
+    baselines have no q. Every entry trains the tasks of suite ``by.suite``."""
+    if by.suite not in paper.SUITES:
+        raise TacbenchError(f"--suite {by.suite}: choose one of {', '.join(paper.SUITES)}.")
+    entries = tuple(replace(e, suite=by.suite) for e in preset.entries)
     run_settings = set(settings_of(RunSettings))
-    by = replace(by, tasks=tuple(task_of(name) for name in by.tasks))
+    by = replace(by, tasks=tuple(task_of(name, by.suite) for name in by.tasks))
     _check_subset("--env", by.tasks, {t for e in entries for t in e.tasks})
     _check_subset("--algo", by.algos, {e.algo for e in entries})
     _check_subset("--seed", by.seeds, {s for e in entries for s in e.seeds})
@@ -192,13 +200,18 @@ def narrow(preset: Preset, by: Narrowing) -> Preset:
     return replace(preset, entries=tuple(kept))
 
 
-def task_of(name: str) -> str:
-    """The paper task for ``name``: a task name in any case (``hopper``) or its suite id
+def task_of(name: str, suite: str = paper.DEFAULT_SUITE) -> str:
+    """The paper task for ``name``: a task name in any case (``hopper``) or its id in ``suite``
     (``Hopper-v4``). Another version of a task is refused: the presets train the suite's."""
-    task = paper.suite_task(name)
+    task = paper.suite_task(name, suite)
     if task is None:
-        suite = ", ".join(f"{task} ({env_id})" for task, env_id in paper.ENV_IDS.items())
-        raise TacbenchError(f"--env {name}: the presets train the paper's tasks: {suite}.")
+        ids = ", ".join(f"{task} ({env_id})" for task, env_id in paper.SUITES[suite].items())
+        other = [s for s in paper.SUITES if paper.suite_task(name, s)]
+        hint = f" {name} is in suite {other[0]}: add --suite {other[0]}." if other else ""
+        raise TacbenchError(
+            f"--env {name}: the presets train the paper's tasks, here of suite {suite}: "
+            f"{ids}.{hint}"
+        )
     return task
 
 

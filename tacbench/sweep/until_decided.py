@@ -115,7 +115,7 @@ def methods_of(preset: Preset) -> dict[str, list[Method]]:
                 narrowed = replace(entry, tasks=(task,))
                 if entry.algo == "tac":
                     label, narrowed = tac_label(q), replace(narrowed, q=(q,))
-                methods = tasks.setdefault(paper.ENV_IDS[task], [])
+                methods = tasks.setdefault(entry.env_id(task), [])
                 if label not in [m.label for m in methods]:
                     methods.append(Method(label, narrowed))
     return tasks
