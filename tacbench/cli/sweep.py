@@ -141,6 +141,12 @@ _OVERRIDES = cli_settings(RunConfig, sweep=True)
     "pair).  [default: best-q when the grid has baselines, else q=1]",
 )
 @click.option("--dry-run", is_flag=True, help="Print the plan and cost estimate; train nothing.")
+@click.option(
+    "--calibrate",
+    is_flag=True,
+    help="With --dry-run: first measure, by a short training of each kind of unit, what the "
+    "plan's units cost on this CPU class, and keep it for later dry runs (a few minutes).",
+)
 @click.pass_context
 def sweep(ctx: click.Context, preset: str, **p: Any) -> None:
     """Train a preset grid of runs (or what is left of it) locally, on Ray or on Slurm; rerun
@@ -187,8 +193,16 @@ def sweep(ctx: click.Context, preset: str, **p: Any) -> None:
     given = [f"--{k.replace('_', '-')}" for k, v in sequential.items() if v is not None]
     if given:
         raise click.UsageError(f"{', '.join(given)} only apply with --until-decided.")
+    if p["calibrate"] and not p["dry_run"]:
+        raise click.UsageError("--calibrate prices a plan: give it with --dry-run.")
     if p["dry_run"]:
         work, _ = driver.load_plan(grid, p["out"], options, save=False)
+        if p["calibrate"]:
+            from tacbench.sweep import calibration
+
+            calibration.calibrate(
+                calibration.unit_configs(work), report=lambda line: click.echo(line, err=True)
+            )
         click.echo(summary.describe_plan(work, options.worker_count(), options.group))
         return
     result = driver.run_sweep(grid, p["out"], options)

@@ -9,8 +9,9 @@ from pathlib import Path
 from typing import Any
 
 from tacbench import envs, runs
+from tacbench.hardware import cpu_class
 from tacbench.progress import duration
-from tacbench.sweep import cost, state
+from tacbench.sweep import calibration, cost, state
 from tacbench.sweep.plan import PlannedRun, SweepPlan
 
 
@@ -24,6 +25,8 @@ def counts(plan: SweepPlan) -> dict[str, int]:
         "given_up": plan.count(action="give-up"),
     }
 
+
+CALIBRATED = "calibrated**"
 
 GROUPING = {
     "task": "TAC runs of a task that differ only in q, alpha or seed train as members of one unit",
@@ -57,18 +60,25 @@ def describe_plan(plan: SweepPlan, workers: int, group: str) -> str:
         algo = cost.cost_algo(config.algo, getattr(config, "profile", None))
         groups[(algo, config.env)].append(p)
     rates = cost.rates(plan.out, groups)
+    stored = calibration.load()
+    calibrated = calibration.price(plan, stored)
     core_s = 0.0
+    sources = set()
     for (algo, env), members in groups.items():
         n = Counter(p.status.state for p in members)
         steps = sum(
             p.run.total_steps - p.status.step for p in members if p.action in ("train", "retry")
         )
         rate = rates[(algo, env)]
-        core_s += steps * rate.seconds_per_step
+        seconds, source = steps * rate.seconds_per_step, rate.source
+        if rate.source == cost.DEFAULT_SOURCE and (algo, env) in calibrated:
+            seconds, source = calibrated[(algo, env)], CALIBRATED
+        core_s += seconds
+        sources.add(source)
         lines.append(
             f"{algo:<8} {env:<15} {len(members):>5} {n['complete']:>5} {n['partial']:>5} "
-            f"{n['failed']:>5} {n['new']:>5} {steps:>14,} {rate.seconds_per_step * 1e3:>8.2f}  "
-            f"{rate.source}"
+            f"{n['failed']:>5} {n['new']:>5} {steps:>14,} "
+            f"{seconds / max(1, steps) * 1e3:>8.2f}  {source}"
         )
     lines += [
         "",
@@ -76,10 +86,16 @@ def describe_plan(plan: SweepPlan, workers: int, group: str) -> str:
         f"{'s' if workers != 1 else ''} about {duration(core_s / max(1, workers))} "
         "(one core per worker, all busy)",
     ]
-    if any(r.source == cost.DEFAULT_SOURCE for r in rates.values()):
+    if CALIBRATED in sources:
+        lines.append(
+            f"** calibrated: measured on this CPU class ({cpu_class()}) by --calibrate, stored "
+            f"in {calibration.store_path()}; evaluation episodes priced at full length."
+        )
+    if cost.DEFAULT_SOURCE in sources:
         lines.append(
             "* CPU time per step measured on tacbench's development machine, not here "
-            "(tacbench/sweep/cost.py); runs under --out with two evaluations replace it."
+            "(tacbench/sweep/cost.py); runs under --out with two evaluations replace it, and "
+            "--dry-run --calibrate measures the units on this CPU class (a few minutes)."
         )
     return "\n".join(lines)
 

@@ -1,0 +1,305 @@
+"""What a unit of runs costs on this CPU class, measured by a short training of the unit itself
+(``tacbench sweep --dry-run --calibrate``), stored per class, and priced.
+
+A unit's cost depends on more than its algorithm and task: its networks, its members, its
+schedule, its compilation and the CPU. So the unit is calibrated as it would train, for a few
+thousand steps, in a temporary folder: its own configs (at most :data:`MEMBERS_MEASURED`
+members, as many as one chunk of a CPU agent), with only the budget, the evaluation and the
+checkpoints changed. Three CPU times per member-step come out (``time.process_time``, so other
+work on the machine does not inflate them, one torch thread):
+
+* ``random``: a step before learning starts (random actions, no update), over up to
+  :data:`RANDOM_STEPS` steps;
+* ``learn``: a step after it (environment, update, buffer), over :data:`LEARN_STEPS` steps after
+  :data:`WARMUP_STEPS` (where ``torch.compile`` compiles), or for PPO and TRPO over at least three
+  rollouts and their updates;
+* ``eval_step``: one step of an evaluation episode, taken as one environment step (the median
+  of :data:`ENV_STEPS`): an evaluation steps its ten episodes in lockstep, so the policy's
+  batched action, shared by them, is left out.
+
+A run of T steps that learns from step L and evaluates E episodes every V steps is then priced at
+``L x random + (T - L) x learn + (T / V) x E x H x eval_step`` per member, H the task's episode
+limit: evaluation episodes are priced at full length, an upper bound for tasks whose episodes end
+early. The compilation of the first update (seconds) and the checkpoints are left out.
+
+Calibrations are kept per CPU class (:func:`tacbench.hardware.cpu_class`) in
+``$TACBENCH_CALIBRATION`` or ``~/.cache/tacbench/calibration/<class>.json``, keyed by what
+decides a unit's cost (:func:`unit_key`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime
+import json
+import os
+import statistics
+import tempfile
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from tacbench import envs, runs
+from tacbench.hardware import cpu_class
+
+MEMBERS_MEASURED = 10  # a CPU agent's chunk (tac/agent.py): more members cost the same per member
+RANDOM_STEPS = 1000
+WARMUP_STEPS = 50
+LEARN_STEPS = 1500
+ON_POLICY_ROLLOUTS = 3
+ENV_STEPS = 2000  # environment steps timed for an evaluation step
+ON_POLICY = ("ppo", "trpo")
+# config fields that do not change what a step costs (the budget, the evaluation's schedule,
+# priced separately, and the member's identity)
+_FREE_FIELDS = (
+    "seed",
+    "q",
+    "alpha",
+    "total_steps",
+    "eval_every",
+    "eval_episodes",
+    "checkpoint_every",
+    "log_every",
+    "tensorboard",
+    "variant",
+)
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """CPU seconds per member-step of one unit, and when and where they were measured."""
+
+    random: float
+    learn: float
+    eval_step: float
+    measured: str  # date
+    members: int  # how many members the measurement trained
+
+    def seconds(
+        self,
+        total_steps: int,
+        learning_starts: int,
+        eval_every: int,
+        episodes: int,
+        episode_limit: int,
+        *,
+        steps_left: int,
+    ) -> float:
+        """CPU seconds per member for the last ``steps_left`` of a ``total_steps`` run."""
+        start = total_steps - steps_left
+        random_left = max(0, learning_starts - start)
+        learn_left = steps_left - random_left
+        evaluations = total_steps // eval_every - start // eval_every if eval_every else 0
+        return (
+            random_left * self.random
+            + learn_left * self.learn
+            + evaluations * episodes * episode_limit * self.eval_step
+        )
+
+
+def store_path(cpu: str | None = None) -> Path:
+    """Where this class's calibrations are kept."""
+    root = os.environ.get("TACBENCH_CALIBRATION")
+    folder = Path(root) if root else Path.home() / ".cache" / "tacbench" / "calibration"
+    return folder / f"{cpu or cpu_class()}.json"
+
+
+def load(cpu: str | None = None) -> dict[str, Calibration]:
+    """This class's calibrations by :func:`unit_key` (none yet: empty)."""
+    path = store_path(cpu)
+    if not path.exists():
+        return {}
+    data = runs.read_json(path)
+    return {key: Calibration(**value) for key, value in data.get("units", {}).items()}
+
+
+def save(calibrations: dict[str, Calibration], cpu: str | None = None) -> Path:
+    """Write this class's calibrations (atomically), merged with those already stored."""
+    path = store_path(cpu)
+    merged = {**load(cpu), **calibrations}
+    record = {
+        "cpu_class": cpu or cpu_class(),
+        "units": {key: dataclasses.asdict(c) for key, c in sorted(merged.items())},
+    }
+    path.parent.mkdir(parents=True, exist_ok=True)
+    runs.atomic_write_json(path, record)
+    return path
+
+
+def unit_key(configs: Sequence[Any]) -> str:
+    """What decides a unit's cost per member-step: its algorithm, task, every setting but the
+    member's identity, the budget and the evaluation schedule, and its members (up to
+    :data:`MEMBERS_MEASURED`)."""
+    data = configs[0].to_dict()
+    shared = {k: v for k, v in data.items() if k not in _FREE_FIELDS}
+    members = min(len(configs), MEMBERS_MEASURED)
+    return f"{data['algo']} {data['env']} K={members} {json.dumps(shared, sort_keys=True)}"
+
+
+def _learning_starts(config: Any) -> int:
+    """The step from which ``config`` learns (0 for PPO and TRPO, which have no random phase)."""
+    if config.algo in ON_POLICY:
+        return 0
+    if config.algo == "tac":
+        return int(config.learning_starts)
+    return int(config.hyperparams["learning_starts"])
+
+
+def run_pricing(config: Any) -> tuple[int, int, int, int]:
+    """(learning starts, evaluation interval, evaluation episodes, episode limit) of a run."""
+    return (
+        _learning_starts(config),
+        int(config.eval_every),
+        int(config.eval_episodes),
+        envs.env_info(config.env).max_episode_steps,
+    )
+
+
+def _for_measurement(configs: Sequence[Any], total: int, starts: int) -> list[Any]:
+    """The unit's first members, set to train ``total`` steps, learning from ``starts``, with
+    no evaluation or checkpoint inside them."""
+    changed: list[Any] = []
+    for config in configs[:MEMBERS_MEASURED]:
+        settings: dict[str, Any] = {"total_steps": total, "eval_every": 0, "checkpoint_every": 0}
+        if config.algo == "tac":
+            settings["learning_starts"] = starts  # compile stays as resolved for the real run
+        elif config.algo not in ON_POLICY:
+            settings["hyperparams"] = {**config.hyperparams, "learning_starts": starts}
+        changed.append(dataclasses.replace(config, **settings))
+    return changed
+
+
+def measure(configs: Sequence[Any]) -> Calibration:
+    """Train the unit of ``configs`` briefly in a temporary folder and time it (module
+    docstring)."""
+    import torch
+
+    from tacbench import trainers
+
+    torch.set_num_threads(1)
+    first = configs[0]
+    if first.algo in ON_POLICY:
+        rollout = int(first.hyperparams["n_steps"])
+        starts, total = 0, max(LEARN_STEPS, ON_POLICY_ROLLOUTS * rollout) + rollout
+    else:
+        starts = min(_learning_starts(first), RANDOM_STEPS)
+        total = starts + WARMUP_STEPS + LEARN_STEPS
+    measured = _for_measurement(configs, total, starts)
+    marks: list[tuple[int, float]] = []
+
+    def stop(step: int) -> bool:
+        marks.append((step, time.process_time()))
+        return False
+
+    with tempfile.TemporaryDirectory() as tmp:
+        trainers.trainer_for(first.algo).train(measured, Path(tmp), quiet=True, stop=stop)
+    members = len(measured)
+
+    def rate(low: int, high: int) -> float:
+        inside = [(s, t) for s, t in marks if low <= s <= high]
+        (s0, t0), (s1, t1) = inside[0], inside[-1]
+        return (t1 - t0) / max(1, s1 - s0) / members
+
+    if first.algo in ON_POLICY:  # from the end of the first rollout: rollouts and updates
+        learn = rate(int(first.hyperparams["n_steps"]), total)
+        random_rate = learn
+    else:
+        # from a tenth of the way in: the first steps also pay for setting the unit up
+        random_rate = (
+            rate(starts // 10 + 1, starts - 1)
+            if starts > 10
+            else rate(starts, starts + WARMUP_STEPS)
+        )
+        learn = rate(starts + WARMUP_STEPS, total)
+    return Calibration(
+        random=random_rate,
+        learn=learn,
+        eval_step=env_step_seconds(first.env),
+        measured=datetime.date.today().isoformat(),
+        members=members,
+    )
+
+
+def env_step_seconds(env_id: str, steps: int | None = None) -> float:
+    """CPU seconds of one step of ``env_id``: the median of ``steps`` (default
+    :data:`ENV_STEPS`) steps with random actions, resets not counted."""
+    import numpy as np
+
+    env = envs.make_env(env_id)
+    try:
+        env.reset(seed=0)
+        rng = np.random.default_rng(0)
+        info = envs.env_info(env_id)
+        low, high = np.asarray(info.low), np.asarray(info.high)
+        times = []
+        for _ in range(steps or ENV_STEPS):
+            action = rng.uniform(low, high)
+            start = time.process_time()
+            _, _, terminated, truncated, _ = env.step(action)
+            times.append(time.process_time() - start)
+            if terminated or truncated:
+                env.reset()
+    finally:
+        env.close()
+    return statistics.median(times)
+
+
+def calibrate(
+    units: Sequence[Sequence[Any]], report: Callable[[str], None] = print
+) -> dict[str, Calibration]:
+    """Measure every unit (a sequence of its configs) whose key this class has not calibrated,
+    store the results and return all of this class's calibrations."""
+    known = load()
+    todo: dict[str, Sequence[Any]] = {}
+    for configs in units:
+        key = unit_key(configs)
+        if key not in known and key not in todo:
+            todo[key] = configs
+    new: dict[str, Calibration] = {}
+    for index, (key, configs) in enumerate(todo.items(), start=1):
+        c = configs[0]
+        report(
+            f"calibrating {index}/{len(todo)}: {c.algo} {c.env}, "
+            f"{min(len(configs), MEMBERS_MEASURED)} member(s) ..."
+        )
+        start = time.perf_counter()
+        new[key] = measure(configs)
+        report(
+            f"  {new[key].learn * 1e3:.2f} ms per member-step learning, "
+            f"{new[key].random * 1e3:.2f} before ({time.perf_counter() - start:.0f} s)"
+        )
+    if new:
+        report(f"wrote {save(new)}")
+    return {**known, **new}
+
+
+def unit_configs(plan: Any) -> list[list[Any]]:
+    """The configs of each unit of a sweep plan."""
+    return [[run.config for run in unit.runs] for unit in plan.units]
+
+
+def price(plan: Any, calibrations: dict[str, Calibration]) -> dict[tuple[str, str], float]:
+    """CPU seconds left per (cost algorithm, task) of ``plan``, for the groups whose every unit
+    to train is calibrated (:func:`tacbench.sweep.cost.cost_algo` names the algorithm)."""
+    from tacbench.sweep.cost import cost_algo
+
+    planned = {p.run.key: p for p in plan.runs}
+    seconds: dict[tuple[str, str], float] = {}
+    missing: set[tuple[str, str]] = set()
+    for unit in plan.units:
+        configs = [run.config for run in unit.runs]
+        first = configs[0]
+        group = (cost_algo(first.algo, getattr(first, "profile", None)), first.env)
+        found = calibrations.get(unit_key(configs))
+        if found is None:
+            missing.add(group)
+            continue
+        for run in unit.runs:
+            left = run.total_steps - planned[run.key].status.step
+            pricing = run_pricing(run.config)
+            seconds[group] = seconds.get(group, 0.0) + found.seconds(
+                run.total_steps, *pricing, steps_left=left
+            )
+    return {group: s for group, s in seconds.items() if group not in missing}

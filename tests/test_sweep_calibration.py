@@ -1,0 +1,104 @@
+"""Calibrated prices (tacbench.sweep.calibration): the arithmetic, the keys, the store, the plan's
+price, and one short real measurement."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+from tacbench.cli import cli
+from tacbench.members import make_run_configs
+from tacbench.sweep import calibration
+from tacbench.sweep.calibration import Calibration
+
+pytestmark = pytest.mark.unit
+
+
+@pytest.fixture(autouse=True)
+def _own_store(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("TACBENCH_CALIBRATION", str(tmp_path / "calibration"))
+
+
+def test_a_run_is_priced_by_phase_and_by_evaluation() -> None:
+    c = Calibration(random=1e-4, learn=2e-3, eval_step=5e-5, measured="2026-12-03", members=1)
+    # 10,000 random steps, 90,000 learning steps, 20 evaluations of 10 episodes of 1,000 steps
+    whole = c.seconds(100_000, 10_000, 5_000, 10, 1_000, steps_left=100_000)
+    assert whole == pytest.approx(10_000 * 1e-4 + 90_000 * 2e-3 + 20 * 10 * 1_000 * 5e-5)
+    # resumed at step 60,000: no random steps, 8 evaluations left (65,000 ... 100,000)
+    rest = c.seconds(100_000, 10_000, 5_000, 10, 1_000, steps_left=40_000)
+    assert rest == pytest.approx(40_000 * 2e-3 + 8 * 10 * 1_000 * 5e-5)
+    assert c.seconds(100_000, 10_000, 0, 10, 1_000, steps_left=0) == 0.0
+
+
+def test_the_key_ignores_the_members_identity_and_budget_but_not_their_networks() -> None:
+    five, _ = make_run_configs("Hopper-v4", "Hopper", [0, 10, 20, 30, 40], qs=[1.0, 2.0])
+    other, _ = make_run_configs("Hopper-v4", "Hopper", [1, 2], qs=[1.5], total_steps=500_000)
+    assert calibration.unit_key(five[:2]) == calibration.unit_key(other)
+    assert "K=10" in calibration.unit_key(five)  # at most one chunk is measured
+    wide, _ = make_run_configs("Hopper-v4", "Hopper", [1, 2], hidden_sizes=(400, 300))
+    assert calibration.unit_key(wide) != calibration.unit_key(other)
+
+
+def test_calibrations_are_stored_per_cpu_class_and_merged() -> None:
+    a = Calibration(1e-4, 1e-3, 1e-4, "2026-12-03", 1)
+    b = Calibration(2e-4, 2e-3, 2e-4, "2026-12-03", 2)
+    calibration.save({"a": a})
+    path = calibration.save({"b": b})
+    assert path.name.endswith(".json") and path.parent.name == "calibration"
+    assert calibration.load() == {"a": a, "b": b}
+    assert calibration.load("another-class") == {}
+
+
+def test_the_dry_run_uses_the_calibration_of_every_unit_and_says_so(tmp_path: Path) -> None:
+    args = ["sweep", "--preset", "smoke", "--algo", "tac", "--dry-run", "--out", str(tmp_path)]
+    before = CliRunner().invoke(cli, args)
+    assert before.exit_code == 0, before.output
+    assert "default*" in before.output and "--dry-run --calibrate" in before.output
+    configs, _ = make_run_configs(
+        "Hopper-v4",
+        "Hopper",
+        [0, 10],
+        qs=[1.0, 2.0],
+        total_steps=1000,
+        learning_starts=500,
+        batch_size=32,
+        eval_every=500,
+        eval_episodes=2,
+        log_every=250,
+        checkpoint_every=500,
+    )
+    key = calibration.unit_key(configs[:2])
+    calibration.save({key: Calibration(1e-4, 2e-3, 5e-5, "2026-12-03", 2)})
+    after = CliRunner().invoke(cli, args)
+    assert after.exit_code == 0, after.output
+    row = next(line for line in after.output.splitlines() if line.startswith("tac "))
+    assert (
+        row.endswith("calibrated**") and "** calibrated: measured on this CPU class" in after.output
+    )
+    # per run: 500 random steps, 500 learning steps, 2 evaluations of 2 full-length episodes
+    per_run = 500 * 1e-4 + 500 * 2e-3 + 2 * 2 * 1_000 * 5e-5
+    assert f"{per_run / 1_000 * 1e3:.2f}" in row
+
+
+def test_calibrate_needs_a_dry_run(tmp_path: Path) -> None:
+    result = CliRunner().invoke(
+        cli, ["sweep", "--preset", "smoke", "--calibrate", "--out", str(tmp_path)]
+    )
+    assert result.exit_code == 2 and "give it with --dry-run" in result.output
+
+
+def test_a_short_measurement_times_random_and_learning_steps(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setattr(calibration, "RANDOM_STEPS", 100)
+    monkeypatch.setattr(calibration, "WARMUP_STEPS", 5)
+    monkeypatch.setattr(calibration, "LEARN_STEPS", 100)
+    configs, _ = make_run_configs("Pendulum-v1", None, [0, 10], hidden_sizes=(32,))
+    measured = calibration.measure(configs)
+    assert measured.members == 2
+    assert 0 < measured.random < measured.learn  # an update costs more than a random step
+    assert measured.eval_step > 0
+    stored = calibration.calibrate([configs], report=lambda line: None)
+    assert list(stored) == [calibration.unit_key(configs)]
