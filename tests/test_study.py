@@ -25,9 +25,9 @@ RUNS = {
     "authors-versions-100k/authors-2019-01-11b": 5 * 5,
     "authors-versions-100k/authors-2019-01-16c": 5 * 5,
     "authors-versions-100k/authors-2019-01-22": 5 * 5,
-    # Hopper and HalfCheetah: PPO and TRPO x 5 seeds, and TAC at q = 1 and the paper's best q
-    # (2 and 1.5) from paper-q-grid-100k
-    "comparison-100k": 2 * 4 * 5,
+    # Hopper and HalfCheetah: PPO, TRPO and DDPG x 5 seeds, and TAC at q = 1 and the paper's
+    # best q (2 and 1.5) from paper-q-grid-100k
+    "comparison-100k": 2 * 5 * 5,
 }
 # runs recorded as failed (a non-finite loss), at the step they failed: in this version q = 3
 # and 5 overflow float32 at their first update
