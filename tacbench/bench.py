@@ -92,6 +92,11 @@ class BenchOptions:
     threads: int = 1
     hidden_sizes: tuple[int, ...] | None = None  # None: the paper's (one layer of 300)
 
+    @property
+    def networks(self) -> tuple[int, ...]:
+        """The hidden layer widths every contestant trains with."""
+        return self.hidden_sizes or paper.HYPERPARAMETERS.hidden_sizes
+
     def __post_init__(self) -> None:
         for name in ("members", "rounds", "threads"):
             if getattr(self, name) < 1:
@@ -254,8 +259,7 @@ def table(results: list[BenchResult]) -> str:
 def summary(results: list[BenchResult], options: BenchOptions, before: dict[str, Any]) -> str:
     """The table with a header that says what was measured, where and under what load."""
     after = machine()
-    sizes = options.hidden_sizes or paper.HYPERPARAMETERS.hidden_sizes
-    widths = ", ".join(str(w) for w in sizes)
+    widths = ", ".join(str(w) for w in options.networks)
     head = (
         f"{options.env}, batch 100, ReLU hidden layers ({widths}), one update per step, "
         f"{options.threads} torch thread(s), device {options.device}; {options.rounds} rounds of "

@@ -27,6 +27,8 @@ import torch
 
 PEAK_SIZE = 2048  # the square product whose rate stands for the core's peak
 PROFILED_UPDATES = 50  # updates timed, and then profiled
+ELEMENTWISE = "elementwise (compiled kernels)"  # Inductor's fused kernels, graph_*_cpp_fused_*
+KINDS = {"aten::_fused_adam_": "Adam", "aten::lerp_": "target average"}  # ops named by kind
 BATCH = 100  # the paper's minibatch
 
 
@@ -116,8 +118,7 @@ def profile_rows(step: Callable[[], Any], updates: int) -> tuple[list[Row], floa
             step()
         wall_us = (time.perf_counter() - start) / updates * 1e6
     products: dict[str, list[float]] = defaultdict(lambda: [0.0, 0.0, 0.0])
-    kinds = {"elementwise (compiled kernels)": [0.0, 0.0], "Adam": [0.0, 0.0]}
-    kinds["target average"] = [0.0, 0.0]
+    kinds = {kind: [0.0, 0.0] for kind in (ELEMENTWISE, *KINDS.values())}
     for event in prof.key_averages(group_by_input_shape=True):
         name, us, calls = event.key, event.self_cpu_time_total / updates, event.count / updates
         if name in ("aten::bmm", "aten::mm", "aten::baddbmm", "aten::addmm"):
@@ -131,15 +132,12 @@ def profile_rows(step: Callable[[], Any], updates: int) -> tuple[list[Row], floa
             entry[0] += calls
             entry[1] += us
             entry[2] += _product_flops(shapes) * calls
-        elif name.startswith("graph_") and "cpp_fused" in name:
-            kinds["elementwise (compiled kernels)"][0] += calls
-            kinds["elementwise (compiled kernels)"][1] += us
-        elif name == "aten::_fused_adam_":
-            kinds["Adam"][0] += calls
-            kinds["Adam"][1] += us
-        elif name == "aten::lerp_":
-            kinds["target average"][0] += calls
-            kinds["target average"][1] += us
+        else:
+            fused = name.startswith("graph_") and "cpp_fused" in name
+            kind = ELEMENTWISE if fused else KINDS.get(name)
+            if kind is not None:
+                kinds[kind][0] += calls
+                kinds[kind][1] += us
     rows = [
         Row(f"product {label}", calls, us, flops / us / 1e3)
         for label, (calls, us, flops) in sorted(products.items(), key=lambda kv: -kv[1][1])

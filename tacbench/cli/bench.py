@@ -125,14 +125,12 @@ def _profile(options: BenchOptions, compile_: bool, json_path: Path | None) -> N
     import json
 
     from tacbench import bench as measure
-    from tacbench import paper
     from tacbench.update_profile import profile_table, profile_update
 
-    sizes = options.hidden_sizes or paper.HYPERPARAMETERS.hidden_sizes
     results = []
     for members in dict.fromkeys((1, options.members)):
         click.echo(f"profiling the update of {members} member(s) ...", err=True)
-        result = profile_update(options.env, members, sizes, compile_)
+        result = profile_update(options.env, members, options.networks, compile_)
         results.append(result)
         click.echo(profile_table(result) + "\n")
     if json_path is not None:
