@@ -10,6 +10,7 @@ from scipy.stats import norm, trim_mean
 
 from tacbench.report.stats import (
     ALL_TASKS,
+    improvement_over_baselines,
     improvement_over_q1,
     interval_estimates,
     iqm,
@@ -131,3 +132,30 @@ def test_improvement_compares_with_q1_runs_of_the_same_alpha_and_alpha_mode() ->
     # fixed 0.2 against fixed 0.2 (1, 2): wins; learned against learned (10, 11): losses
     assert table["p"].tolist() == [1.0, 1.0, 1.0, 0.0, 0.0, 0.0]
     assert table["tasks"].tolist() == [1, 1, 2] * 2
+
+
+def test_baseline_comparison_pairs_each_method_with_each_baseline_on_shared_tasks() -> None:
+    finals = {
+        ("A", "TAC (best q)"): [5.0, 6.0, 7.0],
+        ("A", "DDPG"): [1.0, 2.0],
+        ("A", "PPO"): [10.0, 11.0],
+        ("B", "TAC (best q)"): [5.0, 6.0],
+        ("B", "DDPG"): [1.0, 2.0, 3.0],
+        ("C", "TAC (best q)"): [0.0, 1.0],  # no baseline ran here: left out
+    }
+    scores = pd.DataFrame(
+        [{"env": env, "method": m, "final": f} for (env, m), fs in finals.items() for f in fs]
+    )
+    table = improvement_over_baselines(
+        scores, ["TAC (best q)"], ["DDPG", "PPO"], 200, np.random.default_rng(0)
+    )
+    assert table[["baseline", "env"]].values.tolist() == [
+        ["DDPG", "A"],
+        ["DDPG", "B"],
+        ["DDPG", ALL_TASKS],
+        ["PPO", "A"],
+    ]
+    assert table["p"].tolist() == [1.0, 1.0, 1.0, 0.0]
+    assert table["tasks"].tolist() == [1, 1, 2, 1]
+    assert table["verdict"].tolist()[:2] == ["larger", "larger"]
+    assert table["difference"].iloc[0] == pytest.approx(6.0 - 1.5)

@@ -34,6 +34,7 @@ from tacbench.report.stats import (
     ALL_TASKS,
     DEFAULT_REPS,
     aggregate_estimates,
+    improvement_over_baselines,
     improvement_over_q1,
     per_task_estimates,
     profile_table,
@@ -105,6 +106,7 @@ class Report:
     per_task: pd.DataFrame
     aggregate: pd.DataFrame
     improvement: pd.DataFrame
+    baselines: pd.DataFrame  # TAC (best q) and SAC against each baseline
     profiles: pd.DataFrame
     q_ranges: pd.DataFrame
     envs: list[str]
@@ -150,6 +152,20 @@ def _in_order(frame: pd.DataFrame, envs: list[str], methods: list[str]) -> pd.Da
     return frame.sort_values(
         columns, key=lambda col: col.map(ranks[str(col.name)]), kind="stable"
     ).reset_index(drop=True)
+
+
+def _tac_comparators(methods: list[str]) -> list[str]:
+    """TAC at its best q, then SAC: the TAC side of the comparison with the baselines."""
+    return [m for m in methods if m == BEST_Q_LABEL or m.startswith(SAC_LABEL)]
+
+
+def _baselines(methods: list[str], qs: dict[str, float]) -> list[str]:
+    """The methods that are not TAC (no q, and neither TAC at its best q nor TAC q=auto)."""
+    return [
+        m
+        for m in methods
+        if math.isnan(qs[m]) and m != BEST_Q_LABEL and not m.startswith(Q_AUTO_LABEL)
+    ]
 
 
 def _sequential_results(results: Path) -> dict[str, SequentialResult]:
@@ -203,6 +219,13 @@ def analyse(options: ReportOptions) -> Report:
         profiles=profile_table(independent, PROFILE_TAUS, options.reps, rng),
         q_ranges=_in_order(
             q_range_table(scores, runset.data, options.last, options.reps, rng), envs, methods
+        ),
+        baselines=_in_order(
+            improvement_over_baselines(
+                independent, _tac_comparators(methods), _baselines(methods, qs), options.reps, rng
+            ),
+            envs,
+            methods,
         ),
         envs=envs,
         methods=methods,

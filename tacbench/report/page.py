@@ -131,23 +131,19 @@ def _estimates_display(frame: pd.DataFrame, first: list[str]) -> pd.DataFrame:
     return shown
 
 
-def _improvement_display(report: Report) -> pd.DataFrame:
-    i = report.improvement
-    return pd.DataFrame(
-        {
-            "method": i["method"],
-            "task": i["env"],
-            "tasks": i["tasks"],
-            "P(method > q = 1) [95 % CI]": [
-                _ci(p, lo, hi) for p, lo, hi in zip(i["p"], i["low"], i["high"], strict=True)
-            ],
-            "verdict": i["verdict"],
-            "mean difference": [_num(v) for v in i["difference"]],
-            "detectable (80 % power)": [
-                _detectable(v, d) for v, d in zip(i["detectable"], i["verdict"], strict=True)
-            ],
-        }
-    )
+def _probability_display(frame: pd.DataFrame, identity: list[str], label: str) -> pd.DataFrame:
+    """A table of P(X > Y): ``identity`` columns (``env`` shown as task), then ``label``'s
+    interval, the verdict, the mean difference and, if not distinguishable, the detectable one."""
+    shown = frame[identity].rename(columns={"env": "task"})
+    shown[f"{label} [95 % CI]"] = [
+        _ci(p, lo, hi) for p, lo, hi in zip(frame["p"], frame["low"], frame["high"], strict=True)
+    ]
+    shown["verdict"] = frame["verdict"]
+    shown["mean difference"] = [_num(v) for v in frame["difference"]]
+    shown["detectable (80 % power)"] = [
+        _detectable(v, d) for v, d in zip(frame["detectable"], frame["verdict"], strict=True)
+    ]
+    return shown
 
 
 def _detectable(value: float, verdict: str) -> str:
@@ -357,6 +353,22 @@ def sections(report: Report) -> list[Section]:
                     "and the baselines: mean over seeds, shaded ± 1 std.",
                 ),
                 Table(summary_display(report), "Per task and method (mean ± std over seeds)"),
+                *(
+                    [
+                        Table(
+                            _probability_display(
+                                report.baselines,
+                                ["method", "baseline", "env", "tasks"],
+                                "P(method > baseline)",
+                            ),
+                            "TAC against each baseline: P(method > baseline) is the chance that a "
+                            "random run of the method beats a random run of the baseline on the "
+                            "same task (final returns; read as P(method > q = 1) below)",
+                        )
+                    ]
+                    if not report.baselines.empty
+                    else []
+                ),
             ],
         ),
         Section(
@@ -371,7 +383,12 @@ def sections(report: Report) -> list[Section]:
                     "Per task (final return)",
                 ),
                 Image("improvement", f"P(method > q = 1); '{ALL_TASKS}' averages over tasks."),
-                Table(_improvement_display(report), "Probability of improvement over q = 1"),
+                Table(
+                    _probability_display(
+                        report.improvement, ["method", "env", "tasks"], "P(method > q = 1)"
+                    ),
+                    "Probability of improvement over q = 1",
+                ),
                 Image("profiles", "Score distributions with 95 % bands."),
             ],
         ),

@@ -46,6 +46,9 @@ IMPROVEMENT_COLUMNS = [
 """The improvement table: P(method > q = 1) [low, high], its verdict, and per task the
 difference of mean final returns and, where not distinguishable, the smallest difference these
 run counts detect with 80 % power (two-sided permutation test at 5 %)."""
+BASELINE_COLUMNS = ["method", "baseline", *IMPROVEMENT_COLUMNS[1:]]
+"""The comparison with the baselines: P(method > baseline) and the rest as
+:data:`IMPROVEMENT_COLUMNS`."""
 Estimate = tuple[float, float, float]
 """(point estimate, lower 95 % bound, upper 95 % bound)."""
 
@@ -216,38 +219,80 @@ def improvement_over_q1(
             xs.append(group["final"].to_numpy())
             ys.append(reference)
             envs.append(env)
-        for env, x, y in zip(envs, xs, ys, strict=True):
-            p, low, high = probability_of_improvement([x], [y], reps, rng)
-            verdict = improvement_verdict(low, high)
-            rows.append(
-                {
-                    "method": method,
-                    "env": env,
-                    "tasks": 1,
-                    "p": p,
-                    "low": low,
-                    "high": high,
-                    "verdict": verdict,
-                    "difference": float(np.mean(x) - np.mean(y)),
-                    "detectable": _detectable(y, x) if verdict == NOT_DISTINGUISHABLE else np.nan,
-                }
-            )
-        if len(xs) > 1:
-            p, low, high = probability_of_improvement(xs, ys, reps, rng)
-            rows.append(
-                {
-                    "method": method,
-                    "env": ALL_TASKS,
-                    "tasks": len(xs),
-                    "p": p,
-                    "low": low,
-                    "high": high,
-                    "verdict": improvement_verdict(low, high),
-                    "difference": np.nan,
-                    "detectable": np.nan,
-                }
-            )
+        rows += [{"method": method, **row} for row in _comparison_rows(envs, xs, ys, reps, rng)]
     return pd.DataFrame(rows, columns=IMPROVEMENT_COLUMNS)
+
+
+def improvement_over_baselines(
+    scores: pd.DataFrame,
+    methods: Sequence[str],
+    baselines: Sequence[str],
+    reps: int,
+    rng: np.random.Generator,
+) -> pd.DataFrame:
+    """P(method > baseline) per task and over all tasks, with 95 % intervals: the paper's
+    comparison of TAC with the actor-critic baselines.
+
+    Every method in ``methods`` (TAC at its best q, SAC) is compared, task by task, with the runs
+    of every baseline on the same task; tasks where either has no runs are left out. ``env`` is
+    ``"all tasks"`` on the aggregate rows. Columns: :data:`BASELINE_COLUMNS`.
+    """
+    rows = []
+    for method in methods:
+        mine = scores[scores["method"] == method]
+        for baseline in baselines:
+            theirs = scores[scores["method"] == baseline]
+            envs = [e for e in mine["env"].unique() if e in set(theirs["env"])]
+            xs = [mine.loc[mine["env"] == e, "final"].to_numpy() for e in envs]
+            ys = [theirs.loc[theirs["env"] == e, "final"].to_numpy() for e in envs]
+            rows += [
+                {"method": method, "baseline": baseline, **row}
+                for row in _comparison_rows(envs, xs, ys, reps, rng)
+            ]
+    return pd.DataFrame(rows, columns=BASELINE_COLUMNS)
+
+
+def _comparison_rows(
+    envs: Sequence[object],
+    xs: Sequence[np.ndarray],
+    ys: Sequence[np.ndarray],
+    reps: int,
+    rng: np.random.Generator,
+) -> list[dict[str, object]]:
+    """P(X > Y) on each task (``xs[i]`` against ``ys[i]`` on ``envs[i]``) with its verdict, the
+    difference of mean final returns and, where not distinguishable, the smallest difference
+    these run counts detect; then, over two or more tasks, the same averaged over tasks."""
+    rows: list[dict[str, object]] = []
+    for env, x, y in zip(envs, xs, ys, strict=True):
+        p, low, high = probability_of_improvement([x], [y], reps, rng)
+        verdict = improvement_verdict(low, high)
+        rows.append(
+            {
+                "env": env,
+                "tasks": 1,
+                "p": p,
+                "low": low,
+                "high": high,
+                "verdict": verdict,
+                "difference": float(np.mean(x) - np.mean(y)),
+                "detectable": _detectable(y, x) if verdict == NOT_DISTINGUISHABLE else np.nan,
+            }
+        )
+    if len(xs) > 1:
+        p, low, high = probability_of_improvement(xs, ys, reps, rng)
+        rows.append(
+            {
+                "env": ALL_TASKS,
+                "tasks": len(xs),
+                "p": p,
+                "low": low,
+                "high": high,
+                "verdict": improvement_verdict(low, high),
+                "difference": np.nan,
+                "detectable": np.nan,
+            }
+        )
+    return rows
 
 
 def improvement_verdict(low: float, high: float) -> str:

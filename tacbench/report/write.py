@@ -39,6 +39,7 @@ def _tables(report: Report) -> dict[str, pd.DataFrame]:
         "stats_per_task": report.per_task,
         "stats_aggregate": report.aggregate,
         "improvement": report.improvement,
+        **({"baselines": report.baselines} if not report.baselines.empty else {}),
         "profiles": report.profiles,
         "q_ranges": report.q_ranges,
         **(
