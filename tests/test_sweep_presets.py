@@ -37,11 +37,11 @@ def test_paper_q_grid_is_9_q_by_6_tasks_by_10_seeds() -> None:
     assert runs[0].key == "runs/tac/HalfCheetah-v4/q0.5-a0.2/seed0"
 
 
-def test_paper_comparison_is_tac_best_q_sac_and_four_baselines() -> None:
+def test_paper_comparison_is_tac_best_q_sac_four_baselines_and_sb3s_sac() -> None:
     runs = _runs("paper-comparison")
-    assert len(runs) == 6 * 6 * 10 == 360
+    assert len(runs) == 7 * 6 * 10 == 420
     by_algo = Counter(r.config.algo for r in runs)
-    assert by_algo == {"tac": 120, "ddpg": 60, "td3": 60, "ppo": 60, "trpo": 60}
+    assert by_algo == {"tac": 120, "ddpg": 60, "td3": 60, "ppo": 60, "trpo": 60, "sac-sb3": 60}
     tac = [r for r in runs if r.config.algo == "tac"]
     sac = [r for r in tac if r.label == "SAC"]
     assert len(sac) == 60 and {r.config.q for r in sac} == {1.0}

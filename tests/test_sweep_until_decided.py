@@ -90,7 +90,7 @@ def test_methods_are_labelled_as_the_report_labels_them_and_the_control_is_resol
     assert until_decided.default_control(comparison) == "best-q"
     cheetah = until_decided.methods_of(comparison)["HalfCheetah-v4"]
     labels = [m.label for m in cheetah]
-    assert labels == ["TAC q=1.5", "SAC (TAC q=1)", "DDPG", "TD3", "PPO", "TRPO"]
+    assert labels == ["TAC q=1.5", "SAC (TAC q=1)", "DDPG", "TD3", "PPO", "TRPO", "SAC (SB3)"]
     best = until_decided.control_of(Design(control="best-q"), "HalfCheetah-v4", cheetah)
     assert best == "TAC q=1.5"
     assert until_decided.control_of(Design(control="td3"), "HalfCheetah-v4", cheetah) == "TD3"

@@ -28,7 +28,7 @@ _OVERRIDES = cli_settings(RunConfig, sweep=True)
     type=click.Choice(list(SWEEP_PRESETS)),
     required=True,
     help="paper-q-grid (TAC, 9 q x 6 tasks x 10 seeds), paper-comparison (TAC best q, SAC = "
-    "TAC q=1, DDPG, TD3, PPO, TRPO), smoke (tiny budgets). Sources: docs/sweep.md.",
+    "TAC q=1, DDPG, TD3, PPO, TRPO, SB3's SAC), smoke (tiny budgets). Sources: docs/sweep.md.",
 )
 @click.option("--env", "envs", multiple=True, help="Repeatable: keep only these tasks (Ant).")
 @click.option(

@@ -65,6 +65,15 @@ DEFAULT_SECONDS_PER_STEP: dict[tuple[str, str], float] = {
     ("trpo", "Swimmer-v4"): 1.05e-3,
     ("trpo", "Pusher-v5"): 0.75e-3,
     ("trpo", "Humanoid-v4"): 0.92e-3,
+    # sac-sb3 (the paper's (300,) networks, batch 100): measured 2026-12-04 on the AMD EPYC AVX2
+    # class (x86_64-AuthenticAMD-25-1-AVX2) beside two training processes, where DDPG's Hopper
+    # measured 6.34e-3 and TD3's 21.39e-3 (1.7x and 1.3x the rows above)
+    ("sac-sb3", "HalfCheetah-v4"): 10.19e-3,
+    ("sac-sb3", "Ant-v4"): 11.90e-3,
+    ("sac-sb3", "Hopper-v4"): 11.55e-3,
+    ("sac-sb3", "Swimmer-v4"): 11.04e-3,
+    ("sac-sb3", "Pusher-v5"): 11.37e-3,
+    ("sac-sb3", "Humanoid-v4"): 19.82e-3,
 }
 # TAC in --profile reference ((400, 300) networks, updates during warm-up, episode bursts), a
 # cost of its own: 5 members of one process, compiled, 100,000 steps, wall time (eval.csv) of the

@@ -93,12 +93,14 @@ PRESETS: dict[str, Preset] = {
         Preset(
             "paper-comparison",
             "TAC at the paper's best q per task (line 857, per-task table), TAC q = 1 as SAC "
-            "(lines 786-788), DDPG, TD3, PPO, TRPO (lines 773-784) on the six tasks, seeds "
-            "0..90 step 10 (line 2054), 1M steps each",
+            "(lines 786-788), DDPG, TD3, PPO, TRPO (lines 773-784) and, ours, stable-baselines3's "
+            "SAC as an independent SAC (docs/parity.md) on the six tasks, seeds 0..90 step 10 "
+            "(line 2054), 1M steps each",
             (
                 Entry("tac", paper.TASKS, paper.SEEDS, (), PAPER_STEPS, label="TAC"),
                 Entry("tac", paper.TASKS, paper.SEEDS, (1.0,), PAPER_STEPS, label="SAC"),
                 *(Entry(a, paper.TASKS, paper.SEEDS, (), PAPER_STEPS) for a in paper.BASELINES),
+                Entry("sac-sb3", paper.TASKS, paper.SEEDS, (), PAPER_STEPS),
             ),
         ),
         Preset(
