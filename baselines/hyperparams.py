@@ -336,12 +336,13 @@ def resolve(algo: str, env_id: str, task: str | None) -> tuple[dict[str, Any], l
 def variant(defaults: Mapping[str, Any], effective: Mapping[str, Any]) -> str:
     """``default`` when ``effective`` equals the table's values, else a slug of the differences
     plus a hash of them (``learning_rate0.0003-net_arch64x64-1a2b3c4d``), so runs with different
-    overrides never share a directory."""
+    overrides never share a directory. Values keep their signs and exponents
+    (``log_std_init-2``, ``learning_rate1e-05``), as TAC's variants do (``-lsmin-5``)."""
     changed = {k: effective[k] for k in sorted(effective) if effective[k] != defaults.get(k)}
     if not changed:
         return "default"
     slug = "-".join(
-        key + re.sub(r"[^A-Za-z0-9.]", "", _short(value)) for key, value in changed.items()
+        key + re.sub(r"[^A-Za-z0-9.+-]", "", _short(value)) for key, value in changed.items()
     )
     digest = hashlib.sha1(json.dumps(changed, sort_keys=True).encode()).hexdigest()[:8]
     return f"{slug[:48]}-{digest}"

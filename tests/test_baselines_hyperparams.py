@@ -157,6 +157,8 @@ def test_variant_names_what_differs_and_hashes_it() -> None:
     c = hyperparams.variant(table, {**table, "learning_rate": 1e-4, "net_arch": [64, 64]})
     assert a == b != c
     assert re.fullmatch(r"learning_rate0\.001-net_arch64x64-[0-9a-f]{8}", a)
+    signed = hyperparams.variant(table, {**table, "learning_rate": 1e-5, "tau": -2.0})
+    assert re.fullmatch(r"learning_rate1e-05-tau-2-[0-9a-f]{8}", signed)
 
 
 def test_make_configs_applies_overrides_and_run_settings() -> None:
