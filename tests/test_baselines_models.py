@@ -72,8 +72,8 @@ def test_model_arguments_follow_the_table(models: dict[str, Any]) -> None:
     assert float(sac.ent_coef_tensor) == pytest.approx(0.2) and sac.ent_coef_optimizer is None
     assert sac.batch_size == 100 and sac.learning_rate == 1e-3
     ppo = models["ppo"][1]
-    assert (ppo.n_steps, ppo.batch_size, ppo.n_epochs, ppo.gamma) == (512, 32, 5, 0.999)
-    assert models["ppo"][2].__class__ is VecNormalize and models["ppo"][2].gamma == 0.999
+    assert (ppo.n_steps, ppo.batch_size, ppo.n_epochs, ppo.gamma) == (2048, 64, 10, 0.99)
+    assert models["ppo"][2].__class__ is VecNormalize and models["ppo"][2].gamma == 0.99
     assert models["trpo"][1].n_critic_updates == 20
     quiet = algos.build_model(*_env_model(_config("ddpg", "noise_type=none")))
     assert quiet.action_noise is None
