@@ -25,6 +25,8 @@ RUNS = {
     "authors-versions-100k/authors-2019-01-11b": 5 * 5,
     "authors-versions-100k/authors-2019-01-16c": 5 * 5,
     "authors-versions-100k/authors-2019-01-22": 5 * 5,
+    # Hopper, the closest version: 2 q x 5 seeds
+    "authors-versions-100k/authors-2019-01-07b-hopper": 2 * 5,
     # Hopper and HalfCheetah: PPO, TRPO and DDPG x 5 seeds, and TAC at q = 1 and the paper's
     # best q (2 and 1.5) from paper-q-grid-100k
     "comparison-100k": 2 * 5 * 5,
