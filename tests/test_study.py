@@ -20,6 +20,7 @@ RUNS = {
     "paper-q-grid-100k": 2 * 9 * 5,
     "paper-q-grid-100k-ant": 9 * 5,
     "paper-q-grid-100k-swimmer": 9 * 5,
+    "paper-q-grid-100k-pusher": 9 * 5,
     # HalfCheetah, one folder per version of the authors' code: 5 q x 5 seeds
     "authors-versions-100k/authors-2019-01-07b": 5 * 5,
     "authors-versions-100k/authors-2019-01-11b": 5 * 5,
