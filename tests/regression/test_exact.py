@@ -119,11 +119,11 @@ def test_planted_hyperparameter_table_change_is_caught(
 
     def planted(algo: str, env: str, task: str | None) -> tuple[dict[str, Any], list[str]]:
         table, sections = original(algo, env, task)
-        return {**table, "gamma": 0.9}, sections
+        return {**table, "log_std_init": -1.0}, sections  # a value the run does not pin
 
     monkeypatch.setattr(hyperparams, "resolve", planted)
     (result,) = regress.check(planting_reference, "exact", tmp_path, [BASELINE_RUN], runner=RUNNER)
     statuses = _statuses(result, BASELINE_RUN)
     assert statuses["eval.csv"] == statuses["losses.csv"] == "drift", format_result(result)
     assert result.verdict == "REGRESSION"
-    assert any("'gamma': 0.9" in note for note in result.notes)
+    assert any("'log_std_init': -1.0" in note for note in result.notes)
