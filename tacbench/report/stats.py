@@ -242,7 +242,8 @@ def improvement_over_baselines(
         mine = scores[scores["method"] == method]
         for baseline in baselines:
             theirs = scores[scores["method"] == baseline]
-            envs = [e for e in mine["env"].unique() if e in set(theirs["env"])]
+            shared = set(theirs["env"])
+            envs = [e for e in mine["env"].unique() if e in shared]
             xs = [mine.loc[mine["env"] == e, "final"].to_numpy() for e in envs]
             ys = [theirs.loc[theirs["env"] == e, "final"].to_numpy() for e in envs]
             rows += [
