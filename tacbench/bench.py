@@ -48,6 +48,7 @@ class Contestant:
     tac: bool = False  # TAC, or SB3's SAC
     compile: bool = False
     qs: tuple[float, ...] = ()  # the members' q values (empty: the task's paper q for all)
+    bf16: bool = False  # --matmul-precision bf16
 
 
 @dataclass
@@ -91,6 +92,7 @@ class BenchOptions:
     device: str = "cpu"
     threads: int = 1
     hidden_sizes: tuple[int, ...] | None = None  # None: the paper's (one layer of 300)
+    bf16: bool = False  # also each TAC row with --matmul-precision bf16
 
     @property
     def networks(self) -> tuple[int, ...]:
@@ -114,13 +116,15 @@ class BenchOptions:
 
 def contestants(options: BenchOptions) -> list[Contestant]:
     """SB3's SAC, then TAC at K = 1 and K = ``members``: uncompiled (unless not ``eager``) and,
-    with ``compile``, compiled."""
+    with ``compile``, compiled; with ``bf16``, each TAC row also with bfloat16 products."""
     rows = [Contestant("SB3 SAC", 1)] if options.sb3 else []
+    paths = [("TAC", False)] if options.eager else []
+    paths += [("TAC compiled", True)] if options.compile else []
     for k in dict.fromkeys((1, options.members)):
-        if options.eager:
-            rows.append(Contestant("TAC", k, tac=True))
-        if options.compile:
-            rows.append(Contestant("TAC compiled", k, tac=True, compile=True))
+        for name, compiled in paths:
+            rows.append(Contestant(name, k, tac=True, compile=compiled))
+            if options.bf16:
+                rows.append(Contestant(f"{name} bf16", k, tac=True, compile=compiled, bf16=True))
     if options.grid:  # the paper's q grid of one task in one process: 9 q x 10 seeds
         members = len(paper.Q_GRID) * len(paper.SEEDS)
         rows.append(Contestant("TAC q grid compiled", members, True, True, paper.Q_GRID))
@@ -138,6 +142,7 @@ def _tac_configs(options: BenchOptions, contestant: Contestant) -> list[RunConfi
         eval_every=0,
         checkpoint_every=0,
         compile="on" if contestant.compile else "off",
+        matmul_precision="bf16" if contestant.bf16 else "float32",
         device=options.device,
         threads=options.threads,
         **_network_overrides(options),

@@ -279,6 +279,17 @@ class RunConfig(RunSettings):
         source="ours: the break-even measured in docs/performance.md",
         choices=("auto", "on", "off"),
     )
+    matmul_precision: str = setting(
+        "float32",
+        "The update's matrix products: float32, or bf16 (inputs rounded to bfloat16, float32 "
+        "accumulation, outputs back to float32) where the device has native bfloat16 "
+        "instructions (a CPU's AVX512-BF16 or AMX, a GPU's bf16); everything else stays "
+        "float32. Changes the rounding, so bf16 runs are a variant of their own "
+        "(docs/performance.md, 'Reduced precision').",
+        source="float32: the paper's TensorFlow code; bf16: ours, opt-in with its learning check",
+        choices=("float32", "bf16"),
+        variant={"bf16": "bf16"},
+    )
 
     def __post_init__(self) -> None:
         from tacbench.theory.tsallis import (  # imports torch: not at CLI start-up

@@ -19,6 +19,8 @@ import sys
 from functools import cache
 from pathlib import Path
 
+from tacbench.errors import TacbenchError
+
 # /proc/cpuinfo fields that identify a CPU model: x86 (vendor, family, model), then Arm
 # (implementer, part)
 _IDENTITY_FIELDS = (
@@ -86,6 +88,41 @@ def cpp_compiler() -> str | None:
         return str(cpp_builder.get_cpp_compiler())
     except Exception:  # Inductor raises its own InvalidCxxCompiler (and others) when none works
         return None
+
+
+# /proc/cpuinfo flags of native bfloat16 products: x86 AVX512-BF16 (Intel from Cooper Lake, AMD
+# from Zen 4) and AMX-BF16 (Intel from Sapphire Rapids); Arm's "bf16" feature (Armv8.6)
+BF16_FLAGS = ("avx512_bf16", "amx_bf16", "bf16")
+
+
+def bf16_instructions(cpuinfo: str | None = None) -> list[str]:
+    """The native bfloat16 instruction sets this CPU (or the ``/proc/cpuinfo`` text given)
+    announces, in :data:`BF16_FLAGS` order; empty where it has none."""
+    fields = _cpuinfo(cpuinfo)
+    announced = set((fields.get("flags") or fields.get("Features") or "").split())
+    return [flag for flag in BF16_FLAGS if flag in announced]
+
+
+def check_matmul_precision(precision: str, device: str) -> None:
+    """Refuse ``--matmul-precision bf16`` on a device without native bfloat16 products, where it
+    would be emulated: slower than float32 and no cheaper for it."""
+    if precision != "bf16":
+        return
+    import torch
+
+    if device == "cuda":
+        if not torch.cuda.is_bf16_supported(including_emulation=False):
+            raise TacbenchError(
+                "--matmul-precision bf16: this GPU has no native bfloat16 products; use "
+                "--matmul-precision float32."
+            )
+        return
+    if not bf16_instructions():
+        raise TacbenchError(
+            f"--matmul-precision bf16: this CPU ({cpu_name()}) has no native bfloat16 "
+            f"instructions (none of {', '.join(BF16_FLAGS)} in /proc/cpuinfo), so its bfloat16 "
+            "products would be emulated, slower than float32; use --matmul-precision float32."
+        )
 
 
 def configure_process(threads: int) -> None:

@@ -27,6 +27,13 @@ def test_contestants_cover_both_paths_at_one_and_k_members() -> None:
     ]
     options = BenchOptions(members=1, sb3=False, eager=False, compile=True)
     assert [c.name for c in contestants(options)] == ["TAC compiled"]
+    options = BenchOptions(members=2, sb3=False, eager=False, compile=True, bf16=True)
+    assert [(c.name, c.members, c.bf16) for c in contestants(options)] == [
+        ("TAC compiled", 1, False),
+        ("TAC compiled bf16", 1, True),
+        ("TAC compiled", 2, False),
+        ("TAC compiled bf16", 2, True),
+    ]
 
 
 def test_table_reports_rates_member_rates_and_ratios_to_sb3() -> None:

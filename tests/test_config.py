@@ -193,6 +193,7 @@ def test_the_reference_profile_sets_what_the_authors_code_did_and_each_item_can_
         ({"density_floor": 1e-8, "jacobian_clip": 1e-3}, "q1.5-a0.2-floor1e-08-jclip0.001"),
         ({"update_schedule": "episode", "q_schedule": "linear"}, "q1.5-a0.2-episode-qlinear"),
         ({"learning_starts": 100_000}, "q1.5-a0.2-ls100000"),
+        ({"matmul_precision": "bf16"}, "q1.5-a0.2-bf16"),
         ({"hidden_sizes": (400, 300), "learning_rate": 3e-4}, "q1.5-a0.2-h400x300-lr0.0003"),
         # neither evaluation, logging, hardware nor length change what is learned
         ({"eval_every": 1000, "threads": 4, "total_steps": 30_000, "seed": 3}, "q1.5-a0.2"),

@@ -39,6 +39,12 @@ if TYPE_CHECKING:
     is_flag=True,
     help="Add a row for the paper's q grid of the task in one process (9 q x 10 seeds, compiled).",
 )
+@click.option(
+    "--bf16",
+    is_flag=True,
+    help="Add each TAC row again with --matmul-precision bf16 (bfloat16 products), where the "
+    "CPU has native bfloat16 instructions.",
+)
 @click.option("--no-sb3", is_flag=True, help="Leave out stable-baselines3's SAC.")
 @click.option("--no-eager", is_flag=True, help="Leave out the rows of TAC uncompiled.")
 @click.option(
@@ -76,6 +82,7 @@ def bench(
     learning_starts: int,
     compile_: bool,
     grid: bool,
+    bf16: bool,
     no_sb3: bool,
     no_eager: bool,
     device: str,
@@ -92,6 +99,7 @@ def bench(
 
     from tacbench import bench as measure  # torch and SB3 only when this command runs
     from tacbench import envs, training
+    from tacbench.hardware import check_matmul_precision
 
     env_id = envs.resolve_env_id(env)
     envs.env_info(env_id)
@@ -108,7 +116,9 @@ def bench(
         device=training.resolve_device(device),
         threads=threads,
         hidden_sizes=hidden_sizes,
+        bf16=bf16,
     )
+    check_matmul_precision("bf16" if bf16 else "float32", options.device)
     if profile:
         _profile(options, not no_compile_profile, json_path)
         return

@@ -79,6 +79,7 @@ class TacAgent:
             math.log(c.density_floor),
             c.jacobian_clip,
             c.gaussian_eps,
+            c.matmul_precision == "bf16",
         )
         self.learning_rate, self.tau = c.learning_rate, c.tau
         k = len(seeds)

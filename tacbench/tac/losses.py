@@ -41,6 +41,7 @@ class LossSettings(NamedTuple):
     log_density_floor: float = LOG_DENSITY_FLOOR  # maths.lnq_of_policy
     jacobian_clip: float = 0.0  # maths.squashed_gaussian
     gaussian_eps: float = 0.0  # maths.squashed_gaussian
+    bf16_products: bool = False  # --matmul-precision bf16 (networks.linear)
 
 
 class TacLosses(NamedTuple):
@@ -61,7 +62,9 @@ def _policy_sample(
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """a ~ pi(.|s) by the reparameterisation trick: the action, its per-dimension log-density
     and the policy's standard deviation."""
-    mu, log_std = policy_head(mlp(policy, obs), eps.shape[-1], s.log_std_min, s.log_std_max)
+    mu, log_std = policy_head(
+        mlp(policy, obs, bf16=s.bf16_products), eps.shape[-1], s.log_std_min, s.log_std_max
+    )
     std = log_std.exp()
     action, log_prob_dims = squashed_gaussian(
         mu, log_std, std, eps, s.jacobian_clip, s.gaussian_eps
@@ -105,34 +108,39 @@ def tac_losses(
     # twin-q: V_psi-(s') is replaced by the target critics' soft value of s' (SAC v2).
     with torch.no_grad():
         if eps_next is None:
-            v_next = mlp(target, batch.next_obs).squeeze(-1)
+            v_next = mlp(target, batch.next_obs, bf16=s.bf16_products).squeeze(-1)
         else:
             next_action, next_log_prob_dims, _ = _policy_sample(
                 nets.policy, batch.next_obs, eps_next, s
             )
             next_action = next_action * s.action_scale
             pairs = torch.cat([batch.next_obs, next_action], dim=-1).repeat(2, 1, 1)
-            q_next = mlp(target, pairs).view(2, k, -1)
+            q_next = mlp(target, pairs, bf16=s.bf16_products).view(2, k, -1)
             lnq_next = lnq_of_policy(next_log_prob_dims, c, s.lnq, s.log_density_floor)
             v_next = torch.minimum(q_next[0], q_next[1]) - alpha * lnq_next
         q_target = batch.reward + s.gamma * (1.0 - batch.terminated) * v_next
     # Q1 and Q2 are one stack of 2K critics: both evaluated at (s, a) at once
-    q_data = mlp(nets.critics, torch.cat([batch.obs, batch.action], dim=-1).repeat(2, 1, 1))
+    q_pairs = torch.cat([batch.obs, batch.action], dim=-1).repeat(2, 1, 1)
+    q_data = mlp(nets.critics, q_pairs, bf16=s.bf16_products)
     loss_q1, loss_q2 = (0.5 * (q_data.view(2, k, -1) - q_target).square().mean(dim=-1)).unbind()
 
     # eqn:pol_obj  J_phi = E[ alpha ln_q pi(a~|s) - Q(s, a~) ], with Q = Q1 (reference code),
     # its weights frozen: the gradient reaches a~, not Q1
     new_pairs = torch.cat([batch.obs, new_action * s.action_scale], dim=-1)
-    q1_pi = mlp(nets.critics.members(slice(0, k)), new_pairs, frozen=True).squeeze(-1)
+    q1_pi = mlp(
+        nets.critics.members(slice(0, k)), new_pairs, frozen=True, bf16=s.bf16_products
+    ).squeeze(-1)
     loss_pi = (alpha * lnq_pi - q1_pi).mean(dim=-1)
 
     # eqn:v_obj  J_psi = E[ 1/2 (y - V_psi(s))^2 ], y = min(Q1, Q2)(s, a~) - alpha ln_q pi(a~|s)
     # with a~ drawn from the current policy (reference code; the paper's a_t is ambiguous).
     if eps_next is None:
         with torch.no_grad():
-            q2_pi = mlp(nets.critics.members(slice(k, 2 * k)), new_pairs).squeeze(-1)
+            q2_pi = mlp(
+                nets.critics.members(slice(k, 2 * k)), new_pairs, bf16=s.bf16_products
+            ).squeeze(-1)
             v_target_value = torch.minimum(q1_pi, q2_pi) - alpha * lnq_pi
-        v_value = mlp(nets.v, batch.obs).squeeze(-1)
+        v_value = mlp(nets.v, batch.obs, bf16=s.bf16_products).squeeze(-1)
         loss_v = 0.5 * (v_value - v_target_value).square().mean(dim=-1)
     else:
         v_value, loss_v = v_next, torch.zeros_like(loss_q1)

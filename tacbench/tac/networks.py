@@ -50,29 +50,39 @@ def init_layers(sizes: Sequence[int], generators: Sequence[torch.Generator]) -> 
     )
 
 
-def linear(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
+def linear(
+    x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor, *, bf16: bool = False
+) -> torch.Tensor:
     """``x @ weight + bias`` for stacked layers.
 
     A layer with one output (the value heads) is a multiply-and-sum: MKL's batched product with a
     single output column is several times slower once M > 1. Under ``torch.compile`` the bias is
     added after the product, where Inductor fuses it into the next elementwise kernel
     (``baddbmm`` first copies the broadcast bias into its whole output).
+
+    ``bf16`` (``--matmul-precision bf16``): the product's inputs are rounded to bfloat16, it
+    accumulates in float32 (oneDNN's and cuBLAS's bfloat16 kernels) and its output is rounded to
+    bfloat16 and returned as float32; the bias, the value heads and everything around stay
+    float32. Autograd's backward products run in bfloat16 alike.
     """
     if weight.shape[-1] == 1:
         return torch.linalg.vecdot(x, weight.transpose(1, 2)).unsqueeze(-1).add_(bias)
+    if bf16:
+        return torch.bmm(x.to(torch.bfloat16), weight.to(torch.bfloat16)).float() + bias
     if torch.compiler.is_compiling():
         return torch.bmm(x, weight) + bias
     return torch.baddbmm(bias, x, weight)
 
 
-def mlp(net: Layers, x: torch.Tensor, *, frozen: bool = False) -> torch.Tensor:
+def mlp(net: Layers, x: torch.Tensor, *, frozen: bool = False, bf16: bool = False) -> torch.Tensor:
     """``(M, B, in) -> (M, B, out)``. ``frozen=True`` uses detached weights, so gradients reach the
-    input but not the network's parameters."""
+    input but not the network's parameters; ``bf16`` rounds the products' inputs to bfloat16
+    (:func:`linear`)."""
     last = len(net.weights) - 1
     for i, (weight, bias) in enumerate(zip(net.weights, net.biases, strict=True)):
         if frozen:
             weight, bias = weight.detach(), bias.detach()
-        x = linear(x, weight, bias)
+        x = linear(x, weight, bias, bf16=bf16)
         if i < last:
             x = torch.relu(x)
     return x

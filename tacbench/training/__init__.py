@@ -21,7 +21,7 @@ import numpy as np
 from tacbench import envs, memory, runs
 from tacbench.config import RunConfig
 from tacbench.errors import TacbenchError
-from tacbench.hardware import configure_process
+from tacbench.hardware import check_matmul_precision, configure_process
 from tacbench.interrupts import StopCheck, stop_signals
 from tacbench.members import resolve_compile
 from tacbench.runs import Outcome, planned_runs
@@ -80,6 +80,7 @@ def train(
     check_members(configs)
     info = envs.env_info(configs[0].env)  # an unusable task fails before any directory is touched
     check_sizes(configs, info)
+    check_matmul_precision(configs[0].matmul_precision, resolve_device(configs[0].device))
     with (
         disk_errors("the run's files"),
         planned_runs(configs, out, resume=resume, force=force) as (outcomes, active),
@@ -115,6 +116,7 @@ def stepper(configs: Sequence[RunConfig], out: Path) -> Iterator[Callable[[int],
     and a function that advances them by n steps (fewer at the end or when all have failed)
     and returns the step reached. No signal handling; everything is closed on exit."""
     configs = [resolve_compile(c) for c in configs]
+    check_matmul_precision(configs[0].matmul_precision, resolve_device(configs[0].device))
     directories = [runs.run_directory(out, c.algo, c.env, c.variant, c.seed) for c in configs]
     configure_process(configs[0].threads)
     trainer = GroupTrainer(list(configs), directories, "", quiet=True)
