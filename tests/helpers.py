@@ -47,7 +47,8 @@ TINY_HP = {
     "sac-sb3": ("learning_starts=1000", "batch_size=32"),
     # ent_coef: with the table's 0 (RL Zoo's MuJoCo default since 2026-12-04) a PPO run stopped
     # at 1,234 steps and resumed logs its second policy_gradient_loss 1 float32 ulp away from
-    # the uninterrupted run's (2.3e-10) on the AVX2 class (docs/notes/open-questions.md)
+    # the uninterrupted run's (2.3e-10), unless MKL_CBWR=AUTO makes MKL's products independent
+    # of the operands' alignment (docs/notes/open-questions.md)
     "ppo": ("n_steps=512", "batch_size=64", "n_epochs=2", "ent_coef=0.00229519"),
     "trpo": ("n_steps=512", "batch_size=64", "n_critic_updates=2"),
 }
