@@ -56,11 +56,11 @@ def best_seconds(fn: Callable[[], Any], repeats: int, rounds: int = 5) -> float:
     return best
 
 
-def peak_gflops(size: int | None = None) -> float:
-    """GFLOP/s of one ``size`` x ``size`` (default :data:`PEAK_SIZE`) float32 product on this
-    process's threads."""
+def peak_gflops(size: int | None = None, dtype: torch.dtype = torch.float32) -> float:
+    """GFLOP/s of one ``size`` x ``size`` (default :data:`PEAK_SIZE`) product of ``dtype``
+    (float32, or bfloat16 with float32 accumulation) on this process's threads."""
     size = size or PEAK_SIZE
-    a, b = torch.randn(size, size), torch.randn(size, size)
+    a, b = torch.randn(size, size, dtype=dtype), torch.randn(size, size, dtype=dtype)
     return 2 * size**3 / best_seconds(lambda: a @ b, repeats=3) / 1e9
 
 
@@ -77,7 +77,7 @@ def _minibatch(k: int, obs_dim: int, act_dim: int) -> dict[str, np.ndarray]:
 
 
 def _update(
-    env: str, members: int, hidden_sizes: Sequence[int], compile: bool
+    env: str, members: int, hidden_sizes: Sequence[int], compile: bool, bf16: bool
 ) -> Callable[[], Any]:
     """One update of ``members`` fresh TAC members of ``env``'s dimensions, as a closure."""
     from tacbench import envs, paper
@@ -93,6 +93,7 @@ def _update(
         list(range(0, 10 * members, 10)),
         hidden_sizes=tuple(hidden_sizes),
         compile="on" if compile else "off",
+        matmul_precision="bf16" if bf16 else "float32",
     )
     cpu = torch.device("cpu")
     agent = TacAgent(info.obs_dim, info.act_dim, configs[0], [c.seed for c in configs], cpu)
@@ -149,22 +150,23 @@ def profile_rows(step: Callable[[], Any], updates: int) -> tuple[list[Row], floa
 
 
 def profile_update(
-    env: str, members: int, hidden_sizes: Sequence[int], compile: bool
+    env: str, members: int, hidden_sizes: Sequence[int], compile: bool, bf16: bool = False
 ) -> dict[str, Any]:
     """Peak, the update's unprofiled time (as training runs it) and its profile over
-    :data:`PROFILED_UPDATES` updates, for one thread."""
+    :data:`PROFILED_UPDATES` updates, for one thread; with ``bf16`` of the update with bfloat16
+    products (``--matmul-precision bf16``), against a bfloat16 product's peak."""
     from tacbench.tac import gradient
 
     torch.set_num_threads(1)
     updates = PROFILED_UPDATES
-    step = _update(env, members, hidden_sizes, compile)
+    step = _update(env, members, hidden_sizes, compile, bf16)
     unprofiled_us = best_seconds(step, repeats=max(10, updates)) * 1e6
     wrapper = gradient.CPU_COMPILE_OPTIONS["cpp_wrapper"]
     kernel_profile = torch._inductor.config.cpp.enable_kernel_profile
     try:  # a second agent compiled with its kernels visible to the profiler
         gradient.CPU_COMPILE_OPTIONS["cpp_wrapper"] = False
         torch._inductor.config.cpp.enable_kernel_profile = True
-        visible = _update(env, members, hidden_sizes, compile)
+        visible = _update(env, members, hidden_sizes, compile, bf16)
         best_seconds(visible, repeats=10, rounds=1)
         rows, profiled_us = profile_rows(visible, updates)
     finally:
@@ -175,8 +177,9 @@ def profile_update(
         "members": members,
         "hidden_sizes": list(hidden_sizes),
         "compile": compile,
+        "matmul_precision": "bf16" if bf16 else "float32",
         "peak_size": PEAK_SIZE,
-        "peak_gflops": peak_gflops(),
+        "peak_gflops": peak_gflops(dtype=torch.bfloat16 if bf16 else torch.float32),
         "update_us": unprofiled_us,
         "profiled_update_us": profiled_us,
         "rows": [vars(r) for r in rows],
@@ -190,10 +193,11 @@ def profile_table(result: dict[str, Any]) -> str:
     lines = [
         f"{result['env']}, {result['members']} member(s), hidden layers "
         f"{tuple(result['hidden_sizes'])}, batch {BATCH}, "
-        f"{'compiled' if result['compile'] else 'eager'}, one thread. Update: "
+        f"{'compiled' if result['compile'] else 'eager'}, "
+        f"{result.get('matmul_precision', 'float32')} products, one thread. Update: "
         f"{result['update_us'] / 1e3:.2f} ms as training runs it, "
         f"{total / 1e3:.2f} ms profiled. Peak (a {result['peak_size']}x{result['peak_size']} "
-        "product): "
+        f"{result.get('matmul_precision', 'float32')} product): "
         f"{peak:.1f} GFLOP/s.",
         "",
         "| where | calls/update | us/update | share | GFLOP/s | of peak |",

@@ -12,6 +12,7 @@ from click.testing import CliRunner
 from tacbench.bench import BenchOptions, BenchResult, Contestant, contestants, table
 from tacbench.cli import cli
 from tacbench.errors import TacbenchError
+from tacbench.hardware import bf16_instructions
 
 pytestmark = pytest.mark.unit
 
@@ -127,3 +128,23 @@ def test_product_flops_counts_two_per_multiply_add() -> None:
     from tacbench.update_profile import _product_flops
 
     assert _product_flops([[5, 100, 400], [5, 400, 300]]) == 2 * 5 * 100 * 400 * 300
+
+
+@pytest.mark.skipif(not bf16_instructions(), reason="this CPU has no native bfloat16 instructions")
+def test_bench_profile_of_the_bf16_update_counts_its_bfloat16_products(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from tacbench import update_profile
+
+    monkeypatch.setattr(update_profile, "PROFILED_UPDATES", 3)
+    monkeypatch.setattr(update_profile, "PEAK_SIZE", 256)
+    out = tmp_path / "profile.json"
+    args = ["bench", "--profile", "--bf16", "--no-compile-profile", "--env", "Pendulum-v1"]
+    args += ["--members", "1", "--hidden-sizes", "16,8", "--json", str(out)]
+    result = CliRunner().invoke(cli, args)
+    assert result.exit_code == 0, result.output
+    assert "bf16 products" in result.output
+    (profile,) = json.loads(out.read_text())["profiles"]
+    assert profile["matmul_precision"] == "bf16"
+    rows = {r["what"]: r for r in profile["rows"]}
+    assert rows["product 1x100x3 @ 1x3x16"]["calls"] >= 1  # a bmm of the rounded inputs

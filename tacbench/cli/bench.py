@@ -43,7 +43,7 @@ if TYPE_CHECKING:
     "--bf16",
     is_flag=True,
     help="Add each TAC row again with --matmul-precision bf16 (bfloat16 products), where the "
-    "CPU has native bfloat16 instructions.",
+    "CPU has native bfloat16 instructions; with --profile: profile the bf16 update instead.",
 )
 @click.option("--no-sb3", is_flag=True, help="Leave out stable-baselines3's SAC.")
 @click.option("--no-eager", is_flag=True, help="Leave out the rows of TAC uncompiled.")
@@ -140,7 +140,7 @@ def _profile(options: BenchOptions, compile_: bool, json_path: Path | None) -> N
     results = []
     for members in dict.fromkeys((1, options.members)):
         click.echo(f"profiling the update of {members} member(s) ...", err=True)
-        result = profile_update(options.env, members, options.networks, compile_)
+        result = profile_update(options.env, members, options.networks, compile_, options.bf16)
         results.append(result)
         click.echo(profile_table(result) + "\n")
     if json_path is not None:
