@@ -168,6 +168,10 @@ def test_method_labels() -> None:
         "PPO [y]",
         "NEWALGO",
     ]
+    bf16 = pd.DataFrame(
+        {"algo": ["tac"], "env": ["A-v4"], "variant": ["q1.5-a0.2-bf16"], "q": [1.5]}
+    )
+    assert assign_methods(bf16).tolist() == ["TAC q=1.5 [q1.5-a0.2-bf16]"]
 
 
 def test_styles_are_fixed_per_method() -> None:

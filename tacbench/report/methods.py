@@ -77,8 +77,10 @@ def assign_methods(runs: pd.DataFrame) -> pd.Series:
 
     TAC runs are labelled by q (``TAC q=1.5``), so the paper's sweep, whose alpha differs between
     tasks, lines up across tasks. Where one task has several TAC variants with the same q (an
-    alpha sweep, say), every run with that q is labelled with its variant too. A baseline is
-    labelled by its name, with the variant added when the algorithm has several.
+    alpha sweep, say), every run with that q is labelled with its variant too, and so is every
+    run with bfloat16 products (``--matmul-precision bf16``, variant part ``-bf16``), so that
+    it never passes for a float32 run. A baseline is labelled by its name, with the variant
+    added when the algorithm has several.
     """
     tac = runs[runs["algo"] == "tac"]
     per_task = tac.groupby(["env", "q"])["variant"].nunique()
@@ -91,7 +93,7 @@ def assign_methods(runs: pd.DataFrame) -> pd.Series:
         if algo == "tac" and math.isnan(q):
             name, tagged = Q_AUTO_LABEL, several_learned
         elif algo == "tac":
-            name, tagged = tac_label(q), q in ambiguous
+            name, tagged = tac_label(q), q in ambiguous or "bf16" in variant.split("-")
         else:
             name, tagged = BASELINE_NAMES.get(algo, algo.upper()), algo in several
         labels.append(f"{name} [{variant}]" if tagged else name)
