@@ -11,7 +11,7 @@ import torch
 
 from tacbench import hardware
 from tacbench.errors import TacbenchError
-from tacbench.tac.maths import METRICS
+from tacbench.tac.maths import METRICS, Coefficients, coefficients
 from tacbench.tac.networks import linear
 from tacbench.tac.update import gradients
 from tests.helpers import random_batch, run_cli, tac_agent, tiny_configs, train
@@ -113,7 +113,5 @@ def test_a_bf16_run_trains_into_its_own_variant(tmp_path: Path) -> None:
     assert outcome.directory.parent.name.endswith("-bf16")
 
 
-def _coefficients() -> tuple[torch.Tensor, ...]:
-    from tacbench.tac.maths import coefficients
-
+def _coefficients() -> Coefficients:
     return coefficients([1.0, 1.5, 3.0], [0.2, 0.1, 0.05], torch.device("cpu"))
