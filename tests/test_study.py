@@ -29,8 +29,8 @@ RUNS = {
     # Hopper, the closest version: 2 q x 5 seeds
     "authors-versions-100k/authors-2019-01-07b-hopper": 2 * 5,
     # Hopper and HalfCheetah: PPO, TRPO and DDPG x 5 seeds, and TAC at q = 1 and the paper's
-    # best q (2 and 1.5) from paper-q-grid-100k; SB3's SAC on both x 5 seeds
-    "comparison-100k": 2 * 5 * 5 + 2 * 5,
+    # best q (2 and 1.5) from paper-q-grid-100k; SB3's SAC on both and TD3 on Hopper x 5 seeds
+    "comparison-100k": 2 * 5 * 5 + 2 * 5 + 5,
 }
 # runs recorded as failed (a non-finite loss), at the step they failed: in this version q = 3
 # and 5 overflow float32 at their first update
