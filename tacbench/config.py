@@ -44,6 +44,8 @@ ON_OFF = ("on", "off")
 # itself after about 8,000 (docs/performance.md, "--compile auto and its break-even"); 20,000
 # leaves a margin for slower compilers
 COMPILE_AUTO_LEARNING_STEPS = 20_000
+# the variant part of --matmul-precision bf16, by which a report tells such runs apart
+BF16_VARIANT_PART = "bf16"
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -288,7 +290,7 @@ class RunConfig(RunSettings):
         "(docs/performance.md, 'Reduced precision').",
         source="float32: the paper's TensorFlow code; bf16: ours, opt-in with its learning check",
         choices=("float32", "bf16"),
-        variant={"bf16": "bf16"},
+        variant={"bf16": BF16_VARIANT_PART},
     )
 
     def __post_init__(self) -> None:

@@ -190,14 +190,15 @@ def profile_table(result: dict[str, Any]) -> str:
     """The profile as a Markdown table, with the peak and the products' share."""
     peak = result["peak_gflops"]
     total = result["profiled_update_us"]
+    precision = result.get("matmul_precision", "float32")  # absent from older profiles
     lines = [
         f"{result['env']}, {result['members']} member(s), hidden layers "
         f"{tuple(result['hidden_sizes'])}, batch {BATCH}, "
         f"{'compiled' if result['compile'] else 'eager'}, "
-        f"{result.get('matmul_precision', 'float32')} products, one thread. Update: "
+        f"{precision} products, one thread. Update: "
         f"{result['update_us'] / 1e3:.2f} ms as training runs it, "
         f"{total / 1e3:.2f} ms profiled. Peak (a {result['peak_size']}x{result['peak_size']} "
-        f"{result.get('matmul_precision', 'float32')} product): "
+        f"{precision} product): "
         f"{peak:.1f} GFLOP/s.",
         "",
         "| where | calls/update | us/update | share | GFLOP/s | of peak |",

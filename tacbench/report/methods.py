@@ -19,6 +19,7 @@ from matplotlib import colormaps
 from matplotlib.colors import to_hex
 from matplotlib.typing import LineStyleType
 
+from tacbench.config import BF16_VARIANT_PART
 from tacbench.paper import Q_GRID
 
 SAC_LABEL = "SAC (TAC q=1)"
@@ -93,7 +94,7 @@ def assign_methods(runs: pd.DataFrame) -> pd.Series:
         if algo == "tac" and math.isnan(q):
             name, tagged = Q_AUTO_LABEL, several_learned
         elif algo == "tac":
-            name, tagged = tac_label(q), q in ambiguous or "bf16" in variant.split("-")
+            name, tagged = tac_label(q), q in ambiguous or BF16_VARIANT_PART in variant.split("-")
         else:
             name, tagged = BASELINE_NAMES.get(algo, algo.upper()), algo in several
         labels.append(f"{name} [{variant}]" if tagged else name)
