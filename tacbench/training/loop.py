@@ -305,9 +305,8 @@ class GroupTrainer:
         if self.step % config.log_every == 0 or self.step == config.total_steps:
             logged = [k for k in self.alive if self.loss_count[k]]
             if logged:
-                mean = (
-                    self.loss_sum / torch.as_tensor(self.loss_count).clamp(min=1)[:, None]
-                ).cpu()
+                counts = torch.as_tensor(self.loss_count, device=self.loss_sum.device)
+                mean = (self.loss_sum / counts.clamp(min=1)[:, None]).cpu()
                 for k in logged:
                     q = self.q_of(k, self.step)
                     row = [q, int(self.loss_count[k]), *mean[k].tolist()]
