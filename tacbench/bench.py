@@ -36,6 +36,7 @@ from tacbench.hardware import configure_process, cpu_class, cpu_name
 from tacbench.members import make_run_configs
 
 Advance = Callable[[int], int]
+PhaseClock = Callable[[], dict[str, float]]  # seconds so far in each of training.PHASES
 WARMUP_UPDATES = 50  # untimed updates after learning starts (compilation happens here)
 
 
@@ -58,6 +59,7 @@ class BenchResult:
     contestant: Contestant
     steps: list[int] = field(default_factory=list)
     seconds: list[float] = field(default_factory=list)
+    phase_seconds: dict[str, float] = field(default_factory=dict)  # TAC rows: training.PHASES
 
     @property
     def rate(self) -> float:
@@ -74,6 +76,15 @@ class BenchResult:
         """The slowest and fastest round's steps per second."""
         rates = [s / t for s, t in zip(self.steps, self.seconds, strict=True)]
         return min(rates), max(rates)
+
+    @property
+    def phase_shares(self) -> dict[str, float]:
+        """Each phase's share of the measured time, then ``rest`` (empty for SB3's SAC)."""
+        if not self.phase_seconds:
+            return {}
+        total = sum(self.seconds)
+        shares = {name: seconds / total for name, seconds in self.phase_seconds.items()}
+        return {**shares, "rest": 1.0 - sum(shares.values())}
 
 
 @dataclass(frozen=True)
@@ -197,14 +208,16 @@ def _sb3_sac(options: BenchOptions) -> Iterator[Advance]:
 
 
 @contextlib.contextmanager
-def _learner(options: BenchOptions, contestant: Contestant, out: Path) -> Iterator[Advance]:
+def _learner(
+    options: BenchOptions, contestant: Contestant, out: Path
+) -> Iterator[tuple[Advance, PhaseClock]]:
     if not contestant.tac:
         with _sb3_sac(options) as advance:
-            yield advance
+            yield advance, dict
         return
     directory = out / f"{contestant.name.replace(' ', '_')}-{contestant.members}"
-    with training.stepper(_tac_configs(options, contestant), directory) as advance:
-        yield advance
+    with training.stepper(_tac_configs(options, contestant), directory) as stepper:
+        yield stepper, lambda: stepper.phase_seconds
 
 
 def run_bench(options: BenchOptions, report: Callable[[str], None] = print) -> list[BenchResult]:
@@ -218,16 +231,19 @@ def run_bench(options: BenchOptions, report: Callable[[str], None] = print) -> l
         for result in results:
             name = f"{result.contestant.name} K={result.contestant.members}"
             report(f"warming up {name} ...")
-            advance = stack.enter_context(_learner(options, result.contestant, Path(tmp)))
+            advance, clock = stack.enter_context(_learner(options, result.contestant, Path(tmp)))
             advance(options.learning_starts + WARMUP_UPDATES)
-            learners.append(advance)
+            learners.append((advance, clock))
         for round_index in range(options.rounds):
             report(f"round {round_index + 1}/{options.rounds}")
-            for result, advance in zip(results, learners, strict=True):
-                start, t0 = advance(0), time.perf_counter()
+            for result, (advance, clock) in zip(results, learners, strict=True):
+                start, phases, t0 = advance(0), clock(), time.perf_counter()
                 reached = advance(chunk)
                 result.seconds.append(time.perf_counter() - t0)
                 result.steps.append(reached - start)
+                for phase, seconds in clock().items():
+                    spent = seconds - phases[phase]
+                    result.phase_seconds[phase] = result.phase_seconds.get(phase, 0.0) + spent
     return results
 
 
@@ -261,6 +277,29 @@ def table(results: list[BenchResult]) -> str:
     return "\n".join(lines)
 
 
+def phase_table(results: list[BenchResult]) -> str:
+    """Where each TAC row's measured time went, phase by phase (training.PHASES)."""
+    rows = [r for r in results if r.phase_shares]
+    if not rows:
+        return ""
+    names = list(rows[0].phase_shares)
+    lines = [
+        "Where a TAC step's time goes (act: the policy's forward pass and the actions' copy to "
+        "the host; environments: stepping them and storing the transitions; sample: drawing "
+        "the minibatches; update: the gradient step, waited for; rest: logging, progress, "
+        "Python):",
+        "",
+        "| learner | members | ms/step | " + " | ".join(names) + " |",
+        "|---|---|---|" + "---|" * len(names),
+    ]
+    for r in rows:
+        shares = " | ".join(f"{r.phase_shares[name]:.0%}" for name in names)
+        lines.append(
+            f"| {r.contestant.name} | {r.contestant.members} | {1e3 / r.rate:.2f} | {shares} |"
+        )
+    return "\n".join(lines)
+
+
 def summary(results: list[BenchResult], options: BenchOptions, before: dict[str, Any]) -> str:
     """The table with a header that says what was measured, where and under what load."""
     after = machine()
@@ -274,7 +313,8 @@ def summary(results: list[BenchResult], options: BenchOptions, before: dict[str,
         f"{before['load_average']} at start, {after['load_average']} at end "
         "(a load above the thread count means other work shared the cores)."
     )
-    return f"{head}\n\n{table(results)}"
+    phases = phase_table(results)
+    return f"{head}\n\n{table(results)}" + (f"\n\n{phases}" if phases else "")
 
 
 def results_json(results: list[BenchResult], options: BenchOptions) -> dict[str, Any]:
@@ -289,6 +329,7 @@ def results_json(results: list[BenchResult], options: BenchOptions) -> dict[str,
                 "seconds": r.seconds,
                 "steps_per_s": r.rate,
                 "member_steps_per_s": r.member_rate,
+                "phase_seconds": r.phase_seconds,
             }
             for r in results
         ],

@@ -11,6 +11,10 @@ one thread, measured in the same process.
 Inductor's kernels are only visible to the profiler through its Python wrapper, so the compiled
 update is profiled without the C++ wrapper (``cpp_wrapper``) that training uses; the update's
 time without the profiler is measured with the wrapper, as training runs it, and both are shown.
+
+On a GPU (``--device cuda``) the update is timed to its completion and its time is split by the
+GPU's kernels (matrix products, compiled elementwise kernels, Adam, copies, others) and the time
+the GPU waits for the host; the peak is a large square product on the GPU.
 """
 
 from __future__ import annotations
@@ -43,6 +47,10 @@ class Row:
     gflops: float | None = None
 
 
+KERNEL_KINDS = ("matrix products", ELEMENTWISE, "Adam", "copies", "other kernels")
+GPU_IDLE = "GPU idle (waiting for the host: Python, launches, noise draws)"
+
+
 def best_seconds(fn: Callable[[], Any], repeats: int, rounds: int = 5) -> float:
     """The fastest of ``rounds`` means of ``repeats`` calls of ``fn``, in seconds per call."""
     for _ in range(min(repeats, 5)):
@@ -56,12 +64,27 @@ def best_seconds(fn: Callable[[], Any], repeats: int, rounds: int = 5) -> float:
     return best
 
 
-def peak_gflops(size: int | None = None, dtype: torch.dtype = torch.float32) -> float:
+def _finished(fn: Callable[[], Any], device: str) -> Callable[[], Any]:
+    """``fn``, waited for on a GPU (its kernels run after the call returns)."""
+    if device == "cpu":
+        return fn
+
+    def waited() -> Any:
+        out = fn()
+        torch.cuda.synchronize()
+        return out
+
+    return waited
+
+
+def peak_gflops(
+    size: int | None = None, dtype: torch.dtype = torch.float32, device: str = "cpu"
+) -> float:
     """GFLOP/s of one ``size`` x ``size`` (default :data:`PEAK_SIZE`) product of ``dtype``
-    (float32, or bfloat16 with float32 accumulation) on this process's threads."""
+    (float32, or bfloat16 with float32 accumulation) on this process's threads or the GPU."""
     size = size or PEAK_SIZE
-    a, b = torch.randn(size, size, dtype=dtype), torch.randn(size, size, dtype=dtype)
-    return 2 * size**3 / best_seconds(lambda: a @ b, repeats=3) / 1e9
+    a, b = (torch.randn(size, size, dtype=dtype, device=device) for _ in range(2))
+    return 2 * size**3 / best_seconds(_finished(lambda: a @ b, device), repeats=3) / 1e9
 
 
 def _minibatch(k: int, obs_dim: int, act_dim: int) -> dict[str, np.ndarray]:
@@ -77,9 +100,15 @@ def _minibatch(k: int, obs_dim: int, act_dim: int) -> dict[str, np.ndarray]:
 
 
 def _update(
-    env: str, members: int, hidden_sizes: Sequence[int], compile: bool, bf16: bool
+    env: str,
+    members: int,
+    hidden_sizes: Sequence[int],
+    compile: bool,
+    bf16: bool,
+    device: str = "cpu",
 ) -> Callable[[], Any]:
-    """One update of ``members`` fresh TAC members of ``env``'s dimensions, as a closure."""
+    """One update of ``members`` fresh TAC members of ``env``'s dimensions, as a closure that
+    returns when the update is done."""
     from tacbench import envs, paper
     from tacbench.members import make_run_configs
     from tacbench.tac.agent import TacAgent
@@ -94,12 +123,13 @@ def _update(
         hidden_sizes=tuple(hidden_sizes),
         compile="on" if compile else "off",
         matmul_precision="bf16" if bf16 else "float32",
+        device=device,
     )
-    cpu = torch.device("cpu")
-    agent = TacAgent(info.obs_dim, info.act_dim, configs[0], [c.seed for c in configs], cpu)
-    c = coefficients([x.q for x in configs], [x.alpha for x in configs], cpu)
+    where = torch.device(device)
+    agent = TacAgent(info.obs_dim, info.act_dim, configs[0], [c.seed for c in configs], where)
+    c = coefficients([x.q for x in configs], [x.alpha for x in configs], where)
     minibatch = _minibatch(members, info.obs_dim, info.act_dim)
-    return lambda: update(agent, minibatch, c)
+    return _finished(lambda: update(agent, minibatch, c), device)
 
 
 def _product_flops(shapes: Sequence[Sequence[int]]) -> int:
@@ -149,18 +179,76 @@ def profile_rows(step: Callable[[], Any], updates: int) -> tuple[list[Row], floa
     return rows, wall_us
 
 
+def _kernel_kind(name: str) -> str:
+    """Which of :data:`KERNEL_KINDS` a GPU kernel (or copy) of this name is."""
+    lower = name.lower()
+    if "memcpy" in lower or "memset" in lower:
+        return "copies"
+    if any(part in lower for part in ("gemm", "xmma", "cutlass", "cublas")):
+        return "matrix products"
+    if lower.startswith("triton"):
+        return ELEMENTWISE
+    if "adam" in lower or "multi_tensor_apply" in lower:
+        return "Adam"
+    return "other kernels"
+
+
+def kernel_rows(step: Callable[[], Any], updates: int) -> tuple[list[Row], float]:
+    """The GPU profile of ``updates`` calls of ``step``: the kernels' time per update by
+    :data:`KERNEL_KINDS`, then the time the GPU waited (the wall time not covered by kernels),
+    and the profiled microseconds per update."""
+    from torch.autograd import DeviceType
+    from torch.profiler import ProfilerActivity, profile
+
+    activities = [ProfilerActivity.CPU, ProfilerActivity.CUDA]
+    with profile(activities=activities) as prof:
+        start = time.perf_counter()
+        for _ in range(updates):
+            step()
+        wall_us = (time.perf_counter() - start) / updates * 1e6
+    kinds = {kind: [0.0, 0.0] for kind in KERNEL_KINDS}
+    for event in prof.key_averages():
+        if event.device_type == DeviceType.CUDA:
+            entry = kinds[_kernel_kind(event.key)]
+            entry[0] += event.count / updates
+            entry[1] += event.self_device_time_total / updates
+    rows = [Row(kind, calls, us) for kind, (calls, us) in kinds.items()]
+    rows.append(Row(GPU_IDLE, 0, wall_us - sum(r.us for r in rows)))
+    return rows, wall_us
+
+
 def profile_update(
-    env: str, members: int, hidden_sizes: Sequence[int], compile: bool, bf16: bool = False
+    env: str,
+    members: int,
+    hidden_sizes: Sequence[int],
+    compile: bool,
+    bf16: bool = False,
+    device: str = "cpu",
 ) -> dict[str, Any]:
     """Peak, the update's unprofiled time (as training runs it) and its profile over
-    :data:`PROFILED_UPDATES` updates, for one thread; with ``bf16`` of the update with bfloat16
-    products (``--matmul-precision bf16``), against a bfloat16 product's peak."""
+    :data:`PROFILED_UPDATES` updates, for one thread (or, with ``device`` ``cuda``, by the GPU's
+    kernels: :func:`kernel_rows`); with ``bf16`` of the update with bfloat16 products
+    (``--matmul-precision bf16``), against a bfloat16 product's peak."""
     from tacbench.tac import gradient
 
     torch.set_num_threads(1)
     updates = PROFILED_UPDATES
-    step = _update(env, members, hidden_sizes, compile, bf16)
+    step = _update(env, members, hidden_sizes, compile, bf16, device)
     unprofiled_us = best_seconds(step, repeats=max(10, updates)) * 1e6
+    result = {
+        "env": env,
+        "members": members,
+        "hidden_sizes": list(hidden_sizes),
+        "compile": compile,
+        "matmul_precision": "bf16" if bf16 else "float32",
+        "device": device,
+        "peak_size": PEAK_SIZE,
+        "peak_gflops": peak_gflops(dtype=torch.bfloat16 if bf16 else torch.float32, device=device),
+        "update_us": unprofiled_us,
+    }
+    if device != "cpu":  # the GPU's kernels are visible as training runs them
+        rows, profiled_us = kernel_rows(step, updates)
+        return {**result, "profiled_update_us": profiled_us, "rows": [vars(r) for r in rows]}
     wrapper = gradient.CPU_COMPILE_OPTIONS["cpp_wrapper"]
     kernel_profile = torch._inductor.config.cpp.enable_kernel_profile
     try:  # a second agent compiled with its kernels visible to the profiler
@@ -172,18 +260,7 @@ def profile_update(
     finally:
         gradient.CPU_COMPILE_OPTIONS["cpp_wrapper"] = wrapper
         torch._inductor.config.cpp.enable_kernel_profile = kernel_profile
-    return {
-        "env": env,
-        "members": members,
-        "hidden_sizes": list(hidden_sizes),
-        "compile": compile,
-        "matmul_precision": "bf16" if bf16 else "float32",
-        "peak_size": PEAK_SIZE,
-        "peak_gflops": peak_gflops(dtype=torch.bfloat16 if bf16 else torch.float32),
-        "update_us": unprofiled_us,
-        "profiled_update_us": profiled_us,
-        "rows": [vars(r) for r in rows],
-    }
+    return {**result, "profiled_update_us": profiled_us, "rows": [vars(r) for r in rows]}
 
 
 def profile_table(result: dict[str, Any]) -> str:
@@ -195,7 +272,8 @@ def profile_table(result: dict[str, Any]) -> str:
         f"{result['env']}, {result['members']} member(s), hidden layers "
         f"{tuple(result['hidden_sizes'])}, batch {BATCH}, "
         f"{'compiled' if result['compile'] else 'eager'}, "
-        f"{precision} products, one thread. Update: "
+        f"{precision} products, "
+        f"{'one thread' if result.get('device', 'cpu') == 'cpu' else result['device']}. Update: "
         f"{result['update_us'] / 1e3:.2f} ms as training runs it, "
         f"{total / 1e3:.2f} ms profiled. Peak (a {result['peak_size']}x{result['peak_size']} "
         f"{precision} product): "

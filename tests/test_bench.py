@@ -9,7 +9,14 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
-from tacbench.bench import BenchOptions, BenchResult, Contestant, contestants, table
+from tacbench.bench import (
+    BenchOptions,
+    BenchResult,
+    Contestant,
+    contestants,
+    phase_table,
+    table,
+)
 from tacbench.cli import cli
 from tacbench.errors import TacbenchError
 from tacbench.hardware import bf16_instructions
@@ -75,6 +82,26 @@ def test_bench_command_runs_every_contestant_and_writes_json(tmp_path: Path) -> 
     ]
     assert all(r["steps"] == [2, 2] and len(r["seconds"]) == 2 for r in record["results"])
     assert record["machine"]["cores"] >= 1
+    # TAC's rows split their time into the training loop's phases; SB3's has none
+    sb3, *tacs = record["results"]
+    assert sb3["phase_seconds"] == {}
+    for row in tacs:
+        assert set(row["phase_seconds"]) == {"act", "environments", "sample", "update"}
+        assert 0 < sum(row["phase_seconds"].values()) <= sum(row["seconds"])
+    assert "| learner | members | ms/step | act | environments | sample | update | rest |" in (
+        result.output
+    )
+
+
+def test_phase_table_gives_each_phases_share_and_the_rest() -> None:
+    phases = {"act": 0.1, "environments": 0.3, "sample": 0.05, "update": 0.5}
+    tac = BenchResult(Contestant("TAC", 2, tac=True), [50, 50], [0.5, 0.5], phases)
+    sb3 = BenchResult(Contestant("SB3 SAC", 1), [100], [1.0])
+    assert tac.phase_shares == pytest.approx({**phases, "rest": 0.05})
+    assert sb3.phase_shares == {}
+    lines = phase_table([sb3, tac]).splitlines()
+    assert lines[-1] == "| TAC | 2 | 10.00 | 10% | 30% | 5% | 50% | 5% |"
+    assert phase_table([sb3]) == ""
 
 
 def test_bench_command_refuses_bad_options() -> None:
@@ -122,6 +149,23 @@ def test_bench_profile_splits_an_update_into_products_and_the_rest(
         total = sum(r["us"] for r in profile["rows"])
         assert total == pytest.approx(profile["profiled_update_us"], rel=1e-6)
         assert profile["peak_gflops"] > 0
+
+
+@pytest.mark.parametrize(
+    ("kernel", "kind"),
+    [
+        ("sm90_xmma_gemm_f32f32_tf32f32_f32_tn_n_tilesize128x128x32", "matrix products"),
+        ("void cutlass::Kernel2<cutlass_80_simt_sgemm_128x64_8x5_nn_align1>", "matrix products"),
+        ("triton_poi_fused_add_mul_0", "elementwise (compiled kernels)"),
+        ("void at::native::(anonymous namespace)::multi_tensor_apply_kernel<FusedAdam>", "Adam"),
+        ("Memcpy HtoD (Pageable -> Device)", "copies"),
+        ("void at::native::reduce_kernel<512, 1>", "other kernels"),
+    ],
+)
+def test_gpu_kernels_are_sorted_by_what_they_do(kernel: str, kind: str) -> None:
+    from tacbench.update_profile import _kernel_kind
+
+    assert _kernel_kind(kernel) == kind
 
 
 def test_product_flops_counts_two_per_multiply_add() -> None:

@@ -140,7 +140,9 @@ def _profile(options: BenchOptions, compile_: bool, json_path: Path | None) -> N
     results = []
     for members in dict.fromkeys((1, options.members)):
         click.echo(f"profiling the update of {members} member(s) ...", err=True)
-        result = profile_update(options.env, members, options.networks, compile_, options.bf16)
+        result = profile_update(
+            options.env, members, options.networks, compile_, options.bf16, options.device
+        )
         results.append(result)
         click.echo(profile_table(result) + "\n")
     if json_path is not None:

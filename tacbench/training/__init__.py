@@ -26,9 +26,9 @@ from tacbench.interrupts import StopCheck, stop_signals
 from tacbench.members import resolve_compile
 from tacbench.runs import Outcome, planned_runs
 from tacbench.runs.checkpoints import disk_errors
-from tacbench.training.loop import LOSS_COLUMNS, GroupTrainer
+from tacbench.training.loop import LOSS_COLUMNS, PHASES, GroupTrainer
 
-__all__ = ["LOSS_COLUMNS", "policy", "resolve_device", "stepper", "train"]
+__all__ = ["LOSS_COLUMNS", "PHASES", "Stepper", "policy", "resolve_device", "stepper", "train"]
 
 
 def resolve_device(name: str) -> str:
@@ -110,26 +110,39 @@ def check_sizes(configs: Sequence[RunConfig], info: envs.EnvInfo) -> None:
     memory.check_fits(needs, "--hidden-sizes, --batch-size or --buffer-size (or the members)")
 
 
-@contextmanager
-def stepper(configs: Sequence[RunConfig], out: Path) -> Iterator[Callable[[int], int]]:
-    """For benchmarks and profiles: fresh members ``configs`` (run directories under ``out``)
-    and a function that advances them by n steps (fewer at the end or when all have failed)
-    and returns the step reached. No signal handling; everything is closed on exit."""
-    configs = [resolve_compile(c) for c in configs]
-    check_matmul_precision(configs[0].matmul_precision, resolve_device(configs[0].device))
-    directories = [runs.run_directory(out, c.algo, c.env, c.variant, c.seed) for c in configs]
-    configure_process(configs[0].threads)
-    trainer = GroupTrainer(list(configs), directories, "", quiet=True)
+class Stepper:
+    """What :func:`stepper` yields: ``stepper(n)`` advances the members by n steps (fewer at the
+    end or when all have failed) and returns the step reached."""
 
-    def advance(n: int) -> int:
+    def __init__(self, trainer: GroupTrainer):
+        self._trainer = trainer
+
+    def __call__(self, n: int) -> int:
+        trainer = self._trainer
         for _ in range(n):
             if trainer.step >= trainer.config.total_steps or not trainer.alive:
                 break
             trainer.advance()
         return trainer.step
 
+    @property
+    def phase_seconds(self) -> dict[str, float]:
+        """Seconds spent so far in each of :data:`loop.PHASES` (a copy)."""
+        return dict(self._trainer.phase_seconds)
+
+
+@contextmanager
+def stepper(configs: Sequence[RunConfig], out: Path) -> Iterator[Stepper]:
+    """For benchmarks and profiles: fresh members ``configs`` (run directories under ``out``),
+    advanced by the :class:`Stepper` it yields. No signal handling; everything is closed on
+    exit."""
+    configs = [resolve_compile(c) for c in configs]
+    check_matmul_precision(configs[0].matmul_precision, resolve_device(configs[0].device))
+    directories = [runs.run_directory(out, c.algo, c.env, c.variant, c.seed) for c in configs]
+    configure_process(configs[0].threads)
+    trainer = GroupTrainer(list(configs), directories, "", quiet=True)
     try:
-        yield advance
+        yield Stepper(trainer)
     finally:
         trainer.close()
 

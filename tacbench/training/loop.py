@@ -29,6 +29,10 @@ from tacbench.training.pbt import PBT_COLUMNS, Population
 from tacbench.training.schedule import rounds, updates_due
 
 LOSS_COLUMNS = ("q", "updates", *METRICS)  # with --alpha auto, ALPHA_METRICS follow
+# Where a step's time goes (GroupTrainer.phase_seconds, read by tacbench bench). Each phase ends
+# at a point that waits for the device (the actions' copy to the host; the losses' finiteness
+# check), so on a GPU its kernels are counted in their own phase.
+PHASES = ("act", "environments", "sample", "update")
 
 
 class GroupTrainer:
@@ -83,6 +87,7 @@ class GroupTrainer:
         self.updates_started = np.zeros(k, dtype=bool)  # training.schedule
         self.alive = list(range(k))  # live members, kept on the host (no device sync to read)
         self.wall_offset = 0.0
+        self.phase_seconds = dict.fromkeys(PHASES, 0.0)  # since start, not kept by checkpoints
         self.finished_length = np.zeros(k, dtype=np.int64)  # length of episodes just ended
         self.chunk_added, self.chunk_rows = 0, np.zeros(k, dtype=np.int64)
         self.replay_chunks: list[list[Path]] = [[] for _ in range(k)]  # the last generation's
@@ -224,12 +229,14 @@ class GroupTrainer:
 
     def _env_step(self) -> np.ndarray:
         """Act in each live member's env, store the transitions; return which episodes ended."""
-        k_all = len(self.envs)
+        k_all, started = len(self.envs), time.perf_counter()
         if self.step < self.config.learning_starts:  # warm-up: uniform random actions
             draws = [rng.uniform(-1.0, 1.0, self.info.act_dim) for rng in self.rngs]
             actions: np.ndarray = np.stack(draws).astype(np.float32)
         else:
             actions = self.agent.act(self.obs)
+        acted = time.perf_counter()
+        self.phase_seconds["act"] += acted - started
         env_actions = envs.to_env_action(actions, self.info)
         next_obs, reward = self.obs.copy(), np.zeros(k_all)
         terminated, done = np.zeros(k_all, dtype=bool), np.zeros(k_all, dtype=bool)
@@ -255,6 +262,7 @@ class GroupTrainer:
         self.finished_length = self.episode_length.copy()
         self.episode_return[done] = 0.0
         self.episode_length[done] = 0
+        self.phase_seconds["environments"] += time.perf_counter() - acted
         return done
 
     def q_of(self, k: int, step: int) -> float:
@@ -285,7 +293,9 @@ class GroupTrainer:
             c = self.coefficients_at(self.step)
             for members in rounds(due):
                 subset = members.tolist() if config.per_member_updates else None
+                started = time.perf_counter()
                 sample = self.buffer.sample(self.rngs, config.batch_size, subset)
+                sampled = time.perf_counter()
                 metrics = update(self.agent, sample, c, subset)
                 if subset is None:
                     self.loss_sum += metrics
@@ -294,7 +304,10 @@ class GroupTrainer:
                     self.loss_sum += torch.where(active, metrics, 0.0)
                 self.loss_count += members
                 finite = torch.isfinite(metrics)
-                if bool(finite.all()):  # the common case, in one reduction
+                all_finite = bool(finite.all())  # the common case, in one reduction
+                self.phase_seconds["sample"] += sampled - started
+                self.phase_seconds["update"] += time.perf_counter() - sampled
+                if all_finite:
                     continue
                 active = torch.as_tensor(members, device=self.agent.alive.device)
                 bad = self.agent.alive & active & ~finite.all(dim=-1)
