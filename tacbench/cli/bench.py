@@ -93,8 +93,8 @@ def bench(
     json_path: Path | None,
 ) -> None:
     """TAC (uncompiled and, with --compile, compiled; one and --members members) against
-    stable-baselines3's SAC with the paper's settings, side by side in this process: steps/s and
-    ratios (docs/performance.md)."""
+    stable-baselines3's SAC with the paper's settings, side by side in this process: steps/s,
+    ratios and where each TAC step's time goes (docs/performance.md)."""
     import json
 
     from tacbench import bench as measure  # torch and SB3 only when this command runs
