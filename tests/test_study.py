@@ -29,9 +29,9 @@ RUNS = {
     # Hopper, the closest version: 2 q x 5 seeds
     "authors-versions-100k/authors-2019-01-07b-hopper": 2 * 5,
     # Hopper and HalfCheetah: PPO, TRPO, DDPG, SB3's SAC and TD3 x 5 seeds, and TAC at q = 1
-    # and the paper's best q (2 and 1.5) from paper-q-grid-100k; Swimmer: PPO and TRPO x 5
-    # seeds, and TAC at q = 1 and 2 from paper-q-grid-100k-swimmer
-    "comparison-100k": 2 * 7 * 5 + 4 * 5,
+    # and the paper's best q (2 and 1.5) from paper-q-grid-100k; Swimmer, Pusher and Ant: PPO
+    # and TRPO x 5 seeds, and TAC at q = 1 and the best q from the task's q-grid study
+    "comparison-100k": 2 * 7 * 5 + 3 * 4 * 5,
 }
 # runs recorded as failed (a non-finite loss), at the step they failed: in this version q = 3
 # and 5 overflow float32 at their first update
@@ -99,9 +99,13 @@ def test_the_comparisons_tac_runs_are_the_q_grid_studys() -> None:
     """docs/results.md: the comparison study reuses each task's TAC runs from its q-grid
     study, not retrains them."""
     comparison = STUDIES / "comparison-100k"
-    grids = {"Swimmer-v4": "paper-q-grid-100k-swimmer"}  # the others: paper-q-grid-100k
+    grids = {  # Hopper's and HalfCheetah's: paper-q-grid-100k
+        "Swimmer-v4": "paper-q-grid-100k-swimmer",
+        "Pusher-v5": "paper-q-grid-100k-pusher",
+        "Ant-v4": "paper-q-grid-100k-ant",
+    }
     copies = sorted(p for p in comparison.glob("runs/tac/**/*") if p.is_file())
-    assert len(copies) == 3 * 2 * 5 * 5  # three tasks, two q, 5 seeds, 5 files each
+    assert len(copies) == 5 * 2 * 5 * 5  # five tasks, two q, 5 seeds, 5 files each
     for path in copies:
         relative = path.relative_to(comparison)
         original = STUDIES / grids.get(relative.parts[2], "paper-q-grid-100k") / relative
