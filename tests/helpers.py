@@ -68,14 +68,14 @@ def tac_agent(
     initial_alphas: Sequence[float] | None = None,
     **settings: Any,
 ) -> TacAgent:
-    """A TAC agent on the CPU with a member per seed of ``seeds``, for ``obs``-dimensional
-    observations and ``act``-dimensional actions: ``env``'s config at ``q`` and ``alpha``, with
-    networks of ``hidden_sizes`` (None: the config's default), not compiled, and ``settings``
-    (RunConfig fields) on top."""
+    """A TAC agent with a member per seed of ``seeds``, for ``obs``-dimensional observations and
+    ``act``-dimensional actions: ``env``'s config at ``q`` and ``alpha``, with networks of
+    ``hidden_sizes`` (None: the config's default), not compiled, and ``settings`` (RunConfig
+    fields) on top; on the config's device (the CPU unless ``settings`` name another)."""
     sizes = {} if hidden_sizes is None else {"hidden_sizes": hidden_sizes}
     config = RunConfig(env=env, q=q, alpha=alpha, **{"compile": "off", **sizes, **settings})
-    cpu = torch.device("cpu")
-    return TacAgent(obs, act, config, list(seeds), cpu, initial_alphas=initial_alphas)
+    device = torch.device(config.device)
+    return TacAgent(obs, act, config, list(seeds), device, initial_alphas=initial_alphas)
 
 
 def random_batch(

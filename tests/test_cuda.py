@@ -9,16 +9,14 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import numpy as np
 import pytest
 import torch
 
 from tacbench.bench import BenchOptions, run_bench
-from tacbench.config import RunConfig
 from tacbench.tac.agent import TacAgent
 from tacbench.tac.maths import coefficients
 from tacbench.tac.update import update
-from tests.helpers import assert_same_results, tiny_configs, train
+from tests.helpers import assert_same_results, random_batch, tac_agent, tiny_configs, train
 
 pytestmark = [
     pytest.mark.smoke,
@@ -26,30 +24,13 @@ pytestmark = [
 ]
 
 OBS, ACT, SEEDS, QS = 11, 3, [0, 10, 20], [1.0, 1.5, 3.0]
-CUDA = torch.device("cuda")
-
-
-def _agent(device: torch.device, compile: str) -> TacAgent:
-    config = RunConfig(env="Hopper-v4", q=1.5, alpha=0.2, hidden_sizes=(64,), compile=compile)
-    return TacAgent(OBS, ACT, config, SEEDS, device)
-
-
-def _minibatch(step: int) -> dict[str, np.ndarray]:
-    rng = np.random.default_rng(step)
-    shape = (len(SEEDS), 100)
-    return {
-        "obs": rng.standard_normal((*shape, OBS)),
-        "action": rng.uniform(-1, 1, (*shape, ACT)),
-        "reward": rng.standard_normal(shape),
-        "next_obs": rng.standard_normal((*shape, OBS)),
-        "terminated": (rng.uniform(size=shape) < 0.1).astype(float),
-    }
 
 
 def _train_a_few(agent: TacAgent, updates: int = 5) -> list[dict[str, torch.Tensor]]:
     c = coefficients(QS, [0.2, 0.1, 0.05], agent.device)
     for step in range(updates):
-        metrics = update(agent, _minibatch(step), c)
+        batch, _ = random_batch(len(SEEDS), 100, OBS, ACT, seed=step, terminal=0.1)
+        metrics = update(agent, batch._asdict(), c)
         assert bool(torch.isfinite(metrics).all())
     return [agent.member_state(k)["params"] for k in range(len(SEEDS))]
 
@@ -59,8 +40,10 @@ def test_the_update_on_the_gpu_equals_the_cpus(compile: str) -> None:
     """The noise comes from each member's CPU generator on every device, so the same seeds give
     the same numbers to float32 rounding (TF32 stays off: torch's default for float32
     products); the compiled GPU update runs as CUDA graphs."""
-    on_cpu = _train_a_few(_agent(torch.device("cpu"), "off"))
-    on_gpu = _train_a_few(_agent(CUDA, compile))
+    on_cpu = _train_a_few(tac_agent(OBS, ACT, SEEDS, hidden_sizes=(64,)))
+    on_gpu = _train_a_few(
+        tac_agent(OBS, ACT, SEEDS, hidden_sizes=(64,), compile=compile, device="cuda")
+    )
     for cpu_member, gpu_member in zip(on_cpu, on_gpu, strict=True):
         for name, value in cpu_member.items():
             torch.testing.assert_close(gpu_member[name], value, rtol=1e-4, atol=1e-5, msg=name)
