@@ -1,8 +1,8 @@
 """TAC on a GPU (skipped where none is visible, as in CI): the update on the GPU equals the
 CPU's to float32 rounding, eager and compiled (CUDA graphs), for members of several q; a short
-run with evaluation, losses and checkpoints completes; a run stopped twice and resumed writes
-the CSVs of an uninterrupted one; the bench's phases add up; and the update's profile names
-the GPU's kernels."""
+run with evaluation, losses and checkpoints completes, and so does a local sweep whose workers
+share the GPU; a run stopped twice and resumed writes the CSVs of an uninterrupted one; the
+bench's phases add up; and the update's profile names the GPU's kernels."""
 
 from __future__ import annotations
 
@@ -11,8 +11,10 @@ from pathlib import Path
 
 import pytest
 import torch
+from click.testing import CliRunner
 
 from tacbench.bench import BenchOptions, run_bench
+from tacbench.cli import cli
 from tacbench.tac.agent import TacAgent
 from tacbench.tac.maths import coefficients
 from tacbench.tac.update import update
@@ -55,6 +57,17 @@ def test_a_short_gpu_run_trains_evaluates_and_checkpoints(tmp_path: Path) -> Non
     assert json.loads((outcome.directory / "config.json").read_text())["config"]["device"] == "cuda"
     for name in ("eval.csv", "losses.csv", "train.csv"):
         assert len((outcome.directory / name).read_text().splitlines()) > 1, name
+
+
+def test_a_local_sweep_shares_the_gpu_between_its_workers(tmp_path: Path) -> None:
+    args = ["sweep", "--preset", "smoke", "--algo", "tac", "--group", "seeds", "--steps", "600"]
+    result = CliRunner().invoke(cli, [*args, "--gpus-per-run", "0.5", "--out", str(tmp_path)])
+    assert result.exit_code == 0, result.output
+    configs = sorted(tmp_path.glob("runs/tac/*/*/seed*/config.json"))
+    assert len(configs) == 4  # two q, two seeds: one unit of two members per q, both at once
+    for path in configs:
+        assert json.loads(path.read_text())["config"]["device"] == "cuda"
+    assert len(list((tmp_path / "sweep" / "logs").glob("*.log"))) == 2
 
 
 def test_a_gpu_run_stopped_and_resumed_equals_an_uninterrupted_one(tmp_path: Path) -> None:

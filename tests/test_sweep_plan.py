@@ -293,7 +293,8 @@ def test_cli_sweep_dry_run_and_option_errors(tmp_path: Path) -> None:
     assert not (tmp_path / "sweep").exists()  # a dry run writes nothing
     for args, message in [
         (["--address", "auto"], "are Ray options: add --executor ray"),
-        (["--cpus-per-run", "2"], "are Ray or Slurm requests: add --executor ray or slurm"),
+        (["--cpus-per-run", "2"], "is a Ray or Slurm request: add --executor ray or slurm"),
+        (["--gpus-per-run", "1.5"], "the local executor shares one GPU between its workers"),
         (["--max-retries", "-1"], "--max-retries must be 0 or more"),
         (["--env", "Walker2d"], "the presets train the paper's tasks"),
         (["--steps", "0"], "total_steps must be an integer >= 1"),

@@ -1,16 +1,18 @@
-"""The Slurm executor's options, checked without a cluster: time limits, sbatch arguments, which
-flags go with which executor, and a clear error where Slurm is not installed."""
+"""The executors' options, checked without a cluster or a GPU: Slurm's time limits and sbatch
+arguments, which flags go with which executor, how many local workers share a GPU, and clear
+errors where Slurm is not installed or no GPU is visible."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 import pytest
+import torch
 from click.testing import CliRunner
 
 from tacbench.cli import cli
 from tacbench.errors import TacbenchError
-from tacbench.sweep import driver, slurm
+from tacbench.sweep import driver, presets, slurm, summary
 
 pytestmark = pytest.mark.unit
 
@@ -54,6 +56,9 @@ def test_slurm_args_become_sbatch_options() -> None:
         ({"executor": "slurm", "time_limit": "soon"}, "--time"),
         ({"executor": "slurm", "slurm_args": ("mem",)}, "KEY=VALUE"),
         ({"executor": "pbs"}, "--executor must be one of local, ray, slurm"),
+        ({"cpus_per_run": 2.0}, "--cpus-per-run is a Ray or Slurm request"),
+        ({"gpus_per_run": 2.0}, "shares one GPU between its workers"),
+        ({"gpus_per_run": 0.25, "workers": 5}, "needs 1.25 GPUs.*--workers 4 or less"),
     ],
 )
 def test_options_that_do_not_go_together_are_refused(options: dict, message: str) -> None:
@@ -84,3 +89,27 @@ def test_the_cli_refuses_a_bad_time_with_status_2(tmp_path: Path) -> None:
     result = CliRunner().invoke(cli, [*args, "--out", str(tmp_path)])
     assert result.exit_code == 2, result.output
     assert "--time 'soon'" in result.output
+
+
+@pytest.mark.parametrize(("share", "workers"), [(0.2, 5), (0.3, 3), (0.5, 2), (1.0, 1)])
+def test_the_local_executor_shares_its_gpu_between_one_over_the_share_workers(
+    share: float, workers: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(driver.os, "sched_getaffinity", lambda _: set(range(16)), raising=False)
+    assert driver.Options(gpus_per_run=share).worker_count() == workers
+    assert driver.Options(gpus_per_run=share, workers=1).worker_count() == 1
+    monkeypatch.setattr(driver.os, "sched_getaffinity", lambda _: {0}, raising=False)
+    assert driver.Options(gpus_per_run=share).worker_count() == 1  # never more than the cores
+
+
+def test_a_gpu_sweep_plans_cuda_runs_and_refuses_to_start_without_a_gpu(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    options = driver.Options(gpus_per_run=0.5)
+    work, _ = driver.load_plan(presets.get_preset("smoke"), tmp_path, options, save=False)
+    assert {unit.runs[0].config.device for unit in work.units} == {"cuda"}
+    assert "every figure above prices CPU cores" in summary.describe_plan(work, 2, "task")
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    with pytest.raises(TacbenchError, match="--gpus-per-run trains on a CUDA GPU"):
+        driver.run_sweep(presets.get_preset("smoke"), tmp_path, options)
+    assert not (tmp_path / "runs").exists()

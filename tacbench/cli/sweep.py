@@ -54,7 +54,8 @@ _OVERRIDES = cli_settings(RunConfig, sweep=True)
     "--workers",
     type=int,
     default=None,
-    help="Units at once. [default: local: the core count; ray: what the cluster has room for; "
+    help="Units at once. [default: local: the core count, and at most 1/G with --gpus-per-run "
+    "G; ray: what the cluster has room for; "
     "slurm: every unit, as one job array]",
 )
 @click.option("--address", default=None, help="Ray cluster: auto, HOST:6379 or ray://HOST:10001.")
@@ -62,7 +63,12 @@ _OVERRIDES = cli_settings(RunConfig, sweep=True)
     "--cpus-per-run", type=float, default=1.0, show_default=True, help="Ray or Slurm request."
 )
 @click.option(
-    "--gpus-per-run", type=float, default=0.0, show_default=True, help="Ray or Slurm; > 0: cuda."
+    "--gpus-per-run",
+    type=float,
+    default=0.0,
+    show_default=True,
+    help="> 0: the runs train on cuda. Ray or Slurm: the request; local: each worker's share of "
+    "the one GPU (0.2: at most five workers).",
 )
 @click.option("--partition", default=None, help="Slurm partition.  [default: the cluster's]")
 @click.option(

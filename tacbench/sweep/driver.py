@@ -69,11 +69,13 @@ class Options:
             raise TacbenchError(
                 "--address, --scratch and --shared-fs are Ray options: add --executor ray."
             )
-        if self.executor == "local" and (self.gpus_per_run or self.cpus_per_run != 1.0):
+        if self.executor == "local" and self.cpus_per_run != 1.0:
             raise TacbenchError(
-                "--cpus-per-run and --gpus-per-run are Ray or Slurm requests: add --executor ray "
-                "or slurm (the local executor runs one thread per worker)."
+                "--cpus-per-run is a Ray or Slurm request: add --executor ray or slurm (the "
+                "local executor runs one thread per worker)."
             )
+        if self.executor == "local" and self.gpus_per_run:
+            self._check_local_gpu_share()
         slurm_only = self.partition or self.slurm_args or self.time_limit is not None
         if self.executor != "slurm" and slurm_only:
             raise TacbenchError(
@@ -88,13 +90,36 @@ class Options:
             slurm.parse_time(self.time_limit or slurm.DEFAULT_TIME)
             slurm.parse_slurm_args(self.slurm_args)
 
+    def _check_local_gpu_share(self) -> None:
+        if self.gpus_per_run > 1:
+            raise TacbenchError(
+                f"--gpus-per-run {self.gpus_per_run:g}: the local executor shares one GPU "
+                "between its workers, so give a fraction of it (0.2: five workers on the GPU), "
+                "or use --executor ray or slurm for several GPUs per run."
+            )
+        if self.workers and self.workers > self.gpu_workers():
+            raise TacbenchError(
+                f"--workers {self.workers} with --gpus-per-run {self.gpus_per_run:g} needs "
+                f"{self.workers * self.gpus_per_run:g} GPUs; the local executor shares one: "
+                f"give --workers {self.gpu_workers()} or less, or a smaller --gpus-per-run."
+            )
+
+    def gpu_workers(self) -> int:
+        """Local executor with --gpus-per-run G: how many workers share its one GPU, 1/G."""
+        return max(1, int(1 / self.gpus_per_run + 1e-9))
+
     def worker_count(self) -> int:
-        """Workers for the plan's estimate: --workers, else this machine's cores."""
+        """Workers for the plan's estimate: --workers, else this machine's cores (local with
+        --gpus-per-run G: at most 1/G, the workers that share the GPU)."""
         if self.workers:
             return self.workers
         if hasattr(os, "sched_getaffinity"):  # the cores this process may use (Linux)
-            return len(os.sched_getaffinity(0))
-        return os.cpu_count() or 1
+            cores = len(os.sched_getaffinity(0))
+        else:
+            cores = os.cpu_count() or 1
+        if self.executor == "local" and self.gpus_per_run:
+            return min(cores, self.gpu_workers())
+        return cores
 
 
 @dataclass(frozen=True)
@@ -175,6 +200,8 @@ def run_sweep(
     """Train every run of ``preset`` into ``out`` that is not complete; see the module doc.
     A full disk stops the sweep (every unit checkpoints and returns) with a DiskError."""
     runs.ensure_writable(out)
+    if options.executor == "local" and options.gpus_per_run:
+        _require_cuda()
     with disk_errors("the sweep's files"), state.Lock(out):
         work, history = load_plan(preset, out, options)
         executor = _executor(out, options)
@@ -193,6 +220,17 @@ def run_sweep(
         text = summary.summary_text(result, options.command)
         summary.write_summary(out, result, text)
         return SweepResult(result, text, interrupted)
+
+
+def _require_cuda() -> None:
+    import torch
+
+    if not torch.cuda.is_available():
+        raise TacbenchError(
+            "--gpus-per-run trains on a CUDA GPU, and torch sees none here "
+            f"(torch {torch.__version__}): install a CUDA build of torch on a machine with an "
+            "NVIDIA GPU, or leave --gpus-per-run out to train on the CPU."
+        )
 
 
 def _executor(out: Path, options: Options) -> executors.Executor:

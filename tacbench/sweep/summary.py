@@ -97,6 +97,11 @@ def describe_plan(plan: SweepPlan, workers: int, group: str) -> str:
             "(tacbench/sweep/cost.py); runs under --out with two evaluations replace it, and "
             "--dry-run --calibrate measures the units on this CPU class (a few minutes)."
         )
+    if any(p.run.config.device != "cpu" for p in plan.runs):
+        lines.append(
+            "The runs train on a GPU (--gpus-per-run), and every figure above prices CPU cores: "
+            "measure the GPU's speed with `tacbench bench --device cuda` (docs/performance.md)."
+        )
     return "\n".join(lines)
 
 
