@@ -14,13 +14,14 @@ from tacbench.report import ReportOptions, analyse, write_report
 pytestmark = pytest.mark.smoke
 
 STUDIES = Path(__file__).resolve().parents[1] / "results" / "studies"
-# study folder -> its runs, each of 100,000 steps: the paper's 9 q x 5 seeds per task, the
-# authors' code versions, and the comparison with the baselines
+# study folder -> its runs, each of 100,000 steps: the paper's 9 q x 5 seeds per task (Humanoid
+# 3 q x 3 seeds), the authors' code versions, and the comparison with the baselines
 RUNS = {
     "paper-q-grid-100k": 2 * 9 * 5,
     "paper-q-grid-100k-ant": 9 * 5,
     "paper-q-grid-100k-swimmer": 9 * 5,
     "paper-q-grid-100k-pusher": 9 * 5,
+    "paper-q-grid-100k-humanoid": 3 * 3,  # q = 1, 1.2, 2 x seeds 0, 10, 20
     # HalfCheetah, one folder per version of the authors' code: 5 q x 5 seeds
     "authors-versions-100k/authors-2019-01-07b": 5 * 5,
     "authors-versions-100k/authors-2019-01-11b": 5 * 5,
