@@ -32,8 +32,8 @@ RUNS = {
     # Hopper and HalfCheetah: PPO, TRPO, DDPG, SB3's SAC and TD3 x 5 seeds, and TAC at q = 1
     # and the paper's best q (2 and 1.5) from paper-q-grid-100k; Swimmer, Pusher and Ant: PPO
     # and TRPO x 5 seeds, and TAC at q = 1 and the best q from the task's q-grid study; DDPG
-    # and TD3 on Swimmer x 5 seeds
-    "comparison-100k": 2 * 7 * 5 + 3 * 4 * 5 + 2 * 5,
+    # and TD3 on Swimmer x 5 seeds; Humanoid: PPO, TRPO and TAC at q = 1 and 1.2 x 3 seeds
+    "comparison-100k": 2 * 7 * 5 + 3 * 4 * 5 + 2 * 5 + 4 * 3,
 }
 # runs recorded as failed (a non-finite loss), at the step they failed: in this version q = 3
 # and 5 overflow float32 at their first update
@@ -105,9 +105,11 @@ def test_the_comparisons_tac_runs_are_the_q_grid_studys() -> None:
         "Swimmer-v4": "paper-q-grid-100k-swimmer",
         "Pusher-v5": "paper-q-grid-100k-pusher",
         "Ant-v4": "paper-q-grid-100k-ant",
+        "Humanoid-v4": "paper-q-grid-100k-humanoid",
     }
     copies = sorted(p for p in comparison.glob("runs/tac/**/*") if p.is_file())
-    assert len(copies) == 5 * 2 * 5 * 5  # five tasks, two q, 5 seeds, 5 files each
+    # five tasks with two q and 5 seeds, Humanoid with two q and 3 seeds; 5 files each
+    assert len(copies) == (5 * 2 * 5 + 2 * 3) * 5
     for path in copies:
         relative = path.relative_to(comparison)
         original = STUDIES / grids.get(relative.parts[2], "paper-q-grid-100k") / relative
