@@ -74,7 +74,7 @@ class Options:
                 "--cpus-per-run is a Ray or Slurm request: add --executor ray or slurm (the "
                 "local executor runs one thread per worker)."
             )
-        if self.executor == "local" and self.gpus_per_run:
+        if self.shares_local_gpu:
             self._check_local_gpu_share()
         slurm_only = self.partition or self.slurm_args or self.time_limit is not None
         if self.executor != "slurm" and slurm_only:
@@ -104,6 +104,11 @@ class Options:
                 f"give --workers {self.gpu_workers()} or less, or a smaller --gpus-per-run."
             )
 
+    @property
+    def shares_local_gpu(self) -> bool:
+        """The local executor's workers train on the machine's GPU (--gpus-per-run > 0)."""
+        return self.executor == "local" and self.gpus_per_run > 0
+
     def gpu_workers(self) -> int:
         """Local executor with --gpus-per-run G: how many workers share its one GPU, 1/G."""
         return max(1, int(1 / self.gpus_per_run + 1e-9))
@@ -117,7 +122,7 @@ class Options:
             cores = len(os.sched_getaffinity(0))
         else:
             cores = os.cpu_count() or 1
-        if self.executor == "local" and self.gpus_per_run:
+        if self.shares_local_gpu:
             return min(cores, self.gpu_workers())
         return cores
 
@@ -200,7 +205,7 @@ def run_sweep(
     """Train every run of ``preset`` into ``out`` that is not complete; see the module doc.
     A full disk stops the sweep (every unit checkpoints and returns) with a DiskError."""
     runs.ensure_writable(out)
-    if options.executor == "local" and options.gpus_per_run:
+    if options.shares_local_gpu:
         _require_cuda()
     with disk_errors("the sweep's files"), state.Lock(out):
         work, history = load_plan(preset, out, options)
