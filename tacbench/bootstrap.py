@@ -14,13 +14,15 @@ task as its own 1-D array lets tasks have different numbers of runs, which rliab
 rliable draws its indices from NumPy's global generator (``np.random.choice``; its
 ``random_state`` argument does not reach them), so :func:`interval` seeds that generator for
 the duration of the call and restores its state afterwards: an interval is a function of the
-scores and the seed alone.
+scores and the seed alone. :func:`strata_seed` derives that seed from the scores themselves, so
+that a report's intervals do not depend on which other intervals it computes.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
+from hashlib import blake2b
 
 import numpy as np
 import numpy.typing as npt
@@ -75,6 +77,27 @@ def scalar_interval(
     """:func:`interval` of a statistic that returns one number, as three floats."""
     point, low, high = interval(statistic, strata, reps, seed)
     return float(point[0]), float(low[0]), float(high[0])
+
+
+def strata_seed(base: int, strata: Sequence[npt.ArrayLike]) -> int:
+    """A bootstrap seed that is a function of ``base`` and the scores it will resample alone.
+
+    Drawing every interval's seed from one generator in turn would tie each interval to the
+    number of intervals computed before it, so adding a task or a baseline to a study would move
+    the intervals of every other comparison (and flip verdicts that sit at an edge), and the same
+    comparison would get different intervals in two reports. This seed is a hash (BLAKE2b,
+    through NumPy's ``SeedSequence``) of ``base`` and each stratum's scores, in order and framed
+    by their counts: the same on every platform, in [0, 2**32). The scores are hashed at float32
+    precision, so that one run's score summed in another order (a few ulps of float64 apart, as
+    two reports may compute it) gives the same seed.
+    """
+    digest = blake2b(digest_size=16)
+    for stratum in strata:
+        scores = np.ascontiguousarray(stratum, dtype="<f4").ravel()
+        digest.update(len(scores).to_bytes(8, "little") + scores.tobytes())
+    words = np.frombuffer(digest.digest(), dtype="<u4")
+    sequence = np.random.SeedSequence([base, *(int(word) for word in words)])
+    return int(sequence.generate_state(1, dtype=np.uint32)[0])
 
 
 def mean_difference(

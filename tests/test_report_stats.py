@@ -8,12 +8,14 @@ import pytest
 from rliable import metrics
 from scipy.stats import norm, trim_mean
 
+from tacbench.bootstrap import strata_seed
 from tacbench.report.stats import (
     ALL_TASKS,
     improvement_over_baselines,
     improvement_over_q1,
     interval_estimates,
     iqm,
+    per_task_estimates,
     performance_profile,
     probability_of_improvement,
 )
@@ -24,11 +26,11 @@ pytestmark = pytest.mark.unit
 def test_point_estimates_are_rliables() -> None:
     rng = np.random.default_rng(1)
     matrix = rng.normal(size=(7, 3))
-    estimates = interval_estimates(list(matrix.T), 200, rng)
+    estimates = interval_estimates(list(matrix.T), 200, seed=0)
     assert estimates["iqm"][0] == pytest.approx(metrics.aggregate_iqm(matrix))
     assert estimates["mean"][0] == pytest.approx(metrics.aggregate_mean(matrix))
     other = rng.normal(0.3, 1.0, size=(5, 3))
-    p, _, _ = probability_of_improvement(list(other.T), list(matrix.T), 200, rng)
+    p, _, _ = probability_of_improvement(list(other.T), list(matrix.T), 200, seed=0)
     assert p == pytest.approx(metrics.probability_of_improvement(other, matrix))
 
 
@@ -42,26 +44,25 @@ def test_the_bootstraps_iqm_is_rliables_for_every_run_count(runs: int) -> None:
 
 def test_tasks_may_have_different_run_counts() -> None:
     tasks = [np.array([1.0, 2.0, 3.0, 4.0]), np.array([10.0, 20.0])]
-    estimates = interval_estimates(tasks, 300, np.random.default_rng(0))
+    estimates = interval_estimates(tasks, 300, seed=0)
     assert estimates["iqm"][0] == pytest.approx(trim_mean(np.concatenate(tasks), 0.25))
     assert estimates["mean"][0] == pytest.approx((2.5 + 15.0) / 2)
     p, low, high = probability_of_improvement(
         [np.array([5.0, 6.0]), np.array([1.0])],
         [np.array([1.0, 2.0, 3.0]), np.array([1.0, 0.0])],
         300,
-        np.random.default_rng(0),
+        seed=0,
     )
     assert p == pytest.approx((1.0 + 0.75) / 2)  # task 2: one tie and one win of two pairs
     assert low <= p <= high
 
 
 def test_degenerate_and_separated_samples() -> None:
-    rng = np.random.default_rng(0)
-    assert interval_estimates([np.array([4.0])], 100, rng)["iqm"] == (4.0, 4.0, 4.0)
+    assert interval_estimates([np.array([4.0])], 100, seed=0)["iqm"] == (4.0, 4.0, 4.0)
     same = [np.array([1.0, 2.0, 3.0])]
-    assert probability_of_improvement(same, same, 100, rng)[0] == 0.5
+    assert probability_of_improvement(same, same, 100, seed=0)[0] == 0.5
     high = [np.array([10.0, 11.0])]
-    assert probability_of_improvement(high, same, 100, rng) == (1.0, 1.0, 1.0)
+    assert probability_of_improvement(high, same, 100, seed=0) == (1.0, 1.0, 1.0)
 
 
 def test_mean_and_iqm_intervals_cover_the_true_values_at_about_95_percent() -> None:
@@ -70,9 +71,9 @@ def test_mean_and_iqm_intervals_cover_the_true_values_at_about_95_percent() -> N
     mixture is symmetric about 0, so its interquartile mean is 0 too."""
     rng = np.random.default_rng(12345)
     trials, hits = 300, {"mean": 0, "iqm": 0}
-    for _ in range(trials):
+    for trial in range(trials):
         tasks = [rng.normal(mu, 1.0, size=10) for mu in (-1.0, 0.0, 1.0)]
-        estimates = interval_estimates(tasks, 500, rng)
+        estimates = interval_estimates(tasks, 500, seed=trial)
         for name in hits:
             _, low, high = estimates[name]
             hits[name] += low <= 0.0 <= high
@@ -86,10 +87,10 @@ def test_improvement_intervals_cover_the_true_probability() -> None:
     true_p = norm.cdf(0.8 / np.sqrt(2))  # P(X > Y) for X ~ N(0.8, 1), Y ~ N(0, 1)
     hits = 0
     trials = 200
-    for _ in range(trials):
+    for trial in range(trials):
         xs = [rng.normal(0.8, 1.0, size=10) for _ in range(2)]
         ys = [rng.normal(0.0, 1.0, size=10) for _ in range(2)]
-        _, low, high = probability_of_improvement(xs, ys, 500, rng)
+        _, low, high = probability_of_improvement(xs, ys, 500, seed=trial)
         hits += low <= true_p <= high
     assert 0.88 <= hits / trials <= 0.995
 
@@ -97,7 +98,7 @@ def test_improvement_intervals_cover_the_true_probability() -> None:
 def test_performance_profile_values_and_bands() -> None:
     tasks = [np.array([0.1, 0.5, 0.9]), np.array([0.2, 0.6])]
     taus = np.array([0.0, 0.3, 0.55, 1.0])
-    profile, low, high = performance_profile(tasks, taus, 400, np.random.default_rng(0))
+    profile, low, high = performance_profile(tasks, taus, 400, seed=0)
     np.testing.assert_allclose(profile, [1.0, 0.6, 0.4, 0.0])
     assert np.all(low <= profile) and np.all(profile <= high)
     assert low[0] == high[0] == 1.0 and low[-1] == high[-1] == 0.0
@@ -127,7 +128,7 @@ def test_improvement_compares_with_q1_runs_of_the_same_alpha_and_alpha_mode() ->
             ]
     scores = pd.DataFrame(rows)
     methods = ["TAC q=1.5", "TAC q=1.5 auto"]
-    table = improvement_over_q1(scores, methods, 200, np.random.default_rng(0))
+    table = improvement_over_q1(scores, methods, 200, 0)
     assert table["env"].tolist() == ["A", "B", ALL_TASKS] * 2
     # fixed 0.2 against fixed 0.2 (1, 2): wins; learned against learned (10, 11): losses
     assert table["p"].tolist() == [1.0, 1.0, 1.0, 0.0, 0.0, 0.0]
@@ -146,9 +147,7 @@ def test_baseline_comparison_pairs_each_method_with_each_baseline_on_shared_task
     scores = pd.DataFrame(
         [{"env": env, "method": m, "final": f} for (env, m), fs in finals.items() for f in fs]
     )
-    table = improvement_over_baselines(
-        scores, ["TAC (best q)"], ["DDPG", "PPO"], 200, np.random.default_rng(0)
-    )
+    table = improvement_over_baselines(scores, ["TAC (best q)"], ["DDPG", "PPO"], 200, 0)
     assert table[["baseline", "env"]].values.tolist() == [
         ["DDPG", "A"],
         ["DDPG", "B"],
@@ -159,3 +158,64 @@ def test_baseline_comparison_pairs_each_method_with_each_baseline_on_shared_task
     assert table["tasks"].tolist() == [1, 1, 2, 1]
     assert table["verdict"].tolist()[:2] == ["larger", "larger"]
     assert table["difference"].iloc[0] == pytest.approx(6.0 - 1.5)
+
+
+def _finals(cells: dict[tuple[str, str], list[float]]) -> pd.DataFrame:
+    return pd.DataFrame(
+        [{"env": env, "method": m, "final": f} for (env, m), fs in cells.items() for f in fs]
+    )
+
+
+def test_adding_a_method_or_a_task_leaves_every_other_interval_as_it_was() -> None:
+    """Each interval resamples from a seed derived from its scores, not from its position."""
+    rng = np.random.default_rng(3)
+    cells = {
+        (env, method): list(rng.normal(mu, 1.0, size=5))
+        for env in ("A", "B")
+        for method, mu in (("TAC (best q)", 0.4), ("DDPG", 0.0))
+    }
+    more = {
+        **cells,
+        ("A", "PPO"): list(rng.normal(size=5)),
+        ("C", "TAC (best q)"): list(rng.normal(size=5)),
+        ("C", "DDPG"): list(rng.normal(size=5)),
+    }
+    seed = 0
+    few = improvement_over_baselines(_finals(cells), ["TAC (best q)"], ["DDPG"], 300, seed)
+    many = improvement_over_baselines(_finals(more), ["TAC (best q)"], ["PPO", "DDPG"], 300, seed)
+    columns = ["baseline", "env", "p", "low", "high"]
+    per_task = many[many["env"].isin(["A", "B"]) & (many["baseline"] == "DDPG")]
+    pd.testing.assert_frame_equal(
+        few.loc[few["env"] != ALL_TASKS, columns].reset_index(drop=True),
+        per_task[columns].reset_index(drop=True),
+    )
+    before = per_task_estimates(_finals(cells), 300, seed)
+    after = per_task_estimates(_finals(more), 300, seed).iloc[: len(before)]
+    pd.testing.assert_frame_equal(before, after)
+
+
+def test_the_same_comparison_gets_the_same_interval_under_any_label() -> None:
+    x, y = np.array([5.0, 1.0, 3.0, 4.0]), np.array([2.0, 0.5, 3.5])
+    cells = {("A", "TAC q=2"): list(x), ("A", "TAC (best q)"): list(x), ("A", "DDPG"): list(y)}
+    methods = ["TAC q=2", "TAC (best q)"]
+    table = improvement_over_baselines(_finals(cells), methods, ["DDPG"], 300, 0)
+    assert table["low"].nunique() == 1 and table["high"].nunique() == 1
+
+
+def test_strata_seeds_depend_on_the_scores_their_order_and_the_base() -> None:
+    a, b = [1.0, 2.0, 3.0], [4.0]
+    assert strata_seed(0, [a, b]) == strata_seed(0, [np.array(a), np.array(b, dtype=np.float32)])
+    assert strata_seed(0, [a, b]) != strata_seed(0, [b, a])
+    assert strata_seed(0, [a, b]) != strata_seed(0, [[1.0, 2.0], [3.0, 4.0]])  # framed by counts
+    assert strata_seed(0, [a, b]) != strata_seed(1, [a, b])
+    assert strata_seed(0, [a, b]) != strata_seed(0, [a, [4.5]])
+    assert strata_seed(0, [a, b]) == strata_seed(0, [[1.0, 2.0, 3.0 + 1e-13], b])  # float32
+    assert strata_seed(0, [a, b]) == 2402604160  # pinned: committed reports regenerate anywhere
+
+
+def test_the_order_runs_were_loaded_in_does_not_move_an_interval() -> None:
+    x, y = np.array([3.0, 9.0, 1.0, 4.0, 7.0]), np.array([2.0, 6.0, 5.0, 0.5])
+    assert probability_of_improvement([x], [y], 300, 0) == probability_of_improvement(
+        [x[::-1]], [np.sort(y)], 300, 0
+    )
+    assert interval_estimates([x, y], 300, 0) == interval_estimates([np.sort(x), y[::-1]], 300, 0)

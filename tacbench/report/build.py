@@ -194,13 +194,14 @@ def analyse(options: ReportOptions) -> Report:
     rows = pd.Index(runs["run"]).get_indexer(extended["run"])
     curves = seed_curves(grids, values[rows], extended.reset_index(drop=True))
 
-    rng = np.random.default_rng(options.seed)
     qs = {str(m): float(q) for m, q in extended.groupby("method")["q"].first().items()}
     qs[BEST_Q_LABEL] = math.nan
     methods = sorted(qs, key=lambda m: method_sort_key(m, qs[m]))
     q_methods = [m for m in methods if not math.isnan(qs[m]) and qs[m] != 1.0]
     q_methods += [m for m in methods if m.startswith(Q_AUTO_LABEL)]
-    improvement = improvement_over_q1(independent, [*q_methods, BEST_Q_LABEL], options.reps, rng)
+    improvement = improvement_over_q1(
+        independent, [*q_methods, BEST_Q_LABEL], options.reps, options.seed
+    )
     envs = sorted((str(e) for e in runs["env"].unique()), key=task_sort_key)
     recorded = _sequential_results(options.results)
     methods = [m for m in methods if m in set(extended["method"])]
@@ -213,16 +214,26 @@ def analyse(options: ReportOptions) -> Report:
         best_q=_in_order(best_q_table(summary, improvement), envs, methods),
         curves=curves,
         anchors=_in_order(anchors, envs, methods),
-        per_task=_in_order(per_task_estimates(independent, options.reps, rng), envs, methods),
-        aggregate=_in_order(aggregate_estimates(independent, options.reps, rng), envs, methods),
+        per_task=_in_order(
+            per_task_estimates(independent, options.reps, options.seed), envs, methods
+        ),
+        aggregate=_in_order(
+            aggregate_estimates(independent, options.reps, options.seed), envs, methods
+        ),
         improvement=_in_order(improvement, envs, methods),
-        profiles=profile_table(independent, PROFILE_TAUS, options.reps, rng),
+        profiles=profile_table(independent, PROFILE_TAUS, options.reps, options.seed),
         q_ranges=_in_order(
-            q_range_table(scores, runset.data, options.last, options.reps, rng), envs, methods
+            q_range_table(scores, runset.data, options.last, options.reps, options.seed),
+            envs,
+            methods,
         ),
         baselines=_in_order(
             improvement_over_baselines(
-                independent, _tac_comparators(methods), _baselines(methods, qs), options.reps, rng
+                independent,
+                _tac_comparators(methods),
+                _baselines(methods, qs),
+                options.reps,
+                options.seed,
             ),
             envs,
             methods,

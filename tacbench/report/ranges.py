@@ -48,7 +48,7 @@ def _row(env: str, alpha: float, name: str, runs: pd.DataFrame) -> dict[str, obj
 
 
 def q_range_table(
-    scores: pd.DataFrame, data: pd.DataFrame, last: int, reps: int, rng: np.random.Generator
+    scores: pd.DataFrame, data: pd.DataFrame, last: int, reps: int, seed: int
 ) -> pd.DataFrame:
     """The table of the module docstring from the report's per-run ``scores`` (TAC runs have a
     q; ``final`` and the normalised ``score``) and its tidy ``data`` (for the spread)."""
@@ -68,11 +68,11 @@ def q_range_table(
                 continue
             group = ranges[name]
             finals = group["final"].to_numpy()
-            iqm, low, high = interval_estimates([finals], reps, rng)["iqm"]
+            iqm, low, high = interval_estimates([finals], reps, seed)["iqm"]
             row = _row(str(env), float(group["alpha"].iloc[0]), name, group)
             row.update(iqm=iqm, iqm_low=low, iqm_high=high, spread=group["spread"].mean())
             if name != MIDDLE:
-                p, p_low, p_high = probability_of_improvement([middle], [finals], reps, rng)
+                p, p_low, p_high = probability_of_improvement([middle], [finals], reps, seed)
                 row.update(p_middle=p, p_low=p_low, p_high=p_high)
             rows.append(row)
             pooled.setdefault(name, {"score": [], "final": [], "middle": []})
@@ -85,7 +85,7 @@ def q_range_table(
             if name not in pooled:
                 continue
             parts = pooled[name]
-            iqm, low, high = interval_estimates(parts["score"], reps, rng)["iqm"]
+            iqm, low, high = interval_estimates(parts["score"], reps, seed)["iqm"]
             row = {
                 "env": ALL_TASKS,
                 "alpha": math.nan,
@@ -99,7 +99,7 @@ def q_range_table(
             }
             if name != MIDDLE:
                 p, p_low, p_high = probability_of_improvement(
-                    parts["middle"], parts["final"], reps, rng
+                    parts["middle"], parts["final"], reps, seed
                 )
                 row.update(p_middle=p, p_low=p_low, p_high=p_high)
             rows.append(row)

@@ -10,8 +10,11 @@ hold the scores; with different run counts per task the same quantities are comp
 Confidence intervals are 95 % percentile intervals of rliable's stratified bootstrap
 (:func:`tacbench.bootstrap.interval`): runs are resampled with replacement within each task
 (tasks are not resampled), and for P(X > Y) the runs of X and of Y are resampled independently.
-Each call draws its bootstrap seed from the ``rng`` it is given, so a report is a function of
-its scores and ``ReportOptions.seed`` (0).
+Each interval resamples each task's scores in ascending order from a seed derived from those
+scores and the ``seed`` it is given (:func:`tacbench.bootstrap.strata_seed`;
+``ReportOptions.seed``, 0): a report is a function of its scores and that seed, the same
+comparison gets the same interval in every report, and adding a task or a method to a report
+leaves every other interval unchanged.
 """
 
 from __future__ import annotations
@@ -22,7 +25,7 @@ import numpy as np
 import pandas as pd
 from rliable import metrics
 
-from tacbench.bootstrap import interval, scalar_interval
+from tacbench.bootstrap import interval, scalar_interval, strata_seed
 from tacbench.sequential import NOT_DISTINGUISHABLE, detectable_difference
 
 DEFAULT_REPS = 2000
@@ -53,8 +56,12 @@ Estimate = tuple[float, float, float]
 """(point estimate, lower 95 % bound, upper 95 % bound)."""
 
 
-def _seed(rng: np.random.Generator) -> int:
-    return int(rng.integers(2**31))
+def _sorted_scores(tasks: Sequence[np.ndarray]) -> list[np.ndarray]:
+    """Each task's scores as float64 in ascending order. Every statistic here ignores the order
+    of the runs within a task, and sorted, the resampled scores (and the seed drawn from them)
+    no longer depend on the order the runs were loaded in: two reports holding the same runs
+    give the same interval."""
+    return [np.sort(np.asarray(scores, dtype=np.float64)) for scores in tasks]
 
 
 def iqm(*tasks: np.ndarray) -> float:
@@ -75,21 +82,19 @@ def _iqm_and_mean(*tasks: np.ndarray) -> np.ndarray:
     return np.array([iqm(*tasks), mean_of_means(*tasks)])
 
 
-def interval_estimates(
-    tasks: Sequence[np.ndarray], reps: int, rng: np.random.Generator
-) -> dict[str, Estimate]:
+def interval_estimates(tasks: Sequence[np.ndarray], reps: int, seed: int) -> dict[str, Estimate]:
     """IQM and mean with stratified-bootstrap 95 % intervals; ``tasks`` holds one array per task.
 
     With one run per task and one task the interval is the point itself.
     """
-    tasks = [np.asarray(scores, dtype=np.float64) for scores in tasks]
+    tasks = _sorted_scores(tasks)
     equal = len({len(scores) for scores in tasks}) == 1
     matrix = np.stack(tasks, axis=1) if equal else None
     points = {
         "iqm": float(metrics.aggregate_iqm(matrix)) if equal else iqm(*tasks),
         "mean": float(metrics.aggregate_mean(matrix)) if equal else mean_of_means(*tasks),
     }
-    _, low, high = interval(_iqm_and_mean, tasks, reps, _seed(rng))
+    _, low, high = interval(_iqm_and_mean, tasks, reps, strata_seed(seed, tasks))
     return {name: (points[name], float(low[i]), float(high[i])) for i, name in enumerate(points)}
 
 
@@ -102,15 +107,14 @@ def pairwise_improvement(x: np.ndarray, y: np.ndarray) -> float:
 
 
 def probability_of_improvement(
-    xs: Sequence[np.ndarray], ys: Sequence[np.ndarray], reps: int, rng: np.random.Generator
+    xs: Sequence[np.ndarray], ys: Sequence[np.ndarray], reps: int, seed: int
 ) -> Estimate:
     """P(X > Y) averaged over tasks, with a 95 % interval; ``xs[i]`` and ``ys[i]`` share task i.
 
     The point estimate is ``rliable.metrics.probability_of_improvement`` when X and Y have the
     same number of runs on every task; the pairwise count is the same quantity in general.
     """
-    xs = [np.asarray(x, dtype=np.float64) for x in xs]
-    ys = [np.asarray(y, dtype=np.float64) for y in ys]
+    xs, ys = _sorted_scores(xs), _sorted_scores(ys)
     if len(xs) != len(ys):
         raise ValueError("X and Y need scores on the same tasks")
     tasks = len(xs)
@@ -131,12 +135,13 @@ def probability_of_improvement(
         )
     else:
         point = averaged(*xs, *ys)
-    _, low, high = scalar_interval(averaged, [*xs, *ys], reps, _seed(rng))
+    strata = [*xs, *ys]
+    _, low, high = scalar_interval(averaged, strata, reps, strata_seed(seed, strata))
     return point, low, high
 
 
 def performance_profile(
-    tasks: Sequence[np.ndarray], taus: np.ndarray, reps: int, rng: np.random.Generator
+    tasks: Sequence[np.ndarray], taus: np.ndarray, reps: int, seed: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Fraction of runs (of all tasks) scoring above each tau, with 95 % pointwise intervals.
 
@@ -147,22 +152,23 @@ def performance_profile(
         pooled = np.concatenate(strata)
         return np.asarray((pooled[:, None] > taus[None, :]).mean(axis=0))
 
-    return interval(profile, [np.asarray(t, dtype=np.float64) for t in tasks], reps, _seed(rng))
+    strata = _sorted_scores(tasks)
+    return interval(profile, strata, reps, strata_seed(seed, strata))
 
 
-def per_task_estimates(scores: pd.DataFrame, reps: int, rng: np.random.Generator) -> pd.DataFrame:
+def per_task_estimates(scores: pd.DataFrame, reps: int, seed: int) -> pd.DataFrame:
     """IQM and mean of the final return over seeds, per task and method, with 95 % intervals.
 
     ``scores`` has one row per run with columns ``env``, ``method`` and ``final``.
     """
     rows = []
     for (env, method), group in scores.groupby(["env", "method"], sort=False):
-        estimates = interval_estimates([group["final"].to_numpy()], reps, rng)
+        estimates = interval_estimates([group["final"].to_numpy()], reps, seed)
         rows.append({"env": env, "method": method, "runs": len(group), **_flat(estimates)})
     return pd.DataFrame(rows)
 
 
-def aggregate_estimates(scores: pd.DataFrame, reps: int, rng: np.random.Generator) -> pd.DataFrame:
+def aggregate_estimates(scores: pd.DataFrame, reps: int, seed: int) -> pd.DataFrame:
     """IQM and mean of the normalised score over all tasks of each method, with 95 % intervals.
 
     ``scores`` has one row per run with columns ``env``, ``method`` and ``score``. A method is
@@ -171,7 +177,7 @@ def aggregate_estimates(scores: pd.DataFrame, reps: int, rng: np.random.Generato
     rows = []
     for method, group in scores.groupby("method", sort=False):
         tasks = [task["score"].to_numpy() for _, task in group.groupby("env")]
-        estimates = interval_estimates(tasks, reps, rng)
+        estimates = interval_estimates(tasks, reps, seed)
         rows.append({"method": method, "tasks": len(tasks), "runs": len(group), **_flat(estimates)})
     return pd.DataFrame(rows)
 
@@ -198,7 +204,7 @@ def _reference_runs(scores: pd.DataFrame, env: str, alpha: float, learned: bool)
 
 
 def improvement_over_q1(
-    scores: pd.DataFrame, methods: Sequence[str], reps: int, rng: np.random.Generator
+    scores: pd.DataFrame, methods: Sequence[str], reps: int, seed: int
 ) -> pd.DataFrame:
     """P(method > q = 1) per task and over all tasks, with 95 % intervals.
 
@@ -219,7 +225,7 @@ def improvement_over_q1(
             xs.append(group["final"].to_numpy())
             ys.append(reference)
             envs.append(env)
-        rows += [{"method": method, **row} for row in _comparison_rows(envs, xs, ys, reps, rng)]
+        rows += [{"method": method, **row} for row in _comparison_rows(envs, xs, ys, reps, seed)]
     return pd.DataFrame(rows, columns=IMPROVEMENT_COLUMNS)
 
 
@@ -228,7 +234,7 @@ def improvement_over_baselines(
     methods: Sequence[str],
     baselines: Sequence[str],
     reps: int,
-    rng: np.random.Generator,
+    seed: int,
 ) -> pd.DataFrame:
     """P(method > baseline) per task and over all tasks, with 95 % intervals: the paper's
     comparison of TAC with the actor-critic baselines.
@@ -248,7 +254,7 @@ def improvement_over_baselines(
             ys = [theirs.loc[theirs["env"] == e, "final"].to_numpy() for e in envs]
             rows += [
                 {"method": method, "baseline": baseline, **row}
-                for row in _comparison_rows(envs, xs, ys, reps, rng)
+                for row in _comparison_rows(envs, xs, ys, reps, seed)
             ]
     return pd.DataFrame(rows, columns=BASELINE_COLUMNS)
 
@@ -258,14 +264,14 @@ def _comparison_rows(
     xs: Sequence[np.ndarray],
     ys: Sequence[np.ndarray],
     reps: int,
-    rng: np.random.Generator,
+    seed: int,
 ) -> list[dict[str, object]]:
     """P(X > Y) on each task (``xs[i]`` against ``ys[i]`` on ``envs[i]``) with its verdict, the
     difference of mean final returns and, where not distinguishable, the smallest difference
     these run counts detect; then, over two or more tasks, the same averaged over tasks."""
     rows: list[dict[str, object]] = []
     for env, x, y in zip(envs, xs, ys, strict=True):
-        p, low, high = probability_of_improvement([x], [y], reps, rng)
+        p, low, high = probability_of_improvement([x], [y], reps, seed)
         verdict = improvement_verdict(low, high)
         rows.append(
             {
@@ -280,7 +286,7 @@ def _comparison_rows(
             }
         )
     if len(xs) > 1:
-        p, low, high = probability_of_improvement(xs, ys, reps, rng)
+        p, low, high = probability_of_improvement(xs, ys, reps, seed)
         rows.append(
             {
                 "env": ALL_TASKS,
@@ -314,14 +320,12 @@ def _detectable(reference: np.ndarray, runs: np.ndarray) -> float:
     return detectable_difference(reference, runs)
 
 
-def profile_table(
-    scores: pd.DataFrame, taus: np.ndarray, reps: int, rng: np.random.Generator
-) -> pd.DataFrame:
+def profile_table(scores: pd.DataFrame, taus: np.ndarray, reps: int, seed: int) -> pd.DataFrame:
     """Score-distribution performance profile of every method over ``taus`` (normalised scores)."""
     frames = []
     for method, group in scores.groupby("method", sort=False):
         tasks = [task["score"].to_numpy() for _, task in group.groupby("env")]
-        profile, low, high = performance_profile(tasks, taus, reps, rng)
+        profile, low, high = performance_profile(tasks, taus, reps, seed)
         frames.append(
             pd.DataFrame(
                 {"method": method, "tau": taus, "fraction": profile, "low": low, "high": high}
