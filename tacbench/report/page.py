@@ -175,7 +175,9 @@ def _how_to_read(report: Report) -> list[str]:
         "rankings or probabilities of improvement.",
         f"IQM = mean of the middle 50 % of runs; intervals are {int(CONFIDENCE * 100)} % "
         f"percentile intervals of a stratified bootstrap ({o.reps} replications, runs "
-        "resampled within each task), computed with rliable's estimators.",
+        "resampled within each task), computed with rliable's estimators; each interval "
+        "resamples from a seed drawn from its own runs, so runs of other methods or tasks "
+        "added to the report leave it unchanged.",
         "P(method > q = 1) is the chance that a random run of the method beats a random run of "
         "TAC q = 1 with the same alpha on the same task (0.5 = no difference); an interval "
         "that excludes 0.5 is evidence of a difference (verdict larger or smaller; each "
