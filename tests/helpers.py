@@ -28,6 +28,19 @@ from tacbench.tac.maths import Batch
 if TYPE_CHECKING:
     from tacbench.trainers import AnyConfig
 
+STUDIES = Path(__file__).resolve().parents[1] / "results" / "studies"
+"""The published studies."""
+Q_GRID_STUDIES = {
+    "HalfCheetah-v4": "paper-q-grid-100k",
+    "Hopper-v4": "paper-q-grid-100k",
+    "Ant-v4": "paper-q-grid-100k-ant",
+    "Swimmer-v4": "paper-q-grid-100k-swimmer",
+    "Pusher-v5": "paper-q-grid-100k-pusher",
+    "Humanoid-v4": "paper-q-grid-100k-humanoid",
+}
+"""Each task's q-grid study under :data:`STUDIES`, in the paper's panel order; the comparison
+study copies its TAC runs from these."""
+
 RESULT_CSVS = ("eval.csv", "train.csv", "losses.csv")
 
 # Tiny budgets: 1,500 steps, evaluation (2 episodes) and a checkpoint every 500, losses every

@@ -17,20 +17,13 @@ import pandas as pd
 import pytest
 
 from tacbench.paper import TASK_FACTS, task_name
+from tacbench.report.stats import improvement_verdict
+from tests.helpers import Q_GRID_STUDIES, STUDIES
 
 pytestmark = pytest.mark.unit
 
 ROOT = Path(__file__).resolve().parents[1]
-STUDIES = ROOT / "results" / "studies"
-TASKS = ("HalfCheetah-v4", "Hopper-v4", "Ant-v4", "Swimmer-v4", "Pusher-v5", "Humanoid-v4")
-GRIDS = {
-    "HalfCheetah-v4": "paper-q-grid-100k",
-    "Hopper-v4": "paper-q-grid-100k",
-    "Ant-v4": "paper-q-grid-100k-ant",
-    "Swimmer-v4": "paper-q-grid-100k-swimmer",
-    "Pusher-v5": "paper-q-grid-100k-pusher",
-    "Humanoid-v4": "paper-q-grid-100k-humanoid",
-}
+TASKS = tuple(Q_GRID_STUDIES)
 BASELINES = {"DDPG": "DDPG", "TD3": "TD3", "SB3's SAC": "SAC (SB3)", "PPO": "PPO", "TRPO": "TRPO"}
 VERDICTS = {"larger": "confirmed", "smaller": "contradicted"}
 NOT_RUN = "not run"
@@ -38,8 +31,8 @@ HEADING = "## The whole paper, task by task"
 
 
 def _cell(p: float, low: float, high: float) -> str:
-    verdict = "confirmed" if low > 0.5 else "contradicted" if high < 0.5 else "not distinguishable"
-    return f"**{verdict}** {p:.2f} [{low:.2f}, {high:.2f}]"
+    verdict = improvement_verdict(low, high)
+    return f"**{VERDICTS.get(verdict, verdict)}** {p:.2f} [{low:.2f}, {high:.2f}]"
 
 
 def _report(study: str, table: str) -> pd.DataFrame:
@@ -47,7 +40,7 @@ def _report(study: str, table: str) -> pd.DataFrame:
 
 
 def _range_cell(env: str, q_range: str) -> str:
-    ranges = _report(GRIDS[env], "q_ranges")
+    ranges = _report(Q_GRID_STUDIES[env], "q_ranges")
     row = ranges[(ranges["env"] == env) & (ranges["range"] == q_range)]
     if row.empty:
         return NOT_RUN
@@ -56,7 +49,7 @@ def _range_cell(env: str, q_range: str) -> str:
 
 def _best_q_cell(env: str) -> str:
     facts = TASK_FACTS[task_name(env)]
-    improvement = _report(GRIDS[env], "improvement")
+    improvement = _report(Q_GRID_STUDIES[env], "improvement")
     row = improvement[
         (improvement["env"] == env) & (improvement["method"] == f"TAC q={facts.best_q:g}")
     ]
@@ -80,13 +73,12 @@ def _state_of_the_art_cell(env: str) -> str:
     """Ahead of every baseline: contradicted by any baseline ahead of TAC, confirmed only when
     all five ran and TAC is ahead of each."""
     rows = _baseline_rows(env)
-    ahead = [name for name, label in BASELINES.items() if label in set(rows["baseline"])]
-    behind = rows[rows["verdict"] == "smaller"]["baseline"]
     names = {label: name for name, label in BASELINES.items()}
-    if len(behind):
-        return "**contradicted**: " + ", ".join(names[b] for b in behind) + " ahead"
-    if len(ahead) < len(BASELINES):
-        return NOT_RUN + f" ({len(ahead)} of {len(BASELINES)} baselines)"
+    ahead_of_tac = rows[rows["verdict"] == "smaller"]["baseline"]
+    if len(ahead_of_tac):
+        return "**contradicted**: " + ", ".join(names[b] for b in ahead_of_tac) + " ahead"
+    if len(rows) < len(BASELINES):
+        return NOT_RUN + f" ({len(rows)} of {len(BASELINES)} baselines)"
     if (rows["verdict"] == "larger").all():
         return "**confirmed**"
     return "**not distinguishable**"

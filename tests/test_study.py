@@ -10,10 +10,10 @@ from pathlib import Path
 import pytest
 
 from tacbench.report import ReportOptions, analyse, write_report
+from tests.helpers import Q_GRID_STUDIES, STUDIES
 
 pytestmark = pytest.mark.smoke
 
-STUDIES = Path(__file__).resolve().parents[1] / "results" / "studies"
 # study folder -> its runs, each of 100,000 steps: the paper's 9 q x 5 seeds per task (Humanoid
 # 3 q x 3 seeds), the authors' code versions, and the comparison with the baselines
 RUNS = {
@@ -102,16 +102,10 @@ def test_the_comparisons_tac_runs_are_the_q_grid_studys() -> None:
     """docs/results.md: the comparison study reuses each task's TAC runs from its q-grid
     study, not retrains them."""
     comparison = STUDIES / "comparison-100k"
-    grids = {  # Hopper's and HalfCheetah's: paper-q-grid-100k
-        "Swimmer-v4": "paper-q-grid-100k-swimmer",
-        "Pusher-v5": "paper-q-grid-100k-pusher",
-        "Ant-v4": "paper-q-grid-100k-ant",
-        "Humanoid-v4": "paper-q-grid-100k-humanoid",
-    }
     copies = sorted(p for p in comparison.glob("runs/tac/**/*") if p.is_file())
     # five tasks with two q and 5 seeds, Humanoid with two q and 3 seeds; 5 files each
     assert len(copies) == (5 * 2 * 5 + 2 * 3) * 5
     for path in copies:
         relative = path.relative_to(comparison)
-        original = STUDIES / grids.get(relative.parts[2], "paper-q-grid-100k") / relative
+        original = STUDIES / Q_GRID_STUDIES[relative.parts[2]] / relative
         assert path.read_bytes() == original.read_bytes(), path
