@@ -37,15 +37,9 @@ def metadata(config: BaselineConfig, command: str) -> dict[str, Any]:
     table, _ = hyperparams.resolve(config.algo, config.env, paper.paper_task(config.env))
     overrides = {k: v for k, v in config.hyperparams.items() if table.get(k) != v}
     return runs.run_metadata(
-        config.to_dict(),
+        config,
         command,
-        algo=config.algo,
-        env=config.env,
-        variant=config.variant,
-        seed=config.seed,
-        q=None,
-        alpha=config.alpha,
-        total_steps=config.total_steps,
+        None,
         hp_overrides=overrides,
         hyperparams_file=f"baselines/hyperparams/{config.algo}.yaml",
     )

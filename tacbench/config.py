@@ -310,18 +310,8 @@ class RunConfig(RunSettings):
         if self.algo != "tac":
             raise TacbenchError(f"RunConfig is TAC's config; got algo={self.algo!r}.")
         check_integers(self, learning_starts=0, batch_size=1, buffer_size=1)
-        if not self.hidden_sizes or min(self.hidden_sizes) < 1:
-            raise TacbenchError(
-                f"hidden_sizes must be positive layer widths (got {self.hidden_sizes}); "
-                "--hidden-sizes 400,300 for example."
-            )
         checks.check_numbers(self)
         checks.check_density(self)
-        if self.target_entropy is not None and self.alpha_mode != "auto":
-            raise TacbenchError(
-                "--target-entropy is the target of a learned alpha; add --alpha auto "
-                "(or --alpha-mode auto)."
-            )
         checks.check_q_schedule(self)
         checks.check_pbt(self)
 

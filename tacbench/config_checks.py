@@ -24,7 +24,13 @@ FLOAT32_MAX = 3.4028234663852886e38
 
 
 def check_numbers(config: RunConfig) -> None:
-    """q, gamma, tau, the learning rate, the log-std bounds and the target entropy."""
+    """The layer widths, q, gamma, tau, the learning rate, the log-std bounds and the target
+    entropy."""
+    if not config.hidden_sizes or min(config.hidden_sizes) < 1:
+        raise TacbenchError(
+            f"hidden_sizes must be positive layer widths (got {config.hidden_sizes}); "
+            "--hidden-sizes 400,300 for example."
+        )
     if config.q_mode == "fixed" and config.q > MAX_TRAINING_Q:
         raise TacbenchError(
             f"--q {config.q:g} is above {MAX_TRAINING_Q:g}, where ln_q overflows float32; "
@@ -50,6 +56,11 @@ def check_numbers(config: RunConfig) -> None:
         raise TacbenchError(
             "--target-entropy must be a finite number a float32 holds, |x| < 3.4e38 (got "
             f"{config.target_entropy!r}); the usual target is minus the action dimension."
+        )
+    if config.target_entropy is not None and config.alpha_mode != "auto":
+        raise TacbenchError(
+            "--target-entropy is the target of a learned alpha; add --alpha auto "
+            "(or --alpha-mode auto)."
         )
 
 

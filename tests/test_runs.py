@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 
 from tacbench import runs
+from tacbench.config import RunConfig
 from tacbench.errors import TacbenchError
 from tacbench.progress import Progress
 
@@ -121,7 +122,8 @@ def test_plan_refuses_another_config_naming_the_fields(tmp_path: Path) -> None:
 
 def test_run_writer_files(tmp_path: Path) -> None:
     writer = runs.RunWriter(tmp_path / "run", ["loss"])
-    metadata = runs.run_metadata(CONFIG, "tacbench run --env Hopper-v4", algo="tac", seed=0)
+    run = RunConfig(env="Hopper-v4", q=1.5, alpha=0.2, seed=10)
+    metadata = runs.run_metadata(run, "tacbench run --env Hopper-v4", run.q, members=[])
     writer.open(metadata, None)
     writer.eval_row(5000, 1.0, [1.0, 3.0], [10, 20])
     writer.train_row(17, 0.5, 12.5, 17)
@@ -130,7 +132,23 @@ def test_run_writer_files(tmp_path: Path) -> None:
     writer.close()
     directory = tmp_path / "run"
     config = json.loads((directory / "config.json").read_text())
-    assert config["config"] == CONFIG
+    assert config["config"] == run.to_dict()
+    assert list(config)[:8] == [
+        "algo",
+        "env",
+        "variant",
+        "seed",
+        "q",
+        "alpha",
+        "total_steps",
+        "members",
+    ]
+    assert (config["algo"], config["variant"], config["seed"], config["q"]) == (
+        "tac",
+        run.variant,
+        10,
+        1.5,
+    )
     assert config["command"] == "tacbench run --env Hopper-v4"
     assert set(config["versions"]) == {"python", *runs.VERSIONED_PACKAGES}
     assert {"git_commit", "host", "created"} <= set(config)

@@ -7,9 +7,8 @@ import importlib.metadata
 import platform
 import socket
 import subprocess
-from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 from tacbench.runs.files import now_iso
 
@@ -46,15 +45,43 @@ def git_commit() -> str | None:
     return sha + ("-dirty" if dirty else "")
 
 
-def run_metadata(config: Mapping[str, Any], command: str, **fields: Any) -> dict[str, Any]:
-    """config.json's content: ``fields`` (algo, env, variant, seed, q, alpha, total_steps, ...)
-    then command, versions, git commit, host, creation time and the full config."""
+class RunIdentity(Protocol):
+    """What config.json names a run by (a TAC or a baseline config)."""
+
+    @property
+    def algo(self) -> str: ...
+    @property
+    def env(self) -> str: ...
+    @property
+    def variant(self) -> str: ...
+    @property
+    def seed(self) -> int: ...
+    @property
+    def alpha(self) -> float | None: ...
+    @property
+    def total_steps(self) -> int: ...
+    def to_dict(self) -> dict[str, Any]: ...
+
+
+def run_metadata(
+    config: RunIdentity, command: str, q: float | None, **fields: Any
+) -> dict[str, Any]:
+    """config.json's content: the run's identity (algo, env, variant, seed, q, alpha,
+    total_steps), ``fields``, then command, versions, git commit, host, creation time and the
+    full config."""
     return {
+        "algo": config.algo,
+        "env": config.env,
+        "variant": config.variant,
+        "seed": config.seed,
+        "q": q,
+        "alpha": config.alpha,
+        "total_steps": config.total_steps,
         **fields,
         "command": command,
         "versions": package_versions(),
         "git_commit": git_commit(),
         "host": socket.gethostname(),
         "created": now_iso(),
-        "config": dict(config),
+        "config": config.to_dict(),
     }

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import torch
@@ -25,6 +24,7 @@ from tacbench.seeding import run_streams
 from tacbench.tac import METRICS, Coefficients, ReplayBuffer, TacAgent, coefficients
 from tacbench.tac.update import update
 from tacbench.training.checkpoint import MemberState, load_replay, read, write_checkpoint
+from tacbench.training.loss_window import LossWindow
 from tacbench.training.pbt import PBT_COLUMNS, Population
 from tacbench.training.schedule import rounds, updates_due
 
@@ -82,8 +82,7 @@ class GroupTrainer:
         self.obs = np.zeros((k, obs_dim))
         self.episode_return = np.zeros(k)
         self.episode_length = np.zeros(k, dtype=np.int64)
-        self.loss_sum = torch.zeros(k, len(self.metrics), device=self.agent.device)
-        self.loss_count = np.zeros(k, dtype=np.int64)  # updates since the last losses row
+        self.losses = LossWindow(k, len(self.metrics), self.agent.device)
         self.updates_started = np.zeros(k, dtype=bool)  # training.schedule
         self.alive = list(range(k))  # live members, kept on the host (no device sync to read)
         self.wall_offset = 0.0
@@ -115,10 +114,16 @@ class GroupTrainer:
             for folder in folders:
                 checkpoints.discard_after(folder, step)
         self.resume_notes += [note for plan in plans if plan for note in plan.notes]
+        members = [{"q": c.q, "alpha": c.alpha, "seed": c.seed} for c in self.configs]
         for writer, config, plan in zip(self.writers, self.configs, plans, strict=True):
             if self.resume_notes:
                 writer.note = f"resumed from step {step}: " + "; ".join(self.resume_notes)
-            writer.open(self._metadata(config) if plan is None else None, plan)
+            writer.open(
+                runs.run_metadata(config, self.command, config.q, members=members)
+                if plan is None  # a resumed run keeps its config.json
+                else None,
+                plan,
+            )
         if step is None:
             for k, env in enumerate(self.envs):
                 self.obs[k] = env.reset(seed=self.env_seeds[k])[0]
@@ -143,26 +148,11 @@ class GroupTrainer:
             else:  # no exact env state (not MuJoCo): continue with a fresh episode
                 self.obs[k] = self.envs[k].reset(seed=self.env_seeds[k] + self.step)[0]
                 self.buffer.start_episodes([k], self.obs[k : k + 1])
-            self.loss_sum[k] = state.loss_sum.to(self.loss_sum.device)
-            self.loss_count[k] = state.loss_count
+            self.losses.load_member_state(k, state.loss_sum, state.loss_count)
             self.updates_started[k] = state.updates_started
         if self.population is not None:
             self.population.load_member_states([s.pbt or {} for s in states])
         self.wall_offset = states[0].wall_s
-
-    def _metadata(self, config: RunConfig) -> dict[str, Any]:
-        return runs.run_metadata(
-            config.to_dict(),
-            self.command,
-            algo=config.algo,
-            env=config.env,
-            variant=config.variant,
-            seed=config.seed,
-            q=config.q,
-            alpha=config.alpha,
-            total_steps=config.total_steps,
-            members=[{"q": c.q, "alpha": c.alpha, "seed": c.seed} for c in self.configs],
-        )
 
     # --- the loop ---------------------------------------------------------------------------
     @property
@@ -297,12 +287,7 @@ class GroupTrainer:
                 sample = self.buffer.sample(self.rngs, config.batch_size, subset)
                 sampled = time.perf_counter()
                 metrics = update(self.agent, sample, c, subset)
-                if subset is None:
-                    self.loss_sum += metrics
-                else:
-                    active = torch.as_tensor(members, device=metrics.device)[:, None]
-                    self.loss_sum += torch.where(active, metrics, 0.0)
-                self.loss_count += members
+                self.losses.add(metrics, members, every_member=subset is None)
                 finite = torch.isfinite(metrics)
                 all_finite = bool(finite.all())  # the common case, in one reduction
                 self.phase_seconds["sample"] += sampled - started
@@ -316,16 +301,8 @@ class GroupTrainer:
                     if not self.alive:
                         break
         if self.step % config.log_every == 0 or self.step == config.total_steps:
-            logged = [k for k in self.alive if self.loss_count[k]]
-            if logged:
-                counts = torch.as_tensor(self.loss_count, device=self.loss_sum.device)
-                mean = (self.loss_sum / counts.clamp(min=1)[:, None]).cpu()
-                for k in logged:
-                    q = self.q_of(k, self.step)
-                    row = [q, int(self.loss_count[k]), *mean[k].tolist()]
-                    self.writers[k].losses_row(self.step, row)
-                    self.loss_sum[k] = 0.0
-                    self.loss_count[k] = 0
+            for k, count, means in self.losses.close(self.alive):
+                self.writers[k].losses_row(self.step, [self.q_of(k, self.step), count, *means])
         return outcomes
 
     def _fail(self, bad: torch.Tensor, metrics: torch.Tensor) -> list[Outcome]:
@@ -358,15 +335,9 @@ class GroupTrainer:
         for d in decisions:
             if d.source is not None:
                 self.agent.copy_member(d.source, d.member)
-        for d in decisions:
             self.writers[d.member].extra_row("pbt", self.population.row(self.step, d))
-        copied = [d for d in decisions if d.source is not None]
-        if copied:
-            moves = ", ".join(
-                f"{self.seeds[d.member]}<-{self.seeds[d.source]} q={d.q_after:.3g}"
-                for d in copied
-                if d.source is not None
-            )
+        moves = self.population.moves(decisions)
+        if moves:
             self.progress.message(f"step {self.step}: pbt {moves}")
 
     def _maybe_evaluate(self) -> float | None:
@@ -395,6 +366,7 @@ class GroupTrainer:
         """Write every live member's checkpoint generation (new replay chunk, state, manifest),
         then status."""
         for k in self.alive:
+            loss_sum, loss_count = self.losses.member_state(k)
             state = MemberState(
                 step=self.step,
                 agent=self.agent.member_state(k),
@@ -404,8 +376,8 @@ class GroupTrainer:
                 obs=torch.from_numpy(self.obs[k].copy()),
                 episode_return=float(self.episode_return[k]),
                 episode_length=int(self.episode_length[k]),
-                loss_sum=self.loss_sum[k].cpu().clone(),
-                loss_count=int(self.loss_count[k]),
+                loss_sum=loss_sum,
+                loss_count=loss_count,
                 updates_started=bool(self.updates_started[k]),
                 wall_s=self.wall_s,
                 pbt=None if self.population is None else self.population.member_state(k),

@@ -151,6 +151,14 @@ class Population:
             d.q_after,
         ]
 
+    def moves(self, decisions: Sequence[Decision]) -> str:
+        """The copies among ``decisions``, as ``copier<-source q=new`` by seed ("" for none)."""
+        return ", ".join(
+            f"{self.seeds[d.member]}<-{self.seeds[d.source]} q={d.q_after:.3g}"
+            for d in decisions
+            if d.source is not None
+        )
+
     def member_state(self, k: int) -> dict[str, Any]:
         """Member k's part of a checkpoint (the generator's state is the population's)."""
         state = self.rng.bit_generator.state
