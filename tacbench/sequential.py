@@ -30,7 +30,7 @@ import pandas as pd
 
 from tacbench.errors import TacbenchError
 
-DEFAULT_ALPHA = 0.05  # the family-wise error rate; AdaStop's own default is 0.01
+DEFAULT_ALPHA = 0.05  # the usual 5% family-wise error rate; AdaStop's own default is 0.01
 DEFAULT_B = 10_000  # AdaStop's default number of random permutations
 NOT_DISTINGUISHABLE = "not distinguishable"
 DECIDED = ("larger", "smaller")

@@ -134,7 +134,7 @@ def test_grouping_makes_member_units_at_equal_resume_steps(tmp_path: Path) -> No
 
 
 def test_the_reference_profile_groups_its_seeds_too(tmp_path: Path) -> None:
-    """Members update at their own episode ends (issue 21), so --profile reference runs are
+    """Members update at their own episode ends, so --profile reference runs are
     grouped like any other TAC runs."""
     tac = narrow(SMOKE, Narrowing(algos=("tac",)))
     reference = dataclasses.replace(

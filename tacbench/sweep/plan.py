@@ -1,7 +1,7 @@
 """From a preset to the work of one sweep: every run's config, its state on disk, what to do with
 it, and the units (one process or Ray task each) that do it.
 
-A run's state comes from its directory under ``--out`` (ARCHITECTURE.md, "The run directory"):
+A run's state comes from its directory under ``--out`` (docs/results-schema.md):
 no ``config.json``: *new*; ``status.json`` ``complete``: *complete*; ``failed``: *failed*;
 otherwise *partial* (``running``: interrupted or crashed, resumable from its checkpoint). A
 directory holding another config stops the sweep before anything runs.

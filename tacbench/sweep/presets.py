@@ -85,7 +85,8 @@ PRESETS: dict[str, Preset] = {
     for preset in (
         Preset(
             "paper-q-grid",
-            "TAC at q in {0.5, 0.7, 1, 1.2, 1.5, 1.7, 2, 3, 5} (paper section 7.1, line 797) on "
+            f"TAC at q in {{{', '.join(f'{q:g}' for q in paper.Q_GRID)}}} (paper section 7.1, "
+            "line 797) on "
             "the six tasks (line 767), the paper's alpha per task (line 799), seeds 0..90 step "
             "10 (line 2054), 1M steps each",
             (Entry("tac", paper.TASKS, paper.SEEDS, paper.Q_GRID, PAPER_STEPS),),
@@ -190,7 +191,9 @@ def narrow(preset: Preset, by: Narrowing) -> Preset:
         hp = entry.hp
         if entry.algo != "tac":  # TAC's flags: the baseline's equivalent, or refused
             tac_only = {k: v for k, v in given.items() if k not in run_settings}
-            hp = (*hp, *tac_flags_for_baseline(entry.algo, tac_only))
+            flags = tac_flags_for_baseline(entry.algo, tac_only)
+            replaced = {item.partition("=")[0] for item in flags}  # the user's over the preset's
+            hp = (*(item for item in hp if item.partition("=")[0] not in replaced), *flags)
             given = {k: v for k, v in given.items() if k in run_settings}
         settings = _frozen({**entry.settings, **given})
         kept.append(replace(entry, tasks=tasks, seeds=seeds, settings=settings, hp=hp))

@@ -83,8 +83,8 @@ def _flat(grads: Sequence[torch.Tensor]) -> torch.Tensor:
 
 # The gradient is taken with respect to the blocks, not the flat buffer they are views of: the
 # gradient of a view of the flat tensor is a zero-padded copy of the whole buffer, and summing
-# one per block cost a pass over the buffer per block (2.5 ms of a 10 ms update with (400, 300)
-# networks; docs/performance.md, "The authors' (400, 300) networks: where the time goes").
+# one per block cost a pass over the buffer per block (measured in docs/performance.md, "The
+# authors' (400, 300) networks: where the time goes").
 
 
 def eager_gradient(
@@ -111,14 +111,22 @@ def traceable_gradient(
     return _flat(grads), metrics
 
 
+def _mark_static_addresses(tensors: Sequence[torch.Tensor]) -> None:
+    """Tell the compiler that ``tensors`` keep their storage for the run: a CUDA graph replays
+    fixed addresses and would otherwise copy each one in on every call. torch 2.13 offers this
+    only as ``torch._dynamo.mark_static_address`` (``torch.compiler`` has no public spelling),
+    and only the GPU path calls it, once per graph."""
+    for tensor in tensors:
+        torch._dynamo.mark_static_address(tensor)
+
+
 def compiled_gradient(device: torch.device, static: Sequence[torch.Tensor] = ()) -> Gradient:
     """:data:`traceable_gradient` compiled for ``device`` on first use, or, where compilation
     fails, :func:`eager_gradient` (with one warning). One compiled graph serves every call with
     the same shapes and layouts, whatever the parameter tensors. On a GPU the ``static``
     tensors are marked as static addresses, which CUDA graphs need."""
     if device.type == "cuda":
-        for tensor in static:
-            torch._dynamo.mark_static_address(tensor)
+        _mark_static_addresses(static)
         current = [torch.compile(traceable_gradient, dynamic=False, mode="reduce-overhead")]
     else:
         current = [torch.compile(traceable_gradient, dynamic=False, options=CPU_COMPILE_OPTIONS)]

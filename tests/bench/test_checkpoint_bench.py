@@ -1,4 +1,4 @@
-"""What trustworthy checkpoints cost (issue 22): a TAC member's checkpoint at the default
+"""What trustworthy checkpoints cost: a TAC member's checkpoint at the default
 interval (50,000 steps: a 50,000-transition replay chunk and the state), written durably
 (synced files and folder, SHA-256 of each file, the manifest) and written plainly (a temporary
 name and a rename, as before), in turns, against the time the loop takes to train those 50,000
@@ -52,7 +52,7 @@ def _member() -> tuple[dict[str, Any], ReplayBuffer]:
 
 
 def _plain(folder: Path, state: dict[str, Any], buffer: ReplayBuffer) -> None:
-    """The same files written as before issue 22: a temporary name and a rename, no sync and
+    """The same files written without durability: a temporary name and a rename, no sync and
     no checksum."""
     (folder / "replay").mkdir(parents=True)
     chunk = folder / "replay" / f"000000000000-{INTERVAL:012d}.npz"
