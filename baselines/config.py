@@ -99,7 +99,14 @@ _FLAG_KEYS.update({(algo, "learning_starts"): "learning_starts" for algo in hype
 
 def flags_as_overrides(algo: str, given: Mapping[str, Any]) -> list[str]:
     """TAC flags given on the command line (``{"alpha": 0.1}``) as ``--hp`` items for ``algo``
-    (``ent_coef=0.1`` for sac-sb3); a flag the baseline has no use for is refused."""
+    (``ent_coef=0.1`` for sac-sb3); a flag the baseline has no use for is refused. For sac-sb3
+    ``--alpha-mode auto`` is ``--alpha auto``, learning from ``--alpha`` where one is given
+    (SB3's ``ent_coef=auto_0.1``), as TAC's ``--alpha-mode auto --alpha 0.1`` does."""
+    given = dict(given)
+    if algo == "sac-sb3" and "alpha_mode" in given:
+        start = given.get("alpha", "auto")
+        if given.pop("alpha_mode") == "auto":
+            given["alpha"] = "auto" if start == "auto" else f"auto_{float(start):g}"
     items = []
     for name, value in given.items():
         key = _FLAG_KEYS.get((algo, name))

@@ -205,6 +205,18 @@ def test_tac_flags_map_to_hyperparameters_or_are_refused() -> None:
         "learning_starts=500",
     ]
     assert flags_as_overrides("td3", {"learning_starts": 500}) == ["learning_starts=500"]
+    learned = [
+        flags_as_overrides("sac-sb3", given)
+        for given in (
+            {"alpha": "auto"},
+            {"alpha_mode": "auto"},
+            {"alpha_mode": "auto", "alpha": 0.1},
+        )
+    ]
+    assert learned == [["ent_coef=auto"], ["ent_coef=auto"], ["ent_coef=auto_0.1"]]
+    assert flags_as_overrides("sac-sb3", {"alpha_mode": "fixed", "alpha": 0.1}) == ["ent_coef=0.1"]
+    with pytest.raises(TacbenchError, match="--alpha-mode is a TAC option that td3 does not use"):
+        flags_as_overrides("td3", {"alpha_mode": "auto"})
     with pytest.raises(TacbenchError, match="--learning-starts is a TAC option that ppo"):
         flags_as_overrides("ppo", {"learning_starts": 500})
     with pytest.raises(TacbenchError, match="--q is a TAC option that td3 does not use"):

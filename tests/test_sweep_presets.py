@@ -91,6 +91,8 @@ def test_tac_flags_follow_one_rule_for_baselines_as_in_tacbench_run() -> None:
     assert {c.learning_starts for c in (r.config for r in mapped) if c.algo == "tac"} == {5000}
     with pytest.raises(TacbenchError, match="--learning-starts is a TAC option that ppo does not"):
         _runs("paper-comparison", seeds=(0,), algos=("ppo",), settings={"learning_starts": 5000})
+    smoke = _runs("smoke", algos=("td3",), settings={"learning_starts": 200})  # the preset has 500
+    assert smoke and {r.config.hyperparams["learning_starts"] for r in smoke} == {200}
 
 
 @pytest.mark.parametrize(
