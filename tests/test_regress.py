@@ -22,6 +22,7 @@ from tacbench.regress import exact, stat
 from tacbench.regress import manifest as mf
 from tacbench.regress.outcome import Row, TierResult, format_result
 from tacbench.regress.specs import EXACT_RUNS, STAT_ALPHA, STAT_GROUPS, ReferenceRun
+from tacbench.runs import locks
 
 pytestmark = pytest.mark.unit
 
@@ -350,3 +351,19 @@ def test_a_cpu_class_without_references_fails_loudly_with_exit_three(tmp_path: P
     assert done.returncode == 3, done.stdout + done.stderr
     assert "no exact references for this machine's CPU class" in done.stdout
     assert "-DEFAULT" in done.stdout and "tacbench regress --update --tier exact" in done.stdout
+
+
+def test_a_second_update_of_the_same_references_is_refused_before_it_touches_them(
+    tmp_path: Path,
+) -> None:
+    """Two ``regress --update`` at once would each delete the other's staging folder; the
+    second is refused (exit 2 through the CLI), naming the holder, and the first's files stay."""
+    reference = tmp_path / "reference"
+    (reference / "theory").mkdir(parents=True)
+    (reference / "theory" / "kept.csv").write_text("a\n1\n")
+    with (
+        locks.writing([reference], hint=""),
+        pytest.raises(TacbenchError, match=f"{reference} is being written .*PID {os.getpid()}"),
+    ):
+        regress.update(reference, "theory", work=tmp_path / "work")
+    assert [p.name for p in reference.rglob("*")] == ["theory", "kept.csv"]

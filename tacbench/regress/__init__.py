@@ -24,6 +24,7 @@ from tacbench.regress.exact import check_exact, check_theory, update_exact, upda
 from tacbench.regress.manifest import Runner, subprocess_runner
 from tacbench.regress.outcome import Row, TierResult, format_result
 from tacbench.regress.stat import check_stat, update_stat
+from tacbench.runs import locks
 
 __all__ = ["TIERS", "Row", "TierResult", "check", "format_result", "update"]
 
@@ -94,7 +95,7 @@ def update(
     CSVs); returns the manifests written."""
     _check_tier(tier)
     reference = Path(reference)
-    with _scratch(work) as scratch:
+    with locks.writing([reference], hint=""), _scratch(work) as scratch:
         if tier == "stat":
             return [update_stat(reference, scratch / "stat", log=log, runner=runner)]
         written = [update_theory(reference, scratch / "theory")]

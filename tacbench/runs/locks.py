@@ -1,4 +1,5 @@
-"""One writer per run directory: an OS lock held for the writer's lifetime.
+"""One writer per run directory (and per regression reference folder): an OS lock held for the
+writer's lifetime.
 
 Each run directory ``.../<variant>/seed<k>`` has a lock file beside it,
 ``.../<variant>/.seed<k>.lock``, outside the directory so that ``--force`` can delete and
@@ -28,7 +29,7 @@ def lock_path(directory: Path) -> Path:
 
 
 @contextmanager
-def _hold(directory: Path) -> Iterator[None]:
+def _hold(directory: Path, hint: str) -> Iterator[None]:
     path = lock_path(directory)
     path.parent.mkdir(parents=True, exist_ok=True)
     descriptor = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
@@ -40,7 +41,7 @@ def _hold(directory: Path) -> Iterator[None]:
             raise TacbenchError(
                 f"{directory} is being written by another tacbench process "
                 f"({holder or 'holder unknown'}); wait for it to finish or stop it, then "
-                "run this again (--resume continues an unfinished run)."
+                f"run this again{hint}."
             ) from None
         os.ftruncate(descriptor, 0)
         os.pwrite(descriptor, f"PID {os.getpid()} on {socket.gethostname()}\n".encode(), 0)
@@ -50,10 +51,14 @@ def _hold(directory: Path) -> Iterator[None]:
 
 
 @contextmanager
-def writing(directories: Sequence[Path]) -> Iterator[None]:
-    """Hold the lock of every run directory in ``directories`` (a member group's all before any
-    is read), or raise a TacbenchError naming the directory and its writer's PID and host."""
+def writing(
+    directories: Sequence[Path], hint: str = " (--resume continues an unfinished run)"
+) -> Iterator[None]:
+    """Hold the lock of every directory in ``directories`` (a member group's run directories,
+    all before any is read; or the regression references that ``tacbench regress --update``
+    rewrites), or raise a TacbenchError naming the directory and its writer's PID and host,
+    ending with ``hint``."""
     with ExitStack() as stack:
         for directory in sorted(set(directories)):
-            stack.enter_context(_hold(directory))
+            stack.enter_context(_hold(directory, hint))
         yield
