@@ -146,6 +146,10 @@ DAMAGES: dict[str, tuple[Callable[[Path], None], str]] = {
     "eval-duplicated-row": (_duplicate_first_row, "eval.csv line 3: step 500 repeats step 500"),
     "eval-non-number": (_append("oops,1,2,3,4\n"), "eval.csv line 4 has the step 'oops'"),
     "status-empty": (lambda run: (run / "status.json").write_text(""), "status.json is empty"),
+    "checkpoint-and-status-deleted": (
+        lambda run: [shutil.rmtree(run / "checkpoint"), (run / "status.json").unlink()],
+        "rows in eval.csv but no status.json",
+    ),
     "config-invalid": (lambda run: (run / "config.json").write_text("{"), "not valid JSON"),
 }
 

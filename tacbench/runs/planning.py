@@ -71,6 +71,8 @@ def plan_run(
             "Pass --force to replace it, or --out to write somewhere else."
         )
     status_path = directory / "status.json"
+    if not status_path.exists():
+        _check_no_rows(directory)
     status: dict[str, Any] = (
         read_json(status_path) if status_path.exists() else {"state": "running", "step": 0}
     )
@@ -117,6 +119,19 @@ def _check_checkpoint(directory: Path, step: int) -> None:
             f"{what}; nothing was changed. Restore the checkpoint, or rerun with --force to "
             "start the run over."
         )
+
+
+def _check_no_rows(directory: Path) -> None:
+    """Refuse a run directory without status.json whose CSVs hold rows: a run writes its
+    status before any row, so its progress is unknown and starting over would lose them."""
+    for name in ("eval.csv", "train.csv", "losses.csv"):
+        path = directory / name
+        if path.exists() and len(path.read_bytes().splitlines()) > 1:
+            raise TacbenchError(
+                f"{directory} has rows in {name} but no status.json, so its progress is unknown; "
+                "nothing was changed. Restore status.json, or rerun with --force to start the "
+                "run over."
+            )
 
 
 @dataclass(frozen=True)
