@@ -112,13 +112,22 @@ def test_a_bad_list_of_layer_widths_is_a_usage_error(tmp_path: Path) -> None:
     assert "'400,x' is not a comma-separated list of integers" in result.output
 
 
-@pytest.mark.parametrize("command", ["run", "sweep"])
+@pytest.mark.parametrize(
+    "command",
+    [
+        ["run", "--env", "Hopper-v4"],
+        ["sweep", "--preset", "smoke"],
+        ["report", "--results", "."],
+        ["figures"],
+        ["study", "adaptive", "analyse", "--results", "."],
+        ["study", "parity", "analyse", "--results", "."],
+    ],
+)
 def test_an_empty_out_is_refused_rather_than_writing_into_the_current_folder(
-    command: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    command: list[str], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     monkeypatch.chdir(tmp_path)
-    args = ["--env", "Hopper-v4"] if command == "run" else ["--preset", "smoke"]
-    result = CliRunner().invoke(cli, [command, *args, "--out", ""])
+    result = CliRunner().invoke(cli, [*command, "--out", ""])
     assert result.exit_code == 2
     assert "must name a folder" in result.output
     assert not any(tmp_path.iterdir())

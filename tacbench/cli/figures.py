@@ -6,11 +6,13 @@ from pathlib import Path
 
 import click
 
+from tacbench.cli.options import ResultsFolder
+
 
 @click.command()
 @click.option(
     "--out",
-    type=click.Path(file_okay=False, path_type=Path),
+    type=ResultsFolder("the default is results/figures/"),
     default=Path("results/figures"),
     show_default=True,
     help="Directory for the PNGs and CSVs (created if missing).",

@@ -24,12 +24,13 @@ class ResultsFolder(click.Path):
     """A folder to write results to: not a file, and not an empty string (which would write
     into the current folder)."""
 
-    def __init__(self) -> None:
+    def __init__(self, hint: str = "the default is results/") -> None:
         super().__init__(file_okay=False, path_type=Path)
+        self.hint = hint
 
     def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
         if isinstance(value, str) and not value.strip():
-            self.fail("must name a folder (got an empty string); the default is results/.")
+            self.fail(f"must name a folder (got an empty string); {self.hint}.")
         return super().convert(value, param, ctx)
 
 

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import click
 
+from tacbench.cli.options import ResultsFolder
+
 
 @click.command()
 @click.option(
@@ -17,7 +19,7 @@ import click
 )
 @click.option(
     "--out",
-    type=click.Path(file_okay=False, path_type=Path),
+    type=ResultsFolder("the default is results/report/"),
     default=Path("results/report"),
     show_default=True,
     help="Folder for index.html, report.md, the figures and the CSV tables (created if missing).",

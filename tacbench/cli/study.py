@@ -9,10 +9,11 @@ from pathlib import Path
 import click
 import pandas as pd
 
+from tacbench.cli.options import ResultsFolder
 from tacbench.studies import parity as parity_study
 
 _RESULTS = click.Path(exists=True, file_okay=False, path_type=Path)
-_OUT = click.Path(file_okay=False, path_type=Path)
+_OUT = ResultsFolder("leave --out out to write no CSV")
 
 
 def _show(tables: Mapping[str, pd.DataFrame], out: Path | None) -> None:
