@@ -107,7 +107,10 @@ def check_sizes(config: BaselineConfig, info: envs.EnvInfo) -> None:
         needs["the replay buffer"] = rows * (2 * obs + act + 2 * memory.FLOAT32)
     else:
         needs["the rollout"] = int(hp.get("n_steps", 2048)) * (obs + act + 6 * memory.FLOAT32)
-    memory.check_fits(needs, "--hp net_arch, batch_size, buffer_size or n_steps")
+    needs["an evaluation"] = memory.evaluation_bytes(config.eval_episodes)
+    memory.check_fits(
+        needs, "--hp net_arch, batch_size, buffer_size or n_steps, or --eval-episodes"
+    )
 
 
 class _Run:

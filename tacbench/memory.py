@@ -19,6 +19,15 @@ GiB = 1 << 30
 ACTIVATION_COPIES = 4 * 3
 # parameters, gradients and Adam's two moments, plus a target copy
 PARAMETER_COPIES = 5
+# one evaluation episode's records until its row is written: its seed, return and length as
+# NumPy values and as the Python numbers the row is made from
+EVAL_EPISODE_BYTES = 3 * (8 + 32)
+
+
+def evaluation_bytes(episodes: int, members: int = 1) -> int:
+    """What one evaluation of ``episodes`` episodes per member holds beside its environments
+    (a bounded pool, :func:`tacbench.envs.eval_pool_size`)."""
+    return members * episodes * EVAL_EPISODE_BYTES
 
 
 def machine_memory() -> int:

@@ -23,9 +23,11 @@ TOO_BIG = [
     ("tac", {"hidden_sizes": (100_000, 100_000)}, "networks"),
     ("tac", {"batch_size": 10**11}, "an update's activations"),
     ("tac", {"buffer_size": 10**12, "total_steps": 10**12}, "the replay buffer"),
+    ("tac", {"eval_episodes": 10**20}, "an evaluation"),
     ("ddpg", {"hp": ("batch_size=1000000000000",)}, "an update's activations"),
     ("ddpg", {"hp": ("buffer_size=1000000000000",)}, "the replay buffer"),
     ("ppo", {"hp": ("net_arch=[100000,100000]",)}, "networks"),
+    ("td3", {"hp": (), "eval_episodes": 10**20}, "an evaluation"),
 ]
 
 
@@ -38,8 +40,9 @@ def test_a_run_too_big_for_the_machine_is_refused_before_anything_is_written(
     else:
         keys = {item.split("=")[0] for item in settings["hp"]}
         hp = (*(i for i in TINY_HP[learner] if i.split("=")[0] not in keys), *settings["hp"])
+        run = {**TINY_RUN, **{k: v for k, v in settings.items() if k != "hp"}}
         configs, _ = trainers.make_configs(
-            learner, "Hopper-v4", paper_task("Hopper-v4"), (0,), TINY_RUN, hp=hp
+            learner, "Hopper-v4", paper_task("Hopper-v4"), (0,), run, hp=hp
         )
     with pytest.raises(TacbenchError, match="more than this machine's") as refused:
         train(tmp_path / "out", configs)

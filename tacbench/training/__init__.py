@@ -107,7 +107,10 @@ def check_sizes(configs: Sequence[RunConfig], info: envs.EnvInfo) -> None:
     rows = min(config.buffer_size, config.total_steps)
     row_bytes = (info.obs_dim + info.act_dim + 2) * memory.FLOAT32 + 16  # + the (s, s') index
     needs["the replay buffer"] = len(configs) * rows * row_bytes
-    memory.check_fits(needs, "--hidden-sizes, --batch-size or --buffer-size (or the members)")
+    needs["an evaluation"] = memory.evaluation_bytes(config.eval_episodes, len(configs))
+    memory.check_fits(
+        needs, "--hidden-sizes, --batch-size, --buffer-size or --eval-episodes (or the members)"
+    )
 
 
 class Stepper:
