@@ -52,6 +52,10 @@ class DiskError(TacbenchError):
         self.full = full
 
 
+class NoCommonCheckpoint(TacbenchError):
+    """Members of one group have checkpoints, but no step that every member can resume from."""
+
+
 def _pause() -> None:
     seconds = float(os.environ.get(_PAUSE, "0") or 0)
     if seconds > 0:
@@ -223,7 +227,7 @@ def choose(folders: Sequence[Path]) -> tuple[int | None, list[str]]:
         return None, []
     common = set.intersection(*usable) if usable else set()
     if not common:
-        raise TacbenchError(
+        raise NoCommonCheckpoint(
             "no usable checkpoint to resume from: "
             + ("; ".join(notes) or "the members' checkpoints are at different steps")
             + ". Nothing was deleted; rerun with --force to start again."

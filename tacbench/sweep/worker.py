@@ -28,9 +28,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from tacbench import runs, trainers
-from tacbench.errors import TacbenchError
 from tacbench.runs import checkpoints
-from tacbench.runs.checkpoints import FULL_ERRNOS, DiskError
+from tacbench.runs.checkpoints import FULL_ERRNOS, DiskError, NoCommonCheckpoint
 from tacbench.sweep.plan import Unit
 
 if TYPE_CHECKING:
@@ -112,10 +111,9 @@ def _train(job: Job, stop: StopHook) -> list[Outcome]:
 
     try:
         return call(configs)
-    except TacbenchError as err:
-        if len(configs) == 1 or isinstance(err, DiskError):
+    except NoCommonCheckpoint as err:  # one member has none, or only damaged ones
+        if len(configs) == 1:
             raise
-        # members with no checkpoint step in common (one has none, or only damaged ones)
         print(f"training the members one at a time: {err}", file=sys.stderr, flush=True)
     outcomes: list[Outcome] = []
     for config in configs:
