@@ -77,7 +77,8 @@ def check_q_schedule(config: RunConfig) -> None:
         )
     ramp = _changed_flags(config, ("q_schedule_start", "q_schedule_end"))
     if config.q_schedule != "linear" and ramp:
-        raise TacbenchError(f"{ramp} shape the linear q schedule; add --q-schedule linear.")
+        verb = "shape" if " and " in ramp else "shapes"
+        raise TacbenchError(f"{ramp} {verb} the linear q schedule; add --q-schedule linear.")
 
 
 def check_density(config: RunConfig) -> None:

@@ -85,6 +85,9 @@ class LoadedPolicy:
     act: Policy  # one observation -> one action in the env's units
 
 
+_RESTORE = "restore it from the run's sweep, or train the run again"
+
+
 def load_policy(run: Path) -> LoadedPolicy:
     """The deterministic policy of run directory ``run`` at its newest intact checkpoint."""
     import torch
@@ -94,17 +97,21 @@ def load_policy(run: Path) -> LoadedPolicy:
             f"{run} is not a run directory (no config.json); give a folder like "
             "results/runs/tac/Hopper-v4/q2-a0.2/seed0."
         )
-    metadata = read_json(run / "config.json")
+    metadata = read_json(run / "config.json", advice=_RESTORE)
     missing = [key for key in ("algo", "env", "seed", "config") if key not in metadata]
     if missing or not isinstance(metadata["config"], dict):
         raise TacbenchError(
             f"{run / 'config.json'} is not a run's config (no {', '.join(missing) or 'config'}); "
-            "restore it from the run's sweep or rerun the run."
+            f"{_RESTORE}."
         )
     folder = run / "checkpoint"
-    step, _ = checkpoints.choose([folder]) if folder.is_dir() else (None, [])
-    if step is None:
+    steps, damaged = checkpoints.usable_steps(folder) if folder.is_dir() else ([], {})
+    if damaged and not steps:
+        found = "; ".join(f"step {step}: {', '.join(why)}" for step, why in damaged.items())
+        raise TacbenchError(f"{run} has no intact checkpoint to render ({found}).")
+    if not steps:
         raise TacbenchError(f"{run} has no checkpoint yet: a policy is saved at each checkpoint.")
+    step = steps[0]
     state = torch.load(folder / f"state-{step:012d}.pt", weights_only=True)
     config_data = dict(metadata["config"])
     act = trainer_for(metadata["algo"]).policy(config_data, folder, state)

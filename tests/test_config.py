@@ -118,7 +118,7 @@ def test_q_at_least_two_mentions_the_density_cap() -> None:
         ("q", 1e308, "above 1000, where ln_q overflows"),
         ("hidden_sizes", (), "hidden_sizes"),
         ("q_schedule_start", 0.95, "q_schedule_start"),
-        ("q_schedule_start", 0.5, "--q-schedule-start shape the linear q schedule; add"),
+        ("q_schedule_start", 0.5, "--q-schedule-start shapes the linear q schedule; add"),
         ("density_floor", 0.0, "--density-floor must lie in"),
         ("jacobian_clip", 1.0, "--jacobian-clip must lie in"),
         ("gaussian_eps", -1e-8, "--gaussian-eps must lie in"),

@@ -86,6 +86,7 @@ def test_bad_requests_are_clear_errors(tmp_path: Path) -> None:
     (tmp_path / "config.json").write_text("")
     result = CliRunner().invoke(cli, ["video", str(tmp_path), "--out", str(tmp_path / "x.mp4")])
     assert result.exit_code == 2 and "config.json is empty" in result.output
+    assert "--force" not in result.output  # video has none; it says how to restore the file
     (tmp_path / "config.json").write_text('{"algo": "tac"}')
     result = CliRunner().invoke(cli, ["video", str(tmp_path), "--out", str(tmp_path / "x.mp4")])
     assert result.exit_code == 2 and "is not a run's config (no env, seed, config)" in result.output
@@ -94,6 +95,13 @@ def test_bad_requests_are_clear_errors(tmp_path: Path) -> None:
     )
     result = CliRunner().invoke(cli, ["video", str(tmp_path), "--out", str(tmp_path / "x.mp4")])
     assert result.exit_code == 2 and "has no checkpoint yet" in result.output
+    (tmp_path / "checkpoint").mkdir()
+    (tmp_path / "checkpoint" / "manifest-000000001000.json").write_text("{")
+    result = CliRunner().invoke(cli, ["video", str(tmp_path), "--out", str(tmp_path / "x.mp4")])
+    assert (
+        result.exit_code == 2 and "has no intact checkpoint to render (step 1000:" in result.output
+    )
+    assert "resume" not in result.output and "--force" not in result.output
 
 
 def test_a_machine_without_opengl_is_told_what_to_install(

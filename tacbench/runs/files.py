@@ -67,8 +67,11 @@ def ensure_writable(folder: Path) -> None:
         ) from None
 
 
-def read_json(path: Path) -> dict[str, Any]:
-    """A JSON object from ``path``; a TacbenchError that says what to do when the file is
+RESTORE_OR_FORCE = "restore it, or rerun with --force to start the run over"
+
+
+def read_json(path: Path, advice: str = RESTORE_OR_FORCE) -> dict[str, Any]:
+    """A JSON object from ``path``; a TacbenchError that ends with ``advice`` when the file is
     unreadable, not JSON (empty, torn, edited) or not an object."""
     try:
         data = json.loads(Path(path).read_text())
@@ -79,11 +82,9 @@ def read_json(path: Path) -> dict[str, Any]:
             if isinstance(err, json.JSONDecodeError) and not err.doc.strip()
             else "not valid JSON"
         )
-        raise TacbenchError(
-            f"{path} is {what}; restore it, or rerun with --force to start the run over."
-        ) from None
+        raise TacbenchError(f"{path} is {what}; {advice}.") from None
     if not isinstance(data, dict):
-        raise TacbenchError(f"{path} is not a JSON object; restore it, or rerun with --force.")
+        raise TacbenchError(f"{path} is not a JSON object; {advice}.")
     return data
 
 
