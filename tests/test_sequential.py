@@ -90,6 +90,9 @@ def test_the_replay_of_the_committed_study_is_deterministic_and_honest() -> None
     verdicts = dict(zip(names, first["decision"], strict=True))
     assert verdicts["HalfCheetah-v4 q=2 vs q=1"] == "smaller"  # the failure is decided
     assert verdicts["HalfCheetah-v4 q=1.5 vs q=1"] == sq.NOT_DISTINGUISHABLE
+    four = sq.decision_table(sq.replay_study(STUDY, n=4, K=1))  # the first four seeds decide
+    assert four["decision"].tolist() == first["decision"].tolist()
+    assert four["runs"].sum() == first["runs"].sum() * 4 // 5
     # one run per method per interim cannot reach alpha = 0.05 two-sided (2 / 2^5 > 0.05)
     sequential = sq.decision_table(sq.replay_study(STUDY, n=1, K=5))
     assert set(sequential["decision"]) == {sq.NOT_DISTINGUISHABLE}
