@@ -189,6 +189,15 @@ def test_sequential_flags_need_until_decided() -> None:
     assert "--interims only apply with --until-decided" in result.output
 
 
+def test_q_auto_is_refused_in_one_line_saying_where_populations_train(tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    args = ["sweep", "--preset", "smoke", "--q", "auto", "--until-decided", "--out", str(out)]
+    result = CliRunner().invoke(cli, args)
+    assert result.exit_code == 2
+    assert "--q auto trains one population" in result.output and "tacbench run" in result.output
+    assert not out.exists()
+
+
 def test_an_adaptive_smoke_sweep_trains_is_stopped_resumes_and_reports(tmp_path: Path) -> None:
     """The real thing, as small as a decidable design gets: TAC q = 1 and 2 on Hopper, two
     interims of two runs, family-wise error rate 0.2 (lower cannot decide with 8 runs),

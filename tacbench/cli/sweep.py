@@ -16,10 +16,26 @@ from tacbench import paper, trainers
 from tacbench.cli.common import command_line
 from tacbench.cli.options import ResultsFolder, cli_settings, setting_options
 from tacbench.config import RunConfig
+from tacbench.errors import TacbenchError
 from tacbench.sweep import EXECUTORS, GROUPS
 from tacbench.sweep.presets import PRESETS as SWEEP_PRESETS
 
 _OVERRIDES = cli_settings(RunConfig, sweep=True)
+
+
+def _fixed_q(value: str) -> float:
+    """A ``--q`` of the sweep: a number. ``auto`` is a population learning q in one process,
+    which a sweep (and --until-decided, one q per method) cannot compare."""
+    if str(value).strip().lower() == "auto":
+        raise TacbenchError(
+            "--q auto trains one population that learns q, in one process: run it with "
+            "tacbench run --q auto --seed 0 --seed 10 --seed 20 --seed 30. A sweep, and "
+            "--until-decided's comparisons, take fixed q values, one per method."
+        )
+    try:
+        return float(value)
+    except ValueError:
+        raise click.BadParameter(f"{value!r} is not a number.") from None
 
 
 @click.command()
@@ -39,7 +55,14 @@ _OVERRIDES = cli_settings(RunConfig, sweep=True)
     help="The tasks' Gymnasium version: v4 (the studies', closest to the paper's v2) or v5 "
     "(Gymnasium's recommendation for new work; the paper's alpha and best q carried over).",
 )
-@click.option("--q", "qs", type=float, multiple=True, help="Repeatable: keep only these TAC q.")
+@click.option(
+    "--q",
+    "qs",
+    type=click.UNPROCESSED,
+    callback=lambda ctx, param, values: tuple(_fixed_q(v) for v in values),
+    multiple=True,
+    help="Repeatable: keep only these TAC q.",
+)
 @click.option(
     "--algo",
     "algos",
