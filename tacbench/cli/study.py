@@ -110,3 +110,34 @@ def parity_analyse(
     _show(tables, out)
     if out is not None:
         click.echo(f"wrote {parity_study.figure(tables, out)}")
+
+
+@study.group()
+def sequential() -> None:
+    """AdaStop's sequential comparisons, checked: the paper-q-grid study replayed, and the error
+    rate and power on synthetic grids (docs/sequential.md)."""
+
+
+@sequential.command(name="commands")
+def sequential_commands() -> None:
+    """Print the command that makes docs/sequential.md's tables."""
+    from tacbench.studies import sequential as sequential_study
+
+    click.echo("\n".join(sequential_study.commands()))
+
+
+@sequential.command(name="analyse")
+@click.option(
+    "--results",
+    type=_RESULTS,
+    default=Path("results/studies/paper-q-grid-100k"),
+    show_default=True,
+    help="The q-grid study to replay.",
+)
+@click.option("--reps", type=click.IntRange(min=1), default=500, show_default=True)
+@click.option("--out", type=_OUT, help="Also write each table here as CSV.")
+def sequential_analyse(results: Path, reps: int, out: Path | None) -> None:
+    """Print the replay tables, and each design's error rate and power over REPS grids."""
+    from tacbench.studies import sequential as sequential_study
+
+    _show(sequential_study.analyse(results, reps), out)

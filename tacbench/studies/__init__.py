@@ -4,5 +4,7 @@ returns its tables by name, which ``tacbench study NAME analyse`` prints and wri
 ``<name>.csv`` (``tacbench/cli/study.py``).
 
 - ``adaptive``: learned q and alpha against the fixed values (docs/adaptive.md);
-- ``parity``: TAC at q = 1 against stable-baselines3's SAC (docs/parity.md).
+- ``parity``: TAC at q = 1 against stable-baselines3's SAC (docs/parity.md);
+- ``sequential``: AdaStop's comparisons checked on the paper-q-grid study and on synthetic
+  grids (docs/sequential.md); its ``analyse`` also takes the number of synthetic grids.
 """
