@@ -178,9 +178,19 @@ def test_the_dry_run_states_the_most_it_can_cost(tmp_path: Path) -> None:
     text = until_decided.describe_design(HOPPER, tmp_path, driver.Options(), Design(n=5, K=2))
     assert "Hopper-v4: 3 methods (each against SAC (TAC q=1))" in text
     assert "earliest possible decision: interim 1" in text
-    assert "at most 30 runs, the same as a fixed design of 5 x 2 seeds" in text
+    assert "at most 30 runs (a fixed design of 5 x 2 seeds: 30)" in text
     assert "cost estimate:" in text
     assert not (tmp_path / "sweep").exists()
+
+
+def test_the_dry_run_counts_what_the_record_has_decided(tmp_path: Path) -> None:
+    """After interim 1 decided q = 5 (smaller), it trains no further: 5 + 10 + 10 at most."""
+    stopped = FakeTrain(stop_after=15)  # interim 1 complete, nothing of interim 2
+    run_until_decided(HOPPER, tmp_path, driver.Options(), Design(n=5, K=2), train=stopped)
+    text = until_decided.describe_design(HOPPER, tmp_path, driver.Options(), Design(n=5, K=2))
+    assert "decisions so far: TAC q=2 vs SAC (TAC q=1): continue" in text
+    assert "TAC q=5 vs SAC (TAC q=1): smaller" in text
+    assert "at most 25 runs (a fixed design of 5 x 2 seeds: 30)" in text
 
 
 def test_sequential_flags_need_until_decided() -> None:

@@ -340,19 +340,23 @@ def _decisions(decisions: dict[Pair, str]) -> str:
 
 
 def describe_design(preset: Preset, out: Path, options: driver.Options, design: Design) -> str:
-    """The dry run: each task's methods and comparisons, what the record holds, the most runs
-    and core-hours the design can take (every comparison open to the last interim), the fixed
-    design's runs, and the first interim at which a decision is possible at all."""
+    """The dry run: each task's methods and comparisons, what the record holds (its decisions),
+    the most runs and core-hours the design can still take (every open comparison to the last
+    interim; a method no longer in one keeps the runs it has), the fixed design's runs, and the
+    first interim at which a decision is possible at all."""
     design = replace(design, control=design.control or default_control(preset))
     tasks = methods_of(preset)
+    controls = {env: control_of(design, env, methods) for env, methods in tasks.items()}
     record = Record(out, design, tasks)
+    compared = comparisons(record, controls)
     lines = [
         f"sequential design: interims of {design.n} runs per open method, at most "
         f"{design.K}; family-wise error rate {design.alpha:g} per task; control: "
         f"{design.control}"
     ]
+    most: list[tuple[Method, int]] = []
     for env, methods in tasks.items():
-        control = control_of(design, env, methods)
+        control, comparison = controls[env], compared[env]
         paired = control is None
         first = earliest_decision(design, len(methods), paired)
         done = len(record.interims[env])
@@ -362,11 +366,17 @@ def describe_design(preset: Preset, out: Path, options: driver.Options, design: 
             f"{done} interim{'s' if done != 1 else ''} recorded; earliest possible decision: "
             + (f"interim {first}" if first else "never (raise --interim-runs)")
         )
-    most = [(m, design.n * design.K) for methods in tasks.values() for m in methods]
+        if comparison.interims:
+            lines.append(f"    decisions so far: {_decisions(comparison.interims[-1].decisions)}")
+        given = comparison.interims[-1].runs if comparison.interims else {}
+        still = set() if comparison.finished else {m for p in comparison.open_pairs() for m in p}
+        full = design.n * design.K
+        most += [(m, full if m.label in still else given.get(m.label, 0)) for m in methods]
+    fixed = design.n * design.K * sum(len(methods) for methods in tasks.values())
     work, _ = driver.load_plan(_grid(preset, most), out, options, save=False)
     lines.append(
-        f"at most {len(work.runs)} runs, the same as a fixed design of {design.n} x {design.K} "
-        "seeds; fewer as comparisons are decided. The most it can cost:"
+        f"at most {len(work.runs)} runs (a fixed design of {design.n} x {design.K} seeds: "
+        f"{fixed}); fewer as comparisons are decided. The most it can still cost:"
     )
     lines.append(summary.describe_plan(work, options.worker_count(), options.group))
     return "\n".join(lines)
