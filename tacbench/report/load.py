@@ -337,7 +337,8 @@ def load_runs(results: Path | str, metric: Metric = "eval") -> RunSet:
             f"{'; ...' if len(skipped) > 5 else ''}); fix or remove them"
         )
     runs = pd.DataFrame(rows, columns=list(RUN_COLUMNS))
-    # a run planned shorter than others of its method is partial beside them, not averaged in
+    # a run planned shorter than others of its method is partial beside them: included, and
+    # counted in the partial column, as a run stopped early is (the page says so)
     planned = runs.groupby(["algo", "env", "variant"])["total_steps"].transform("max")
     runs["partial"] = runs["partial"] | (runs["total_steps"] < planned)
     return RunSet(_tidy(runs, series), runs, tuple(skipped), metric, root)
