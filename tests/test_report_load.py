@@ -108,6 +108,9 @@ def test_a_running_runs_torn_last_line_is_dropped_as_a_writer_leaves_it(tmp_path
     runset = load_runs(tmp_path)
     assert runset.data["return"].tolist() == [1.0, 2.0] and not runset.skipped
     assert runset.runs["partial"].tolist() == [True]
+    assert runset.runs["note"].tolist() == [
+        "eval.csv: its torn last line, still being written, left out"
+    ]
 
 
 def test_a_run_planned_shorter_than_its_methods_others_is_partial(tmp_path: Path) -> None:

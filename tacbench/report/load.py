@@ -52,6 +52,7 @@ RUN_COLUMNS = (
     "total_steps",
     "partial",
     "rows",
+    "note",
     "command",
     "git_commit",
     "host",
@@ -206,11 +207,14 @@ def _check_numbers(fields: list[str], filename: str, line: int) -> None:
             ) from None
 
 
-def _series(run_dir: Path, metric: Metric, state: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _series(
+    run_dir: Path, metric: Metric, state: str
+) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], str]:
     """(step, return, wall_s) of whole rows in logged order, rows with a non-finite step or
-    return dropped. A run whose rows are not whole numbers of the header's width with steps
-    rising throughout is unreadable (the reason says which line); a torn last line, which a
-    writer leaves while it appends, is dropped only while the run is still ``running``."""
+    return dropped, and a note on what was dropped ("" if nothing). A run whose rows are not
+    whole numbers of the header's width with steps rising throughout is unreadable (the reason
+    says which line); a torn last line, which a writer leaves while it appends, is dropped (and
+    noted) only while the run is still ``running``."""
     filename, column = METRIC_SOURCES[metric]
     path = run_dir / filename
     if not path.exists():
@@ -256,7 +260,8 @@ def _series(run_dir: Path, metric: Metric, state: str) -> tuple[np.ndarray, np.n
     values = values[np.isfinite(values[:, 0]) & np.isfinite(values[:, 1])]
     if len(values) == 0:
         raise _Unreadable(f"{filename} has no finite rows")
-    return values[:, 0], values[:, 1], values[:, 2]
+    note = f"{filename}: its torn last line, still being written, left out" if torn else ""
+    return (values[:, 0], values[:, 1], values[:, 2]), note
 
 
 def _read_run(run_dir: Path, metric: Metric) -> tuple[dict[str, Any], tuple[np.ndarray, ...]]:
@@ -265,12 +270,12 @@ def _read_run(run_dir: Path, metric: Metric) -> tuple[dict[str, Any], tuple[np.n
     if state == "failed":
         at = "" if math.isnan(status_step) else f" at step {int(status_step)}"
         raise _Unreadable(f"run failed{at}: {reason or 'no reason given'}", identity)
-    series = _series(run_dir, metric, state)
+    series, note = _series(run_dir, metric, state)
     reached = float(np.nanmax([status_step, series[0][-1]]))
     total = identity["total_steps"]
     partial = state != "complete" or (not math.isnan(total) and reached < total)
     row = {**identity, "state": state, "step_reached": reached, "partial": partial}
-    row["rows"] = len(series[0])
+    row["rows"], row["note"] = len(series[0]), note
     return row, series
 
 

@@ -263,6 +263,7 @@ def _runs_section(report: Report) -> list[Table | Text]:
                         "state": partial["state"],
                         "steps reached": [_steps(v) for v in partial["step_reached"]],
                         "planned": [_steps(v) for v in partial["total_steps"]],
+                        "note": partial["note"],
                     }
                 ),
                 "Partial runs (included)",
