@@ -11,11 +11,14 @@ import json
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 from click.testing import CliRunner
 
 from tacbench.cli import cli
 from tacbench.errors import TacbenchError
+from tacbench.report.build import ReportOptions, analyse
+from tacbench.sequential import detectable_difference
 from tacbench.sweep import driver, plan, until_decided
 from tacbench.sweep.presets import Narrowing, Preset, get_preset, narrow
 from tacbench.sweep.until_decided import Design, run_until_decided
@@ -142,6 +145,17 @@ def test_a_decided_comparison_stops_spending_runs(tmp_path: Path) -> None:
         "runs": 10,
     }
     assert "25 runs (a fixed design of 5 x 2 seeds: 30)" in outcome.text
+
+
+def test_the_report_says_what_an_open_comparison_could_have_detected(tmp_path: Path) -> None:
+    run_until_decided(HOPPER, tmp_path, driver.Options(), Design(n=5, K=2), train=FakeTrain())
+    table = analyse(ReportOptions(results=tmp_path, out=tmp_path / "r", reps=100)).sequential
+    rows = table.set_index("method")
+    assert rows.loc["TAC q=2", "decision"] == "not distinguishable"
+    scores = {q: [level(q, s) for s in range(0, 100, 10)] for q in (1.0, 2.0)}
+    expected = detectable_difference(scores[1.0], scores[2.0])
+    assert rows.loc["TAC q=2", "detectable"] == pytest.approx(expected)
+    assert np.isnan(rows.loc["TAC q=5", "detectable"])  # decided: nothing to bound
 
 
 def test_a_sweep_stopped_mid_interim_continues_to_the_same_decisions(tmp_path: Path) -> None:

@@ -34,6 +34,7 @@ from tacbench.report.stats import (
     ALL_TASKS,
     DEFAULT_REPS,
     aggregate_estimates,
+    detectable_runs,
     improvement_over_baselines,
     improvement_over_q1,
     per_task_estimates,
@@ -49,6 +50,7 @@ from tacbench.report.tables import (
 )
 from tacbench.runs import read_json
 from tacbench.sequential import (
+    NOT_DISTINGUISHABLE,
     RECORD_FILE,
     SequentialResult,
     decision_table,
@@ -168,10 +170,29 @@ def _baselines(methods: list[str], qs: dict[str, float]) -> list[str]:
     ]
 
 
-def _sequential_results(results: Path) -> dict[str, SequentialResult]:
-    """What ``<results>/sweep/sequential.json`` recorded (nothing without one)."""
+def _sequential_results(results: Path) -> tuple[dict[str, SequentialResult], pd.DataFrame]:
+    """What ``<results>/sweep/sequential.json`` recorded (nothing without one), and its
+    decision table with, for each comparison left not distinguishable, the difference its
+    runs could have detected (``detectable``, as in the improvement tables)."""
     path = results / "sweep" / RECORD_FILE
-    return results_of_record(read_json(path)) if path.exists() else {}
+    if not path.exists():
+        return {}, decision_table({}).assign(detectable=np.nan)
+    record = read_json(path)
+    recorded = results_of_record(record)
+    table = decision_table(recorded)
+    detectable = [
+        detectable_runs(np.array(given[against]), np.array(given[method]))
+        if decision == NOT_DISTINGUISHABLE
+        else np.nan
+        for method, against, decision, given in zip(
+            table["method"],
+            table["against"],
+            table["decision"],
+            [record["interims"][env][-1]["scores"] for env in table["env"]],
+            strict=True,
+        )
+    ]
+    return recorded, table.assign(detectable=detectable)
 
 
 def analyse(options: ReportOptions) -> Report:
@@ -203,7 +224,7 @@ def analyse(options: ReportOptions) -> Report:
         independent, [*q_methods, BEST_Q_LABEL], options.reps, options.seed
     )
     envs = sorted((str(e) for e in runs["env"].unique()), key=task_sort_key)
-    recorded = _sequential_results(options.results)
+    recorded, decisions = _sequential_results(options.results)
     methods = [m for m in methods if m in set(extended["method"])]
     report = Report(
         options=options,
@@ -242,7 +263,7 @@ def analyse(options: ReportOptions) -> Report:
         methods=methods,
         qs=qs,
         trajectories=q_trajectories(runs, runset.root),
-        sequential=decision_table(recorded),
+        sequential=decisions,
         spending=spending_table(recorded),
     )
     report.figures = make_figures(report)

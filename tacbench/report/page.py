@@ -295,6 +295,10 @@ def _sequential_section(report: Report) -> list[Section]:
             "decision": d["decision"],
             "decided at interim": ["" if pd.isna(v) else f"{v:g}" for v in d["interim"]],
             "runs of the pair": d["runs"],
+            "detectable (80 % power)": [
+                _detectable(v, verdict)
+                for v, verdict in zip(d["detectable"], d["decision"], strict=True)
+            ],
         }
     )
     spent = report.spending.rename(
@@ -309,7 +313,9 @@ def _sequential_section(report: Report) -> list[Section]:
                     "AdaStop decided each comparison from the runs' final returns, the "
                     "family-wise error rate shared by a task's comparisons "
                     "(`sweep/sequential.json`, docs/sequential.md). 'not distinguishable': "
-                    "still open after the last interim."
+                    "still open after the last interim; 'detectable (80 % power)' is the "
+                    "smallest difference of mean final returns its runs could have found, as "
+                    "in the improvement tables."
                 ),
                 Table(decisions, "Decisions per task"),
                 Table(spent, "Runs spent, against the fixed design of n x K seeds per method"),

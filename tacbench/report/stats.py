@@ -282,7 +282,7 @@ def _comparison_rows(
                 "high": high,
                 "verdict": verdict,
                 "difference": float(np.mean(x) - np.mean(y)),
-                "detectable": _detectable(y, x) if verdict == NOT_DISTINGUISHABLE else np.nan,
+                "detectable": detectable_runs(y, x) if verdict == NOT_DISTINGUISHABLE else np.nan,
             }
         )
     if len(xs) > 1:
@@ -312,7 +312,7 @@ def improvement_verdict(low: float, high: float) -> str:
     return NOT_DISTINGUISHABLE
 
 
-def _detectable(reference: np.ndarray, runs: np.ndarray) -> float:
+def detectable_runs(reference: np.ndarray, runs: np.ndarray) -> float:
     """The smallest difference of mean final returns these run counts detect with 80 % power
     (:func:`tacbench.sequential.detectable_difference`); NaN below two runs a side."""
     if min(len(reference), len(runs)) < 2:
