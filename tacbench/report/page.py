@@ -140,16 +140,16 @@ def _probability_display(frame: pd.DataFrame, identity: list[str], label: str) -
     ]
     shown["verdict"] = frame["verdict"]
     shown["mean difference"] = [_num(v) for v in frame["difference"]]
-    shown["detectable (80 % power)"] = [
-        _detectable(v, d) for v, d in zip(frame["detectable"], frame["verdict"], strict=True)
-    ]
+    shown["detectable (80 % power)"] = _detectable(frame["detectable"], frame["verdict"])
     return shown
 
 
-def _detectable(value: float, verdict: str) -> str:
-    if verdict != NOT_DISTINGUISHABLE:
-        return ""
-    return "beyond these run counts" if math.isinf(value) else _num(value)
+def _detectable(values: pd.Series, verdicts: pd.Series) -> list[str]:
+    """Each not-distinguishable verdict's detectable difference ("" for the others)."""
+    return [
+        "" if d != NOT_DISTINGUISHABLE else "beyond these run counts" if math.isinf(v) else _num(v)
+        for v, d in zip(values, verdicts, strict=True)
+    ]
 
 
 def _how_to_read(report: Report) -> list[str]:
@@ -253,24 +253,18 @@ def _provenance(report: Report) -> list[Table | Code | Text]:
 def _runs_section(report: Report) -> list[Table | Text]:
     runs = report.runset.runs
     partial = runs[runs["partial"]]
-    blocks: list[Table | Text] = []
-    if len(partial):
-        blocks.append(
-            Table(
-                pd.DataFrame(
-                    {
-                        "run": partial["path"],
-                        "state": partial["state"],
-                        "steps reached": [_steps(v) for v in partial["step_reached"]],
-                        "planned": [_steps(v) for v in partial["total_steps"]],
-                        "note": partial["note"],
-                    }
-                ),
-                "Partial runs (included)",
-            )
-        )
-    else:
-        blocks.append(Text("Every loaded run is complete."))
+    shown = {
+        "run": partial["path"],
+        "state": partial["state"],
+        "steps reached": [_steps(v) for v in partial["step_reached"]],
+        "planned": [_steps(v) for v in partial["total_steps"]],
+        "note": partial["note"],
+    }
+    blocks: list[Table | Text] = [
+        Table(pd.DataFrame(shown), "Partial runs (included)")
+        if len(partial)
+        else Text("Every loaded run is complete.")
+    ]
     if report.runset.skipped:
         skipped = pd.DataFrame(
             {
@@ -295,10 +289,7 @@ def _sequential_section(report: Report) -> list[Section]:
             "decision": d["decision"],
             "decided at interim": ["" if pd.isna(v) else f"{v:g}" for v in d["interim"]],
             "runs of the pair": d["runs"],
-            "detectable (80 % power)": [
-                _detectable(v, verdict)
-                for v, verdict in zip(d["detectable"], d["decision"], strict=True)
-            ],
+            "detectable (80 % power)": _detectable(d["detectable"], d["decision"]),
         }
     )
     spent = report.spending.rename(
@@ -313,9 +304,8 @@ def _sequential_section(report: Report) -> list[Section]:
                     "AdaStop decided each comparison from the runs' final returns, the "
                     "family-wise error rate shared by a task's comparisons "
                     "(`sweep/sequential.json`, docs/sequential.md). 'not distinguishable': "
-                    "still open after the last interim; 'detectable (80 % power)' is the "
-                    "smallest difference of mean final returns its runs could have found, as "
-                    "in the improvement tables."
+                    "still open after the last interim; 'detectable': as in the improvement "
+                    "tables."
                 ),
                 Table(decisions, "Decisions per task"),
                 Table(spent, "Runs spent, against the fixed design of n x K seeds per method"),

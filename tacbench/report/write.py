@@ -30,7 +30,7 @@ def _tables(report: Report) -> dict[str, pd.DataFrame]:
         }
     )
     return {
-        "runs": report.scores.drop(columns=["versions"]),
+        "runs": report.scores.drop(columns=["versions", "note"]),  # the note: on the page
         "skipped": skipped,
         "summary": report.summary,
         "best_q": report.best_q,
