@@ -61,21 +61,27 @@ DESIGNS = (
         4,
         15,
         1,
-        False,
-        (2.0,),
-        True,
-        0.05,
-        100,
+        control=False,
+        shifts=(2.0,),
+        ladder=True,
+        max_reps=100,
     ),
 )
 
 
-def _grid(design: Design, shift: float, rng: np.random.Generator) -> dict[str, list[float]]:
-    means = [
-        shift * k if design.ladder else (shift if k == 1 else 0.0) for k in range(design.methods)
-    ]
+def _means(design: Design, shift: float) -> dict[str, float]:
+    """Each method's true mean: method 1 ``shift`` above the rest, or a ladder of steps."""
+    return {
+        f"m{k}": shift * k if design.ladder else (shift if k == 1 else 0.0)
+        for k in range(design.methods)
+    }
+
+
+def _grid(
+    design: Design, means: dict[str, float], rng: np.random.Generator
+) -> dict[str, list[float]]:
     size = design.n * design.K
-    return {f"m{k}": rng.normal(mean, 1.0, size).tolist() for k, mean in enumerate(means)}
+    return {m: rng.normal(mean, 1.0, size).tolist() for m, mean in means.items()}
 
 
 def _wrong(decisions: dict[sq.Pair, str], means: dict[str, float]) -> bool:
@@ -94,13 +100,10 @@ def check(design: Design, shift: float, reps: int, seed: int = SEED) -> dict[str
     """``reps`` grids of ``design`` with the methods ``shift`` apart (0: all equal): the share
     with a wrong decision, the share that find every true difference, and the runs spent."""
     rng = np.random.default_rng([seed, design.methods, design.n, design.K, int(shift * 100)])
+    means = _means(design, shift)
     wrong = found = spent = 0
     for rep in range(reps):
-        scores = _grid(design, shift, rng)
-        means = {
-            m: (shift * k if design.ladder else (shift if k == 1 else 0.0))
-            for k, m in enumerate(scores)
-        }
+        scores = _grid(design, means, rng)
         control = "m0" if design.control else None
         result = sq.run_sequential(scores, design.n, design.K, design.alpha, control, seed=rep)
         decisions = result.decisions

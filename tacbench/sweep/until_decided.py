@@ -355,6 +355,7 @@ def describe_design(preset: Preset, out: Path, options: driver.Options, design: 
         f"{design.control}"
     ]
     most: list[tuple[Method, int]] = []
+    full = design.n * design.K
     for env, methods in tasks.items():
         control, comparison = controls[env], compared[env]
         paired = control is None
@@ -370,9 +371,8 @@ def describe_design(preset: Preset, out: Path, options: driver.Options, design: 
             lines.append(f"    decisions so far: {_decisions(comparison.interims[-1].decisions)}")
         given = comparison.interims[-1].runs if comparison.interims else {}
         still = set() if comparison.finished else {m for p in comparison.open_pairs() for m in p}
-        full = design.n * design.K
         most += [(m, full if m.label in still else given.get(m.label, 0)) for m in methods]
-    fixed = design.n * design.K * sum(len(methods) for methods in tasks.values())
+    fixed = full * sum(len(methods) for methods in tasks.values())
     work, _ = driver.load_plan(_grid(preset, most), out, options, save=False)
     lines.append(
         f"at most {len(work.runs)} runs (a fixed design of {design.n} x {design.K} seeds: "
