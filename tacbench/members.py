@@ -91,8 +91,7 @@ def make_run_configs(
                 f"q = {q:g} >= 2: the policy density is capped at {cap:.3g} "
                 "(paper, Numerical Issue)"
             )
-    configs = [resolve_compile(c) for c in configs]
-    notes.append(compile_note(configs[0], overrides.get("compile", "auto")))
+    notes.append(compile_note(resolve_compile(configs[0]), overrides.get("compile", "auto")))
     return configs, notes
 
 
@@ -133,12 +132,16 @@ def _population(
     ]
 
 
-def resolve_compile(config: RunConfig) -> RunConfig:
-    """``config`` with ``--compile auto`` resolved for this machine: on for a run long enough to
-    repay the compilation, where a C++ compiler is found (which torch.compile needs on a CPU).
-    The resolved value is what ``config.json`` records, so a resumed run keeps it."""
+def resolve_compile(config: RunConfig, recorded: str | None = None) -> RunConfig:
+    """``config`` with ``--compile auto`` resolved where the run trains: the value ``recorded``
+    in the run's ``config.json`` when it resumes (a run keeps the rounding it started with),
+    else on for a run long enough to repay the compilation, where a C++ compiler is found
+    (which torch.compile needs on a CPU). Configs are built with ``auto`` left in them, so a
+    sweep's worker decides for its own machine, not the planning one."""
     if config.compile != "auto":
         return config
+    if recorded in ("on", "off"):
+        return dataclasses.replace(config, compile=recorded)
     from tacbench.hardware import cpp_compiler  # torch's Inductor: only when it matters
 
     long_enough = config.learning_steps >= COMPILE_AUTO_LEARNING_STEPS

@@ -10,7 +10,7 @@ import torch
 from tacbench import hardware
 from tacbench.config import RunConfig
 from tacbench.errors import TacbenchError
-from tacbench.members import make_run_configs, paper_defaults
+from tacbench.members import make_run_configs, paper_defaults, resolve_compile
 
 pytestmark = pytest.mark.unit
 
@@ -80,9 +80,13 @@ def test_compile_auto_compiles_long_runs_where_a_compiler_is_found(
 ) -> None:
     monkeypatch.setattr(hardware, "cpp_compiler", lambda: compiler)
     configs, notes = make_run_configs("Hopper-v4", "Hopper", [0], total_steps=steps)
-    assert configs[0].compile == expected  # what is used is what config.json records
+    assert configs[0].compile == "auto"  # decided where the run trains, not where it is planned
+    resolved = resolve_compile(configs[0])
+    assert resolved.compile == expected  # what is used is what config.json records
     assert any(n.startswith(note) for n in notes), notes
-    assert RunConfig.from_dict(configs[0].to_dict()) == configs[0]
+    assert RunConfig.from_dict(resolved.to_dict()) == resolved
+    other = "off" if expected == "on" else "on"
+    assert resolve_compile(configs[0], recorded=other).compile == other  # a resume keeps it
     forced, notes = make_run_configs("Hopper-v4", "Hopper", [0], total_steps=steps, compile="on")
     assert forced[0].compile == "on" and "compile: on (--compile on)" in notes
 

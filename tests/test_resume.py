@@ -164,3 +164,23 @@ def test_a_learned_alpha_stopped_and_resumed_continues_exactly(tmp_path: Path) -
         losses = pd.read_csv(b.directory / "losses.csv")
         assert losses["alpha"].iloc[0] == pytest.approx(0.2)  # the paper's, its start
         assert losses["alpha"].nunique() == len(losses)  # learned: a new value every row
+
+
+def test_a_resumed_run_keeps_the_compile_it_started_with(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``--compile auto`` is decided where a run starts and recorded; resumed on a machine (or
+    with a threshold) that would decide otherwise, the run keeps its recorded value."""
+    from tacbench import hardware, members
+
+    configs = tiny_configs("tac", total_steps=1200)
+    assert configs[0].compile == "auto"
+    train(tmp_path, configs, stop=lambda step: step >= 1100)
+    config_json = next(tmp_path.rglob("config.json"))
+    assert json.loads(config_json.read_text())["config"]["compile"] == "off"  # too short to pay
+    monkeypatch.setattr(members, "COMPILE_AUTO_LEARNING_STEPS", 0)
+    monkeypatch.setattr(hardware, "cpp_compiler", lambda: "g++")
+    assert members.resolve_compile(configs[0]).compile == "on"  # a fresh start would compile
+    [outcome] = train(tmp_path, configs, resume=True)
+    assert (outcome.state, outcome.step) == ("complete", 1200)
+    assert json.loads(config_json.read_text())["config"]["compile"] == "off"

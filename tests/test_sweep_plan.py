@@ -105,6 +105,14 @@ def test_another_config_in_a_run_directory_stops_the_plan(tmp_path: Path) -> Non
     assert _plan(other).runs[0].status == plan.Status("partial", 0)
 
 
+def test_compile_auto_matches_what_a_run_recorded_when_it_started(tmp_path: Path) -> None:
+    run = next(r for r in plan.build_runs(SMOKE) if r.config.algo == "tac")
+    assert run.config.compile == "auto"  # each worker resolves it for its own machine
+    _fake_run(tmp_path, run, {"state": "running", "step": 0}, compile="on")
+    statuses = {p.run.key: p.status for p in _plan(tmp_path).runs}
+    assert statuses[run.key] == plan.Status("partial", 0)
+
+
 def test_grouping_makes_member_units_at_equal_resume_steps(tmp_path: Path) -> None:
     tac = narrow(SMOKE, Narrowing(algos=("tac", "ppo")))
     all_runs = plan.build_runs(tac)

@@ -43,6 +43,7 @@ from typing import Any
 
 from tacbench import envs, runs
 from tacbench.hardware import cpu_class
+from tacbench.members import resolve_compile
 
 MEMBERS_MEASURED = 10  # a CPU agent's chunk (tac/agent.py): more members cost the same per member
 RANDOM_STEPS = 1000
@@ -163,8 +164,9 @@ def _for_measurement(configs: Sequence[Any], total: int, starts: int) -> list[An
     changed: list[Any] = []
     for config in configs[:MEMBERS_MEASURED]:
         settings: dict[str, Any] = {"total_steps": total, "eval_every": 0, "checkpoint_every": 0}
-        if config.algo == "tac":
-            settings["learning_starts"] = starts  # compile stays as resolved for the real run
+        if config.algo == "tac":  # timed as the real run would train here, compiled or not
+            config = resolve_compile(config)
+            settings["learning_starts"] = starts
         elif config.algo not in ON_POLICY:
             settings["hyperparams"] = {**config.hyperparams, "learning_starts": starts}
         changed.append(dataclasses.replace(config, **settings))

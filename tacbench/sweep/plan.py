@@ -164,7 +164,10 @@ def read_status(out: Path, run: Run) -> Status:
             f"{directory} has an unreadable JSON file ({err}); delete the directory to retrain "
             "that run."
         ) from None
-    differences = runs.differing_fields(stored, run.config.to_dict(), RESULT_NEUTRAL_FIELDS)
+    planned = dict(run.config.to_dict())
+    if planned.get("compile") == "auto":  # resolved where the run started; a resume keeps it
+        planned["compile"] = stored.get("compile", "auto")
+    differences = runs.differing_fields(stored, planned, RESULT_NEUTRAL_FIELDS)
     if differences:
         raise TacbenchError(
             f"{directory} holds a run with another config ({'; '.join(differences)}). "

@@ -76,7 +76,9 @@ def train(
     """:meth:`tacbench.trainers.Trainer.train` for TAC: the members ``configs`` (equal but for
     q, alpha and the seed) train in lockstep as one group; ``stop`` is polled before every
     step."""
-    configs = [resolve_compile(c) for c in configs]
+    recorded = [_recorded_compile(out, c) for c in configs] if resume else []
+    started = next((value for value in recorded if value is not None), None)
+    configs = [resolve_compile(c, started) for c in configs]  # a group shares one value
     check_members(configs)
     info = envs.env_info(configs[0].env)  # an unusable task fails before any directory is touched
     check_sizes(configs, info)
@@ -93,6 +95,19 @@ def train(
                     lambda step: bool(received) or (stop is not None and stop(step))
                 )
     return sorted(outcomes, key=lambda o: o.seed)
+
+
+def _recorded_compile(out: Path, config: RunConfig) -> str | None:
+    """The ``compile`` a run directory's ``config.json`` recorded, if it has one."""
+    path = runs.run_directory(out, config.algo, config.env, config.variant, config.seed)
+    path = path / "config.json"
+    if not path.exists():
+        return None
+    try:
+        recorded = runs.read_json(path).get("config", {}).get("compile")
+    except (OSError, ValueError, AttributeError):
+        return None  # planning reports an unreadable config.json with what to do
+    return recorded if isinstance(recorded, str) else None
 
 
 def check_sizes(configs: Sequence[RunConfig], info: envs.EnvInfo) -> None:
