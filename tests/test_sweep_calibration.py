@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
+from tacbench import hardware
 from tacbench.cli import cli
 from tacbench.members import make_run_configs
 from tacbench.sweep import calibration
@@ -32,13 +33,18 @@ def test_a_run_is_priced_by_phase_and_by_evaluation() -> None:
     assert c.seconds(100_000, 10_000, 0, 10, 1_000, steps_left=0) == 0.0
 
 
-def test_the_key_ignores_the_members_identity_and_budget_but_not_their_networks() -> None:
+def test_the_key_ignores_the_members_identity_and_budget_but_not_their_networks(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setattr(hardware, "cpp_compiler", lambda: "g++")
     five, _ = make_run_configs("Hopper-v4", "Hopper", [0, 10, 20, 30, 40], qs=[1.0, 2.0])
     other, _ = make_run_configs("Hopper-v4", "Hopper", [1, 2], qs=[1.5], total_steps=500_000)
     assert calibration.unit_key(five[:2]) == calibration.unit_key(other)
     assert "K=10" in calibration.unit_key(five)  # at most one chunk is measured
     wide, _ = make_run_configs("Hopper-v4", "Hopper", [1, 2], hidden_sizes=(400, 300))
     assert calibration.unit_key(wide) != calibration.unit_key(other)
+    short, _ = make_run_configs("Hopper-v4", "Hopper", [1, 2], qs=[1.5], total_steps=20_000)
+    assert calibration.unit_key(short) != calibration.unit_key(other)  # auto: eager, not compiled
 
 
 def test_calibrations_are_stored_per_cpu_class_and_merged() -> None:

@@ -132,8 +132,9 @@ def save(calibrations: dict[str, Calibration], cpu: str | None = None) -> Path:
 def unit_key(configs: Sequence[Any]) -> str:
     """What decides a unit's cost per member-step: its algorithm, task, every setting but the
     member's identity, the budget and the evaluation schedule, and its members (up to
-    :data:`MEMBERS_MEASURED`)."""
-    data = configs[0].to_dict()
+    :data:`MEMBERS_MEASURED`). ``--compile auto`` counts as what it resolves to here."""
+    first = configs[0]
+    data = (resolve_compile(first) if first.algo == "tac" else first).to_dict()
     shared = {k: v for k, v in data.items() if k not in _FREE_FIELDS}
     members = min(len(configs), MEMBERS_MEASURED)
     return f"{data['algo']} {data['env']} K={members} {json.dumps(shared, sort_keys=True)}"
