@@ -258,3 +258,25 @@ def test_a_round_with_no_member_due_changes_nothing(learned_alpha: bool) -> None
     for k in range(2):
         after = agent.member_state(k)["params"]
         assert all(torch.equal(v, before[k][n]) for n, v in after.items())
+
+
+def test_the_losses_constants_come_from_the_config_settings_of_the_same_name() -> None:
+    from tacbench.tac.agent import loss_settings
+
+    config = RunConfig(
+        env="Hopper-v4",
+        q=1.5,
+        alpha=0.2,
+        gamma=0.95,
+        lnq="joint-batch-max",
+        log_std_min=-5.0,
+        jacobian_clip=1e-3,
+        gaussian_eps=1e-6,
+        density_floor=1e-4,
+        matmul_precision="bf16",
+    )
+    s = loss_settings(config, action_scale=2.0)
+    assert (s.gamma, s.lnq, s.log_std_min, s.log_std_max) == (0.95, "joint-batch-max", -5.0, 2.0)
+    assert (s.jacobian_clip, s.gaussian_eps, s.action_scale) == (1e-3, 1e-6, 2.0)
+    assert s.log_density_floor == pytest.approx(math.log(1e-4)) and s.bf16_products
+    assert s.target_entropy is None

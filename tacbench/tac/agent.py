@@ -69,18 +69,7 @@ class TacAgent:
         self.act_dim = act_dim
         self.generators = [torch.Generator().manual_seed(int(seed)) for seed in seeds]
         c = config
-        self.settings = LossSettings(
-            c.gamma,
-            c.lnq,
-            c.log_std_min,
-            c.log_std_max,
-            action_scale,
-            c.target_entropy,
-            math.log(c.density_floor),
-            c.jacobian_clip,
-            c.gaussian_eps,
-            c.matmul_precision == "bf16",
-        )
+        self.settings = loss_settings(c, action_scale)
         self.learning_rate, self.tau = c.learning_rate, c.tau
         k = len(seeds)
         most = k if device.type == "cuda" else CPU_MEMBERS_PER_CHUNK
@@ -184,3 +173,16 @@ class TacAgent:
             chunk.params.load_member_states(states[chunk.members])
         for generator, state in zip(self.generators, states, strict=True):
             generator.set_state(state["generator"])
+
+
+def loss_settings(config: RunConfig, action_scale: float = 1.0) -> LossSettings:
+    """The losses' constants from ``config``: each :class:`LossSettings` field named like a
+    config setting takes its value (a new loss option is a setting and a field of one name),
+    the others are derived here."""
+    derived: dict[str, Any] = {
+        "action_scale": action_scale,
+        "log_density_floor": math.log(config.density_floor),
+        "bf16_products": config.matmul_precision == "bf16",
+    }
+    same_name = {f: getattr(config, f) for f in LossSettings._fields if f not in derived}
+    return LossSettings(**same_name, **derived)
