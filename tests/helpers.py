@@ -4,6 +4,7 @@ agents and random minibatches for them, and waiting for a condition on a child p
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -227,6 +228,34 @@ def wait_for(
         if time.monotonic() > deadline:
             raise AssertionError(f"timed out after {timeout:g} s waiting for {what}")
         time.sleep(poll)
+
+
+def run_status(run: Path) -> dict[str, Any]:
+    """A run directory's status.json, or {} while it is missing or being replaced."""
+    try:
+        return dict(json.loads((run / "status.json").read_text()))
+    except (OSError, json.JSONDecodeError):
+        return {}
+
+
+def last_logged_step(csv: Path) -> int:
+    """The step of a CSV's last row (-1 before its first row, or while it cannot be read)."""
+    try:
+        lines = csv.read_text().splitlines()
+        return int(lines[-1].split(",")[0]) if len(lines) > 1 else -1
+    except (OSError, ValueError):
+        return -1
+
+
+def past_checkpoint(run: Path, at_least: int) -> Callable[[], bool]:
+    """For :func:`wait_for`: true once ``run`` checkpointed at ``at_least`` or later and logged
+    a losses row after it (rows that a resumed run must cut away)."""
+
+    def check() -> bool:
+        step = run_status(run).get("step", 0)
+        return bool(step >= at_least and last_logged_step(run / "losses.csv") > step)
+
+    return check
 
 
 def run_cli(args: Sequence[str]) -> subprocess.CompletedProcess[str]:

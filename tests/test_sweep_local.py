@@ -9,10 +9,8 @@ import os
 import signal
 import subprocess
 import sys
-from collections.abc import Callable
 from pathlib import Path
 from types import MappingProxyType
-from typing import Any
 
 import pandas as pd
 import pytest
@@ -21,7 +19,7 @@ from click.testing import CliRunner
 from tacbench.cli import cli
 from tacbench.sweep import driver
 from tacbench.sweep.presets import Entry, Preset
-from tests.helpers import wait_for
+from tests.helpers import last_logged_step, past_checkpoint, run_status, wait_for
 
 pytestmark = pytest.mark.smoke
 
@@ -31,32 +29,6 @@ ENV = {**os.environ, "PYTHONUNBUFFERED": "1"}
 
 def _sweep_args(out: Path, *extra: str) -> list[str]:
     return ["sweep", "--preset", "smoke", "--out", str(out), *extra]
-
-
-def _status(run: Path) -> dict[str, Any]:
-    try:
-        return json.loads((run / "status.json").read_text())
-    except (OSError, json.JSONDecodeError):
-        return {}
-
-
-def _last_step(csv: Path) -> int:
-    try:
-        lines = csv.read_text().splitlines()
-        return int(lines[-1].split(",")[0]) if len(lines) > 1 else -1
-    except (OSError, ValueError):
-        return -1
-
-
-def _past_checkpoint(run: Path, at_least: int) -> Callable[[], bool]:
-    """True once the run checkpointed at ``at_least`` or later and wrote a losses row after its
-    checkpoint (rows that resume must cut away)."""
-
-    def check() -> bool:
-        step = _status(run).get("step", 0)
-        return step >= at_least and _last_step(run / "losses.csv") > step
-
-    return check
 
 
 def _assert_complete_rows(run: Path, steps: int) -> None:
@@ -70,7 +42,7 @@ def _assert_complete_rows(run: Path, steps: int) -> None:
     assert losses["updates"].tolist() == [1] + [b - a for a, b in itertools.pairwise(expected)]
     train_steps = pd.read_csv(run / "train.csv")["step"]
     assert train_steps.is_monotonic_increasing and train_steps.is_unique
-    assert _status(run)["state"] == "complete" and _status(run)["step"] == steps
+    assert run_status(run)["state"] == "complete" and run_status(run)["step"] == steps
 
 
 def test_local_sweep_with_members_then_rerun_skips_everything(tmp_path: Path) -> None:
@@ -90,7 +62,7 @@ def test_local_sweep_with_members_then_rerun_skips_everything(tmp_path: Path) ->
         _assert_complete_rows(run, 600)
     for run in ppo:
         assert pd.read_csv(run / "eval.csv")["step"].tolist() == [500, 600]
-        assert _status(run)["state"] == "complete"
+        assert run_status(run)["state"] == "complete"
     summary = json.loads((tmp_path / "sweep" / "summary.json").read_text())
     assert summary["counts"]["complete"] == 6 and summary["unfinished"] == []
     assert summary["interrupted"] is False
@@ -125,12 +97,12 @@ def test_kill_9_of_a_worker_then_of_the_sweep_and_the_same_command_completes(
     )
     try:
         # 1. SIGKILL the worker after its first checkpoint: the sweep records it and resumes
-        wait_for(_past_checkpoint(run, 500), timeout=90, proc=proc, what="the first checkpoint")
+        wait_for(past_checkpoint(run, 500), timeout=90, proc=proc, what="the first checkpoint")
         worker_pid = int(log.read_text().split(" pid ")[1].split(":")[0])
         os.kill(worker_pid, signal.SIGKILL)
         # 2. SIGKILL the sweep and its worker after the resumed run's next checkpoint
         wait_for(lambda: log.read_text().count("=== ") == 2, timeout=90, proc=proc)
-        wait_for(_past_checkpoint(run, 1000), timeout=90, proc=proc, what="a checkpoint at 1000")
+        wait_for(past_checkpoint(run, 1000), timeout=90, proc=proc, what="a checkpoint at 1000")
         os.killpg(proc.pid, signal.SIGKILL)
     finally:
         if proc.poll() is None:
@@ -165,7 +137,7 @@ def test_ctrl_c_checkpoints_and_the_same_command_resumes(tmp_path: Path) -> None
         start_new_session=True,
     )
     try:
-        wait_for(lambda: _last_step(run / "losses.csv") >= 750, timeout=90, proc=proc)
+        wait_for(lambda: last_logged_step(run / "losses.csv") >= 750, timeout=90, proc=proc)
         proc.send_signal(signal.SIGINT)  # to the driver only, as from a batch scheduler
         output = proc.communicate(timeout=60)[0]
     finally:
@@ -173,7 +145,7 @@ def test_ctrl_c_checkpoints_and_the_same_command_resumes(tmp_path: Path) -> None
             os.killpg(proc.pid, signal.SIGKILL)
     assert proc.returncode == 130, output
     assert "stopping: every running run checkpoints and returns" in output
-    status = _status(run)
+    status = run_status(run)
     assert status["state"] == "interrupted" and 750 <= status["step"] < 3000
     assert status["reason"].startswith(f"interrupted at step {status['step']}; resume with: ")
     assert "tacbench sweep --preset smoke" in status["reason"]

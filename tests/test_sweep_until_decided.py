@@ -8,6 +8,10 @@ One test trains the smoke grid for real through the CLI, the local executor and 
 from __future__ import annotations
 
 import json
+import os
+import signal
+import subprocess
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -22,7 +26,7 @@ from tacbench.sequential import detectable_difference
 from tacbench.sweep import driver, plan, until_decided
 from tacbench.sweep.presets import Narrowing, Preset, get_preset, narrow
 from tacbench.sweep.until_decided import Design, run_until_decided
-from tests.helpers import interrupt_cli
+from tests.helpers import assert_same_results, past_checkpoint, wait_for
 from tests.report_fixtures import write_run
 
 pytestmark = pytest.mark.unit
@@ -222,19 +226,35 @@ def test_q_auto_is_refused_in_one_line_saying_where_populations_train(tmp_path: 
     assert not out.exists()
 
 
-def test_an_adaptive_smoke_sweep_trains_is_stopped_resumes_and_reports(tmp_path: Path) -> None:
+def test_an_adaptive_smoke_sweep_killed_mid_interim_resumes_to_the_same_decisions(
+    tmp_path: Path,
+) -> None:
     """The real thing, as small as a decidable design gets: TAC q = 1 and 2 on Hopper, two
-    interims of two runs, family-wise error rate 0.2 (lower cannot decide with 8 runs),
-    stopped by Ctrl-C while its second interim trains, then run again, against one run
-    straight through."""
+    interims of two runs, family-wise error rate 0.2 (lower cannot decide with 8 runs). Killed
+    (SIGKILL to the sweep and its worker, as when a machine goes down) once interim 2's first
+    run has checkpointed and trained on, then run again, against one run straight through."""
     args = ["sweep", "--preset", "smoke", "--algo", "tac", "--until-decided"]
     args += ["--interim-runs", "2", "--fwer", "0.2", "--workers", "1", "--out"]
     straight = CliRunner().invoke(cli, [*args, str(tmp_path / "straight")])
     assert straight.exit_code == 0, straight.output
-    out = tmp_path / "stopped"
-    code, output = interrupt_cli([*args, str(out)], "runs 4/8")  # interim 2 is training
-    assert code == 130, output
-    assert "interim 2 stopped; rerun the same command to continue it" in output
+    out = tmp_path / "killed"
+    killed_run = out / "runs/tac/Hopper-v4/q1-a0.2-ls500-bs32/seed20"  # interim 2's first
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "tacbench", *args, str(out)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        start_new_session=True,
+    )
+    try:
+        wait_for(past_checkpoint(killed_run, 500), timeout=180, proc=proc, what="interim 2")
+        os.killpg(proc.pid, signal.SIGKILL)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+        output = proc.communicate()[0]
+    assert "interim 2 of 2" in output and "not distinguishable" not in output
     again = CliRunner().invoke(cli, [*args, str(out)])
     assert again.exit_code == 0, again.output
     assert "interim 1 of 2" not in again.output  # interim 1 is not trained or decided again
@@ -244,6 +264,7 @@ def test_an_adaptive_smoke_sweep_trains_is_stopped_resumes_and_reports(tmp_path:
     seeds = [interim["seeds"]["TAC q=2"] for interim in record["interims"]["Hopper-v4"]]
     assert seeds == [[0, 10], [0, 10, 20, 30]]
     assert straight.output.splitlines()[-3:-1] == again.output.splitlines()[-3:-1]
+    assert_same_results(killed_run, tmp_path / "straight" / killed_run.relative_to(out))
     report = CliRunner().invoke(cli, ["report", "--results", str(out), "--out", str(out / "r")])
     assert report.exit_code == 0, report.output
     page = (out / "r" / "report.md").read_text()
