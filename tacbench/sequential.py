@@ -1,5 +1,5 @@
-"""Verdicts with the fewest runs: group-sequential comparisons with AdaStop, and the smallest
-difference a "not distinguishable" verdict could have detected (docs/sequential.md).
+"""Verdicts with the fewest runs: group-sequential comparisons with AdaStop
+(docs/sequential.md).
 
 AdaStop (Mathieu et al., arXiv 2306.10882; the ``adastop`` package) compares methods from
 their runs' scores in interims: each interim adds ``n`` runs of every method still in an
@@ -11,15 +11,12 @@ distinguishable", since AdaStop (with its default ``beta = 0``) never accepts eq
 
 :func:`run_sequential` feeds a method's scores in seed order (the order a sweep would train
 them) and records each interim; :func:`replay_study` does that for a committed study, to say
-how many runs each verdict needed against the fixed design it ran. :func:`detectable_difference`
-estimates, by resampling the observed runs, the smallest difference a permutation test at the
-given level finds with the given power, so that "not distinguishable" reads as "no difference
-larger than X" (Colas et al. 2018).
+how many runs each verdict needed against the fixed design it ran. What a verdict left open
+could have detected: :mod:`tacbench.detectable`.
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -350,51 +347,3 @@ def results_of_record(record: Mapping[str, Any]) -> dict[str, SequentialResult]:
             kept,
         )
     return results
-
-
-def detectable_difference(
-    control: Sequence[float] | np.ndarray,
-    other: Sequence[float] | np.ndarray,
-    alpha: float = DEFAULT_ALPHA,
-    power: float = 0.8,
-    resamples: int = 400,
-    permutations: int = 400,
-    seed: int = 0,
-) -> float:
-    """The smallest difference of means that a two-sided permutation test of the mean
-    difference, at level ``alpha``, finds with probability ``power`` on samples of these
-    sizes, estimated by resampling the observed runs: each resample draws both groups with
-    replacement from the runs (``other`` centred on ``control``'s mean, then shifted by the
-    difference tried), so their spread is the observed one. Bisection over the difference with
-    common random numbers; an upper bound when the test cannot reach ``alpha`` at these sizes
-    (then ``inf``)."""
-    a = np.asarray(control, dtype=np.float64)
-    b = np.asarray(other, dtype=np.float64)
-    if len(a) < 2 or len(b) < 2:
-        raise TacbenchError("a detectable difference needs at least two runs per method.")
-    if 2.0 / math.comb(len(a) + len(b), len(a)) > alpha:
-        return math.inf  # no labelling of these sizes reaches the level
-    rng = np.random.default_rng(seed)
-    draws_a = a[rng.integers(0, len(a), (resamples, len(a)))]
-    draws_b = (b - b.mean() + a.mean())[rng.integers(0, len(b), (resamples, len(b)))]
-    pooled = len(a) + len(b)
-    order = np.argsort(rng.random((permutations, pooled)), axis=1)
-
-    def power_at(delta: float) -> float:
-        both = np.concatenate([draws_a, draws_b + delta], axis=1)  # (resamples, pooled)
-        observed = np.abs(both[:, len(a) :].mean(1) - both[:, : len(a)].mean(1))
-        shuffled = both[:, order]  # (resamples, permutations, pooled)
-        null = np.abs(shuffled[:, :, len(a) :].mean(2) - shuffled[:, :, : len(a)].mean(2))
-        p = (1 + (null >= observed[:, None]).sum(1)) / (permutations + 1)
-        return float((p <= alpha).mean())
-
-    spread = float(np.std(np.concatenate([a - a.mean(), b - b.mean()]), ddof=1)) or 1.0
-    low, high = 0.0, spread
-    while power_at(high) < power:
-        low, high = high, 2 * high
-        if high > 1e3 * spread:
-            return math.inf
-    for _ in range(20):
-        middle = (low + high) / 2
-        low, high = (middle, high) if power_at(middle) < power else (low, middle)
-    return high

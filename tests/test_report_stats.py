@@ -9,6 +9,7 @@ from rliable import metrics
 from scipy.stats import norm, trim_mean
 
 from tacbench.bootstrap import strata_seed
+from tacbench.detectable import detectable_shift
 from tacbench.report.stats import (
     ALL_TASKS,
     improvement_over_baselines,
@@ -219,3 +220,19 @@ def test_the_order_runs_were_loaded_in_does_not_move_an_interval() -> None:
         [x[::-1]], [np.sort(y)], 300, 0
     )
     assert interval_estimates([x, y], 300, 0) == interval_estimates([np.sort(x), y[::-1]], 300, 0)
+
+
+def test_an_open_all_tasks_verdict_states_the_shift_it_could_have_detected() -> None:
+    rng = np.random.default_rng(11)
+    cells = {
+        (env, method): list(rng.normal(0.0, scale, size=5))
+        for env, scale in (("A", 1.0), ("B", 1000.0))
+        for method in ("TAC (best q)", "DDPG")
+    }
+    table = improvement_over_baselines(_finals(cells), ["TAC (best q)"], ["DDPG"], 300, 0)
+    rows = table.set_index("env")
+    assert rows.loc[ALL_TASKS, "verdict"] == "not distinguishable"
+    references = [np.array(cells[(env, "DDPG")]) for env in ("A", "B")]
+    mine = [np.array(cells[(env, "TAC (best q)")]) for env in ("A", "B")]
+    assert rows.loc[ALL_TASKS, "detectable"] == pytest.approx(detectable_shift(references, mine))
+    assert np.isnan(rows.loc[ALL_TASKS, "difference"])  # returns of two tasks do not add up

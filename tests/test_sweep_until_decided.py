@@ -20,9 +20,9 @@ import pytest
 from click.testing import CliRunner
 
 from tacbench.cli import cli
+from tacbench.detectable import detectable_difference
 from tacbench.errors import TacbenchError
 from tacbench.report.build import ReportOptions, analyse
-from tacbench.sequential import detectable_difference
 from tacbench.sweep import driver, plan, until_decided
 from tacbench.sweep.presets import Narrowing, Preset, get_preset, narrow
 from tacbench.sweep.until_decided import Design, run_until_decided

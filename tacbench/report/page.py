@@ -8,8 +8,8 @@ from collections import Counter
 
 import pandas as pd
 
-from tacbench.bootstrap import CONFIDENCE
 from tacbench.report.build import Report
+from tacbench.report.reading import how_to_read
 from tacbench.report.render import Bullets, Code, Image, Section, Table, Text
 from tacbench.report.stats import ALL_TASKS
 from tacbench.sequential import NOT_DISTINGUISHABLE
@@ -140,71 +140,26 @@ def _probability_display(frame: pd.DataFrame, identity: list[str], label: str) -
     ]
     shown["verdict"] = frame["verdict"]
     shown["mean difference"] = [_num(v) for v in frame["difference"]]
-    shown["detectable (80 % power)"] = _detectable(frame["detectable"], frame["verdict"])
+    shown["detectable (80 % power)"] = _detectable(
+        frame["detectable"], frame["verdict"], frame["env"]
+    )
     return shown
 
 
-def _detectable(values: pd.Series, verdicts: pd.Series) -> list[str]:
-    """Each not-distinguishable verdict's detectable difference ("" for the others)."""
-    return [
-        "" if d != NOT_DISTINGUISHABLE else "beyond these run counts" if math.isinf(v) else _num(v)
-        for v, d in zip(values, verdicts, strict=True)
-    ]
-
-
-def _how_to_read(report: Report) -> list[str]:
-    o = report.options
-    metric = (
-        "evaluation returns (`eval.csv`, deterministic policy; the reference code plots these)"
-        if o.metric == "eval"
-        else "training-episode returns (`train.csv`; the paper plots average training returns)"
-    )
-    return [
-        f"Metric: {metric}. Switch with `--metric {'train' if o.metric == 'eval' else 'eval'}`.",
-        f"Curves: every run is put on a grid of evenly spaced steps per task (at most "
-        f"{o.grid_points}, fewer if no run logged that many points; linear interpolation of "
-        "evaluations, per-interval averages of training episodes), "
-        "nothing is extrapolated, then seeds are averaged; the band is ± 1 sample standard "
-        "deviation over seeds. After a partial run stops, fewer seeds make up the mean.",
-        f"Final = mean of a run's last {o.last} logged returns; best = its highest logged "
-        "return; AUC = area under its return curve divided by the steps it spans (its average "
-        "return over training). Tables show mean ± std over seeds.",
-        "Normalised score (aggregates and profiles): per task, (final - lowest final of any run) "
-        "/ (highest - lowest), over every run in this report, so 0 and 1 are the worst and best "
-        "runs here; adding or removing methods moves the aggregate numbers, not the per-task "
-        "rankings or probabilities of improvement.",
-        f"IQM = mean of the middle 50 % of runs; intervals are {int(CONFIDENCE * 100)} % "
-        f"percentile intervals of a stratified bootstrap ({o.reps} replications, runs "
-        "resampled within each task), computed with rliable's estimators; each interval "
-        "resamples from a seed drawn from its own runs, so runs of other methods or tasks "
-        "added to the report leave it unchanged.",
-        "P(method > q = 1) is the chance that a random run of the method beats a random run of "
-        "TAC q = 1 with the same alpha on the same task (0.5 = no difference); an interval "
-        "that excludes 0.5 is evidence of a difference (verdict larger or smaller; each "
-        "comparison on its own, not corrected for the table's many comparisons, unlike the "
-        "family-wise sequential decisions), else the "
-        "verdict is 'not distinguishable' and 'detectable (80 % power)' says how large a "
-        "difference of mean final returns these run counts would have found: the smallest one a "
-        "two-sided permutation test at 5 % finds in 80 % of resamples of the observed runs "
-        "(docs/sequential.md), so the verdict reads 'no difference larger than that'.",
-        "Performance profiles: the fraction of runs whose normalised final score exceeds tau; "
-        "a curve above another is better everywhere.",
-        *(
-            [
-                "TAC q=auto: q learned by population-based training (`--q auto`); the members "
-                "of a population copy each other, so they are not independent runs: its "
-                "statistics (intervals, probabilities of improvement, profiles; the 'runs' "
-                "column) count one value per population, the mean of its members' scores; the "
-                "curves and the summary table show the members."
-            ]
-            if not report.trajectories.empty
-            else []
-        ),
-        "TAC (best q) takes, per task, the q ≠ 1 with the highest mean final return on these "
-        "same runs (as the paper did), so its numbers are optimistic.",
-        "Partial runs (still running or stopped before their planned steps) are included and "
-        "counted in the partial column; failed or unreadable runs are left out and listed below.",
-    ]
+def _detectable(values: pd.Series, verdicts: pd.Series, envs: pd.Series | None = None) -> list[str]:
+    """Each not-distinguishable verdict's detectable difference ("" for the others); on an
+    "all tasks" row a shift in standard deviations of each task's runs."""
+    shown = []
+    for i, (v, d) in enumerate(zip(values, verdicts, strict=True)):
+        if d != NOT_DISTINGUISHABLE:
+            shown.append("")
+        elif math.isinf(v):
+            shown.append("beyond these run counts")
+        elif envs is not None and envs.iloc[i] == ALL_TASKS:
+            shown.append("n/a" if math.isnan(v) else f"{v:.2f} SD per task")
+        else:
+            shown.append(_num(v))
+    return shown
 
 
 def _overview(report: Report) -> list[str]:
@@ -323,7 +278,7 @@ def sections(report: Report) -> list[Section]:
     aggregate = _estimates_display(report.aggregate, ["method", "tasks", "runs"])
     return [
         Section("Overview", [Bullets(_overview(report))]),
-        Section("How to read this", [Bullets(_how_to_read(report))]),
+        Section("How to read this", [Bullets(how_to_read(report))]),
         Section(
             "Effect of the entropic index",
             [

@@ -26,7 +26,8 @@ import pandas as pd
 from rliable import metrics
 
 from tacbench.bootstrap import interval, scalar_interval, strata_seed
-from tacbench.sequential import NOT_DISTINGUISHABLE, detectable_difference
+from tacbench.detectable import detectable_difference, detectable_shift
+from tacbench.sequential import NOT_DISTINGUISHABLE
 
 DEFAULT_REPS = 2000
 """Bootstrap replications. With 2,000 the Monte-Carlo standard deviation of each interval endpoint
@@ -268,7 +269,8 @@ def _comparison_rows(
 ) -> list[dict[str, object]]:
     """P(X > Y) on each task (``xs[i]`` against ``ys[i]`` on ``envs[i]``) with its verdict, the
     difference of mean final returns and, where not distinguishable, the smallest difference
-    these run counts detect; then, over two or more tasks, the same averaged over tasks."""
+    these run counts detect; then, over two or more tasks, the same averaged over tasks, where
+    the detectable difference is a shift of every task in its runs' standard deviations."""
     rows: list[dict[str, object]] = []
     for env, x, y in zip(envs, xs, ys, strict=True):
         p, low, high = probability_of_improvement([x], [y], reps, seed)
@@ -287,6 +289,7 @@ def _comparison_rows(
         )
     if len(xs) > 1:
         p, low, high = probability_of_improvement(xs, ys, reps, seed)
+        verdict = improvement_verdict(low, high)
         rows.append(
             {
                 "env": ALL_TASKS,
@@ -294,9 +297,11 @@ def _comparison_rows(
                 "p": p,
                 "low": low,
                 "high": high,
-                "verdict": improvement_verdict(low, high),
-                "difference": np.nan,
-                "detectable": np.nan,
+                "verdict": verdict,
+                "difference": np.nan,  # returns of different tasks do not add up
+                "detectable": detectable_shift_runs(ys, xs)
+                if verdict == NOT_DISTINGUISHABLE
+                else np.nan,
             }
         )
     return rows
@@ -314,7 +319,7 @@ def improvement_verdict(low: float, high: float) -> str:
 
 def detectable_runs(reference: np.ndarray, runs: np.ndarray) -> float:
     """The smallest difference of mean final returns these run counts detect with 80 % power
-    (:func:`tacbench.sequential.detectable_difference`); NaN below two runs a side."""
+    (:func:`tacbench.detectable.detectable_difference`); NaN below two runs a side."""
     if min(len(reference), len(runs)) < 2:
         return np.nan
     return detectable_difference(reference, runs)
@@ -332,3 +337,12 @@ def profile_table(scores: pd.DataFrame, taus: np.ndarray, reps: int, seed: int) 
             )
         )
     return pd.concat(frames, ignore_index=True)
+
+
+def detectable_shift_runs(references: Sequence[np.ndarray], runs: Sequence[np.ndarray]) -> float:
+    """Over tasks: the smallest shift of every task's mean, in standard deviations of its runs,
+    these run counts detect with 80 % power (:func:`tacbench.detectable.detectable_shift`);
+    NaN where a task has fewer than two runs a side."""
+    if min(min(len(r), len(x)) for r, x in zip(references, runs, strict=True)) < 2:
+        return np.nan
+    return detectable_shift(references, runs)
