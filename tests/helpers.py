@@ -180,6 +180,22 @@ def assert_same_results(a: Path, b: Path) -> None:
         assert ours[name] == theirs[name], name
 
 
+def start_cli(
+    args: Sequence[str], *, env: Mapping[str, str] | None = None, session: bool = False
+) -> subprocess.Popen[str]:
+    """``tacbench ARGS`` started in a child process (``env`` added to the environment), its
+    output and errors in one unbuffered text pipe; ``session``: in a process group of its own,
+    so that ``os.killpg`` reaches it and its workers."""
+    return subprocess.Popen(
+        [sys.executable, "-m", "tacbench", *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env={**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})},
+        start_new_session=session,
+    )
+
+
 def interrupt_cli(
     args: Sequence[str],
     when: str,
@@ -192,11 +208,7 @@ def interrupt_cli(
     """Run ``tacbench ARGS`` in a child process (``env`` added to the environment), send it
     ``signals`` one after the other (``gap`` seconds apart) once a line of its output contains
     ``when``; its exit status and everything it printed."""
-    env = {**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})}
-    command = [sys.executable, "-m", "tacbench", *args]
-    proc = subprocess.Popen(
-        command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env
-    )
+    proc = start_cli(args, env=env)
     assert proc.stdout is not None
     seen = []
     for line in proc.stdout:

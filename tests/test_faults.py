@@ -7,7 +7,6 @@ wall-clock columns, or with one clear line and exit status 2 and nothing lost.""
 from __future__ import annotations
 
 import json
-import os
 import random
 import shutil
 import signal
@@ -21,7 +20,7 @@ import pytest
 from click.testing import CliRunner
 
 from tacbench.cli import cli
-from tests.helpers import assert_same_results, run_cli, tiny_configs, train, wait_for
+from tests.helpers import assert_same_results, run_cli, start_cli, tiny_configs, train, wait_for
 
 pytestmark = pytest.mark.smoke
 
@@ -193,11 +192,8 @@ def test_no_usable_checkpoint_is_one_clear_line_and_nothing_is_deleted(
 
 
 def _start(out: Path, *extra: str, pause: float = 0.0) -> subprocess.Popen[str]:
-    env = {**os.environ, "TACBENCH_CHECKPOINT_PAUSE": str(pause)}
-    command = [sys.executable, "-m", "tacbench", *TINY_TAC_ARGS, "--out", str(out), *extra]
-    return subprocess.Popen(
-        command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env
-    )
+    env = {"TACBENCH_CHECKPOINT_PAUSE": str(pause)}
+    return start_cli([*TINY_TAC_ARGS, "--out", str(out), *extra], env=env)
 
 
 def _wait_for(proc: subprocess.Popen[str], condition: Callable[[], bool]) -> None:
@@ -313,12 +309,7 @@ def test_a_full_disk_stops_the_sweep_with_one_clear_line(
     # two runs (q = 1 and 2, seed 0), one after another: the disk fills in the first
     args = ["sweep", "--preset", "smoke", "--algo", "tac", "--seed", "0", "--steps", "1500"]
     args += ["--workers", "1", "--group", "none", "--out", str(disk)]
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "tacbench", *args],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-    )
+    proc = start_cli(args)
     runs = disk / "runs"
     _wait_for(proc, lambda: any(runs.glob("**/manifest-*.json")))
     filler = _fill(disk)

@@ -5,8 +5,6 @@ those of a lone run."""
 from __future__ import annotations
 
 import os
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -14,7 +12,7 @@ import pytest
 from tacbench.errors import TacbenchError
 from tacbench.runs import run_directory
 from tacbench.runs.locks import lock_path, writing
-from tests.helpers import assert_same_results, tiny_configs, train, wait_for
+from tests.helpers import assert_same_results, run_cli, start_cli, tiny_configs, train, wait_for
 
 pytestmark = pytest.mark.unit
 
@@ -67,29 +65,19 @@ def test_two_processes_on_one_run_one_refused_the_other_as_a_lone_run(tmp_path: 
         "off",
         "--quiet",
     ]
-    command = [sys.executable, "-m", "tacbench", *args]
-    first = subprocess.Popen(
-        [*command, "--out", str(tmp_path / "both")],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-    )
+    first = start_cli([*args, "--out", str(tmp_path / "both")])
     wait_for(
         lambda: any((tmp_path / "both").glob("runs/tac/*/*/seed0/status.json")),
         timeout=60,
         proc=first,
         what="the first run's status.json",
     )
-    second = subprocess.run(
-        [*command, "--out", str(tmp_path / "both")], capture_output=True, text=True, check=False
-    )
+    second = run_cli([*args, "--out", str(tmp_path / "both")])
     assert second.returncode == 2, second.stdout + second.stderr
     assert f"PID {first.pid} on" in second.stdout + second.stderr
     assert "Traceback" not in second.stdout + second.stderr
     assert first.wait(timeout=300) == 0
-    lone = subprocess.run(
-        [*command, "--out", str(tmp_path / "lone")], capture_output=True, text=True, check=False
-    )
+    lone = run_cli([*args, "--out", str(tmp_path / "lone")])
     assert lone.returncode == 0, lone.stdout + lone.stderr
     run = next((tmp_path / "both").glob("runs/tac/*/*/seed0"))
     assert_same_results(run, next((tmp_path / "lone").glob("runs/tac/*/*/seed0")))

@@ -7,8 +7,6 @@ import itertools
 import json
 import os
 import signal
-import subprocess
-import sys
 from pathlib import Path
 from types import MappingProxyType
 
@@ -19,12 +17,18 @@ from click.testing import CliRunner
 from tacbench.cli import cli
 from tacbench.sweep import driver
 from tacbench.sweep.presets import Entry, Preset
-from tests.helpers import last_logged_step, past_checkpoint, run_status, wait_for
+from tests.helpers import (
+    last_logged_step,
+    past_checkpoint,
+    run_cli,
+    run_status,
+    start_cli,
+    wait_for,
+)
 
 pytestmark = pytest.mark.smoke
 
 TAC_RUN = Path("runs/tac/Hopper-v4/q1-a0.2-ls500-bs32/seed0")
-ENV = {**os.environ, "PYTHONUNBUFFERED": "1"}
 
 
 def _sweep_args(out: Path, *extra: str) -> list[str]:
@@ -82,19 +86,11 @@ def test_local_sweep_with_members_then_rerun_skips_everything(tmp_path: Path) ->
 def test_kill_9_of_a_worker_then_of_the_sweep_and_the_same_command_completes(
     tmp_path: Path,
 ) -> None:
-    args = [sys.executable, "-m", "tacbench", *_sweep_args(tmp_path)]
-    args += ["--algo", "tac", "--q", "1", "--seed", "0", "--steps", "2000"]
+    args = _sweep_args(tmp_path, "--algo", "tac", "--q", "1", "--seed", "0", "--steps", "2000")
     args += ["--checkpoint-every", "500", "--workers", "1"]
     run = tmp_path / TAC_RUN
     log = tmp_path / "sweep" / "logs" / "tac__Hopper-v4__q1-a0.2-ls500-bs32__seed0.log"
-    proc = subprocess.Popen(
-        args,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-        env=ENV,
-        start_new_session=True,
-    )
+    proc = start_cli(args, session=True)
     try:
         # 1. SIGKILL the worker after its first checkpoint: the sweep records it and resumes
         wait_for(past_checkpoint(run, 500), timeout=90, proc=proc, what="the first checkpoint")
@@ -115,7 +111,7 @@ def test_kill_9_of_a_worker_then_of_the_sweep_and_the_same_command_completes(
     assert failure["reason"].startswith("worker process killed by SIGKILL")
     assert failure["step"] >= 500
     # 3. the same command again: resumes from the checkpoint, every row exactly once
-    again = subprocess.run(args, capture_output=True, text=True, env=ENV, timeout=120)
+    again = run_cli(args)
     assert again.returncode == 0, again.stdout + again.stderr
     assert (
         "1 runs: 1 complete" in again.stdout and "1 completed after failed attempts" in again.stdout
@@ -124,18 +120,11 @@ def test_kill_9_of_a_worker_then_of_the_sweep_and_the_same_command_completes(
 
 
 def test_ctrl_c_checkpoints_and_the_same_command_resumes(tmp_path: Path) -> None:
-    args = [sys.executable, "-m", "tacbench", *_sweep_args(tmp_path)]
     # long enough that the fast update cannot finish between the signal and the driver's stop
-    args += ["--algo", "tac", "--q", "1", "--seed", "0", "--steps", "3000", "--workers", "1"]
+    args = _sweep_args(tmp_path, "--algo", "tac", "--q", "1", "--seed", "0", "--steps", "3000")
+    args += ["--workers", "1"]
     run = tmp_path / TAC_RUN
-    proc = subprocess.Popen(
-        args,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-        env=ENV,
-        start_new_session=True,
-    )
+    proc = start_cli(args, session=True)
     try:
         wait_for(lambda: last_logged_step(run / "losses.csv") >= 750, timeout=90, proc=proc)
         proc.send_signal(signal.SIGINT)  # to the driver only, as from a batch scheduler
@@ -152,7 +141,7 @@ def test_ctrl_c_checkpoints_and_the_same_command_resumes(tmp_path: Path) -> None
     summary = json.loads((tmp_path / "sweep" / "summary.json").read_text())
     assert summary["interrupted"] is True and summary["counts"]["partial"] == 1
     assert not (tmp_path / "sweep" / "lock").exists()
-    again = subprocess.run(args, capture_output=True, text=True, env=ENV, timeout=120)
+    again = run_cli(args)
     assert again.returncode == 0, again.stdout + again.stderr
     _assert_complete_rows(run, 3000)
 

@@ -10,8 +10,6 @@ from __future__ import annotations
 import json
 import os
 import signal
-import subprocess
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -26,7 +24,7 @@ from tacbench.report.build import ReportOptions, analyse
 from tacbench.sweep import driver, plan, until_decided
 from tacbench.sweep.presets import Narrowing, Preset, get_preset, narrow
 from tacbench.sweep.until_decided import Design, run_until_decided
-from tests.helpers import assert_same_results, past_checkpoint, wait_for
+from tests.helpers import assert_same_results, past_checkpoint, start_cli, wait_for
 from tests.report_fixtures import write_run
 
 pytestmark = pytest.mark.unit
@@ -239,14 +237,7 @@ def test_an_adaptive_smoke_sweep_killed_mid_interim_resumes_to_the_same_decision
     assert straight.exit_code == 0, straight.output
     out = tmp_path / "killed"
     killed_run = out / "runs/tac/Hopper-v4/q1-a0.2-ls500-bs32/seed20"  # interim 2's first
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "tacbench", *args, str(out)],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-        env={**os.environ, "PYTHONUNBUFFERED": "1"},
-        start_new_session=True,
-    )
+    proc = start_cli([*args, str(out)], session=True)
     try:
         wait_for(past_checkpoint(killed_run, 500), timeout=180, proc=proc, what="interim 2")
         os.killpg(proc.pid, signal.SIGKILL)

@@ -28,7 +28,6 @@ from tacbench.runs.files import (
 from tacbench.runs.planning import (
     DirectoryPlan,
     Outcome,
-    PlannableConfig,
     differing_fields,
     plan_run,
     plan_runs,
@@ -44,7 +43,6 @@ __all__ = [
     "CsvLog",
     "DirectoryPlan",
     "Outcome",
-    "PlannableConfig",
     "RunWriter",
     "State",
     "atomic_write_json",

@@ -8,13 +8,14 @@ from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal, Protocol, TypeVar
+from typing import Any, Literal, TypeVar
 
 from tacbench.config import RESULT_NEUTRAL_FIELDS
 from tacbench.errors import TacbenchError
 from tacbench.runs import checkpoints
 from tacbench.runs.files import CRASHED, ensure_writable, read_json
 from tacbench.runs.locks import writing
+from tacbench.runs.provenance import RunIdentity
 
 
 def run_directory(out: Path, algo: str, env: str, variant: str, seed: int) -> Path:
@@ -145,21 +146,7 @@ class Outcome:
     message: str = ""
 
 
-class PlannableConfig(Protocol):
-    """What planning needs of a run's config (``RunConfig``, ``BaselineConfig``)."""
-
-    @property
-    def algo(self) -> str: ...
-    @property
-    def env(self) -> str: ...
-    @property
-    def variant(self) -> str: ...
-    @property
-    def seed(self) -> int: ...
-    def to_dict(self) -> Mapping[str, Any]: ...
-
-
-Config = TypeVar("Config", bound=PlannableConfig)
+Config = TypeVar("Config", bound=RunIdentity)  # what planning needs of a TAC or baseline config
 
 
 def plan_runs(
