@@ -309,3 +309,24 @@ def test_cli_sweep_dry_run_and_option_errors(tmp_path: Path) -> None:
     ]:
         result = runner.invoke(cli, ["sweep", "--preset", "smoke", "--dry-run", *args])
         assert (result.exit_code, message in result.output) == (2, True), result.output
+
+
+def test_the_wall_time_is_the_units_schedule_not_the_core_time_shared_out() -> None:
+    assert cost.makespan([3.0, 2.0, 1.0, 1.0], 2) == 4.0  # 3 | 2 + 1, then 1 on either
+    assert cost.makespan([5.0, 1.0, 1.0], 2) == 5.0  # the longest unit, not 7 / 2
+    assert cost.makespan([5.0, 1.0, 1.0], 1) == 7.0
+    assert cost.makespan([], 4) == 0.0
+
+
+def test_the_dry_run_prices_the_wall_time_by_its_units(tmp_path: Path) -> None:
+    """Five members in units of 3 and 2 on two workers take as long as the unit of 3."""
+    five = narrow(
+        get_preset("paper-q-grid"),
+        Narrowing(("Hopper",), (1.0,), seeds=(0, 10, 20, 30, 40), settings={"total_steps": 10_000}),
+    )
+    work = driver.load_plan(five, tmp_path, driver.Options(members=3), save=False)[0]
+    assert [len(u.runs) for u in work.units] == [3, 2]
+    per_step = {("tac", "Hopper-v4"): 1e-3}
+    assert summary.wall_seconds(work, per_step, 2) == pytest.approx(3 * 10_000 * 1e-3)
+    assert summary.wall_seconds(work, per_step, 1) == pytest.approx(5 * 10_000 * 1e-3)
+    assert "(one core per worker; each unit on one worker" in summary.describe_plan(work, 2, "task")

@@ -11,10 +11,11 @@ yet, the defaults below are used, and the plan says so.
 from __future__ import annotations
 
 import csv
+import heapq
 import math
 import statistics
 from collections import defaultdict
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -242,3 +243,14 @@ def members_per_unit(
     units_for_workers = max(1, math.ceil(workers / max(1, groups)))
     spread = math.ceil(group_size / units_for_workers)
     return max(1, min(fits, spread, limit or group_size))
+
+
+def makespan(seconds: Sequence[float], workers: int) -> float:
+    """The wall time of units taking ``seconds`` each on ``workers`` workers, each unit started,
+    in this order, on the first worker to be free (as the local executor starts them): never
+    less than the longest unit, whatever the total divided by the workers."""
+    free = [0.0] * max(1, workers)
+    for duration in seconds:
+        start = heapq.heappop(free)
+        heapq.heappush(free, start + duration)
+    return max(free)

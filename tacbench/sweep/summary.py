@@ -64,6 +64,7 @@ def describe_plan(plan: SweepPlan, workers: int, group: str) -> str:
     calibrated = calibration.price(plan, stored)
     core_s = 0.0
     sources = set()
+    per_step: dict[tuple[str, str], float] = {}
     for (algo, env), members in groups.items():
         n = Counter(p.status.state for p in members)
         steps = sum(
@@ -74,6 +75,7 @@ def describe_plan(plan: SweepPlan, workers: int, group: str) -> str:
         if rate.source == cost.DEFAULT_SOURCE and (algo, env) in calibrated:
             seconds, source = calibrated[(algo, env)], CALIBRATED
         core_s += seconds
+        per_step[(algo, env)] = seconds / max(1, steps)
         sources.add(source)
         lines.append(
             f"{algo:<8} {env:<15} {len(members):>5} {n['complete']:>5} {n['partial']:>5} "
@@ -83,8 +85,8 @@ def describe_plan(plan: SweepPlan, workers: int, group: str) -> str:
     lines += [
         "",
         f"cost estimate: {core_s / 3600:,.1f} core-hours; with {workers} worker"
-        f"{'s' if workers != 1 else ''} about {duration(core_s / max(1, workers))} "
-        "(one core per worker, all busy)",
+        f"{'s' if workers != 1 else ''} about {duration(wall_seconds(plan, per_step, workers))} "
+        "(one core per worker; each unit on one worker, started in plan order)",
     ]
     if CALIBRATED in sources:
         lines.append(
@@ -103,6 +105,18 @@ def describe_plan(plan: SweepPlan, workers: int, group: str) -> str:
             "measure the GPU's speed with `tacbench bench --device cuda` (docs/performance.md)."
         )
     return "\n".join(lines)
+
+
+def wall_seconds(plan: SweepPlan, per_step: dict[tuple[str, str], float], workers: int) -> float:
+    """How long the units take on ``workers`` workers, each unit priced at its (algo, env)'s
+    seconds per member-step times its members' steps left (:func:`cost.makespan`)."""
+    left = {p.run.key: p.run.total_steps - p.status.step for p in plan.runs}
+    seconds = []
+    for unit in plan.units:
+        config = unit.runs[0].config
+        rate = per_step[(cost.cost_algo(config.algo, getattr(config, "profile", None)), config.env)]
+        seconds.append(rate * sum(left[run.key] for run in unit.runs))
+    return cost.makespan(seconds, workers)
 
 
 def _units(plan: SweepPlan) -> list[str]:
