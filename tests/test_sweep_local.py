@@ -14,6 +14,7 @@ import pandas as pd
 import pytest
 from click.testing import CliRunner
 
+from tacbench import hardware
 from tacbench.cli import cli
 from tacbench.sweep import driver
 from tacbench.sweep.presets import Entry, Preset
@@ -70,6 +71,10 @@ def test_local_sweep_with_members_then_rerun_skips_everything(tmp_path: Path) ->
     summary = json.loads((tmp_path / "sweep" / "summary.json").read_text())
     assert summary["counts"]["complete"] == 6 and summary["unfinished"] == []
     assert summary["interrupted"] is False
+    bill = summary["bill"]  # what it took beside what the dry run's pricing said at the start
+    assert bill["cpu_class"] == hardware.cpu_class() and bill["workers"] == 1
+    assert bill["wall_s"] > 0 and bill["priced_wall_s"] > 0 and bill["priced_core_hours"] > 0
+    assert "the price" in first.output and "priced at the start" in first.output
     assert len(list((tmp_path / "sweep" / "logs").glob("*.log"))) == 3  # the TAC unit + 2 PPO
     assert not (tmp_path / "sweep" / "lock").exists()
 
@@ -77,6 +82,7 @@ def test_local_sweep_with_members_then_rerun_skips_everything(tmp_path: Path) ->
     again = runner.invoke(cli, args)
     assert again.exit_code == 0, again.output
     assert "6 runs: 6 complete" in again.output
+    assert "priced at the start" not in again.output  # nothing to train, nothing to bill
     assert before == {p: p.stat().st_mtime_ns for p in tmp_path.glob("runs/**/*") if p.is_file()}
     dry = runner.invoke(cli, [*args, "--dry-run"])
     assert "6 runs: 6 complete, 0 partial, 0 failed" in dry.output

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import functools
 import os
+import time
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -209,10 +210,20 @@ def run_sweep(
         _require_cuda()
     with disk_errors("the sweep's files"), state.Lock(out):
         work, history = load_plan(preset, out, options)
+        priced = summary.price(work, options.worker_count())
+        started = time.monotonic()
         executor = _executor(out, options)
         driver = _Driver(work, history, executor, options, stream)
         with stop_signals(second_interrupts=False) as received:
             interrupted = driver.run(received)
+        bill = {
+            "cpu_class": hardware.cpu_class(),
+            "executor": options.executor,
+            "workers": options.worker_count(),
+            "wall_s": round(time.monotonic() - started, 1),
+            "priced_wall_s": round(priced.wall_seconds, 1),
+            "priced_core_hours": round(priced.core_seconds / 3600, 3),
+        }
         if driver.disk_full:
             raise DiskError(
                 f"the sweep stopped: {driver.disk_full} could not write its files because the "
@@ -221,7 +232,9 @@ def run_sweep(
                 full=True,
             )
         final, history = load_plan(preset, out, options)
-        result = summary.summarize(final, history, command=options.command, interrupted=interrupted)
+        result = summary.summarize(
+            final, history, command=options.command, interrupted=interrupted, bill=bill
+        )
         text = summary.summary_text(result, options.command)
         summary.write_summary(out, result, text)
         return SweepResult(result, text, interrupted)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from collections import Counter, defaultdict
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -35,6 +36,56 @@ GROUPING = {
 }
 
 
+@dataclass(frozen=True)
+class GroupPrice:
+    """What the runs of one (algo, env) still cost: their steps left and core-seconds, and
+    where the rate comes from (runs measured under --out, a calibration or the defaults)."""
+
+    algo: str
+    env: str
+    runs: int
+    states: Counter[str]
+    steps: int
+    seconds: float
+    source: str
+
+
+@dataclass(frozen=True)
+class Price:
+    """What a plan still costs: core-seconds in all and the wall time on its workers."""
+
+    groups: tuple[GroupPrice, ...]
+    core_seconds: float
+    wall_seconds: float
+
+
+def price(plan: SweepPlan, workers: int) -> Price:
+    """The plan's price on ``workers`` workers (:func:`wall_seconds`), group by group."""
+    groups: dict[tuple[str, str], list[PlannedRun]] = defaultdict(list)
+    for p in plan.runs:
+        config = p.run.config
+        groups[(cost.cost_algo(config.algo, getattr(config, "profile", None)), config.env)].append(
+            p
+        )
+    rates = cost.rates(plan.out, groups)
+    calibrated = calibration.price(plan, calibration.load())
+    priced = []
+    for (algo, env), members in groups.items():
+        steps = sum(
+            p.run.total_steps - p.status.step for p in members if p.action in ("train", "retry")
+        )
+        rate = rates[(algo, env)]
+        seconds, source = steps * rate.seconds_per_step, rate.source
+        if rate.source == cost.DEFAULT_SOURCE and (algo, env) in calibrated:
+            seconds, source = calibrated[(algo, env)], CALIBRATED
+        states = Counter[str](p.status.state for p in members)
+        priced.append(GroupPrice(algo, env, len(members), states, steps, seconds, source))
+    per_step = {(g.algo, g.env): g.seconds / max(1, g.steps) for g in priced}
+    return Price(
+        tuple(priced), sum(g.seconds for g in priced), wall_seconds(plan, per_step, workers)
+    )
+
+
 def describe_plan(plan: SweepPlan, workers: int, group: str) -> str:
     """The dry-run report: counts by state, the units with their members and memory, steps left
     and the cost estimate."""
@@ -54,38 +105,18 @@ def describe_plan(plan: SweepPlan, workers: int, group: str) -> str:
         f"{'algo':<8} {'env':<15} {'runs':>5} {'done':>5} {'part':>5} {'fail':>5} {'new':>5} "
         f"{'steps left':>14} {'ms/step':>8}  throughput",
     ]
-    groups: dict[tuple[str, str], list[PlannedRun]] = defaultdict(list)
-    for p in plan.runs:
-        config = p.run.config
-        algo = cost.cost_algo(config.algo, getattr(config, "profile", None))
-        groups[(algo, config.env)].append(p)
-    rates = cost.rates(plan.out, groups)
-    stored = calibration.load()
-    calibrated = calibration.price(plan, stored)
-    core_s = 0.0
-    sources = set()
-    per_step: dict[tuple[str, str], float] = {}
-    for (algo, env), members in groups.items():
-        n = Counter(p.status.state for p in members)
-        steps = sum(
-            p.run.total_steps - p.status.step for p in members if p.action in ("train", "retry")
-        )
-        rate = rates[(algo, env)]
-        seconds, source = steps * rate.seconds_per_step, rate.source
-        if rate.source == cost.DEFAULT_SOURCE and (algo, env) in calibrated:
-            seconds, source = calibrated[(algo, env)], CALIBRATED
-        core_s += seconds
-        per_step[(algo, env)] = seconds / max(1, steps)
-        sources.add(source)
+    priced = price(plan, workers)
+    for g in priced.groups:
         lines.append(
-            f"{algo:<8} {env:<15} {len(members):>5} {n['complete']:>5} {n['partial']:>5} "
-            f"{n['failed']:>5} {n['new']:>5} {steps:>14,} "
-            f"{seconds / max(1, steps) * 1e3:>8.2f}  {source}"
+            f"{g.algo:<8} {g.env:<15} {g.runs:>5} {g.states['complete']:>5} "
+            f"{g.states['partial']:>5} {g.states['failed']:>5} {g.states['new']:>5} "
+            f"{g.steps:>14,} {g.seconds / max(1, g.steps) * 1e3:>8.2f}  {g.source}"
         )
+    sources = {g.source for g in priced.groups}
     lines += [
         "",
-        f"cost estimate: {core_s / 3600:,.1f} core-hours; with {workers} worker"
-        f"{'s' if workers != 1 else ''} about {duration(wall_seconds(plan, per_step, workers))} "
+        f"cost estimate: {priced.core_seconds / 3600:,.1f} core-hours; with {workers} worker"
+        f"{'s' if workers != 1 else ''} about {duration(priced.wall_seconds)} "
         "(one core per worker; each unit on one worker, started in plan order)",
     ]
     if CALIBRATED in sources:
@@ -190,6 +221,14 @@ def summary_text(summary: dict[str, Any], command: str) -> str:
             else ""
         )
     ]
+    bill = summary.get("bill")
+    if bill and bill["priced_wall_s"] > 0:
+        lines.append(
+            f"took {duration(bill['wall_s'])} on {bill['workers']} worker"
+            f"{'s' if bill['workers'] != 1 else ''} ({bill['cpu_class']}); priced at the start "
+            f"{duration(bill['priced_wall_s'])}: {bill['wall_s'] / bill['priced_wall_s']:.2f}x "
+            "the price"
+        )
     failed = [u for u in summary["unfinished"] if u["failures"]]
     if failed:
         lines.append("failures:")
