@@ -57,7 +57,7 @@ def test_update(benchmark: BenchmarkFixture, path: str, k: int) -> None:
         c = coefficients([1.5] * k, [0.2] * k, torch.device("cpu"))
         for _ in range(3):  # compile, allocate
             update(agent, batch, c)
-    metrics = benchmark(agent.update, batch, c)
+    metrics = benchmark(update, agent, batch, c)
     assert metrics.shape == (k, len(METRICS))
     assert torch.isfinite(metrics).all()
 
@@ -116,7 +116,7 @@ def test_q_grid_update(benchmark: BenchmarkFixture) -> None:
         warnings.simplefilter("ignore")  # torch.compile's notes while compiling
         for _ in range(3):
             update(agent, batch, c)
-    metrics = benchmark(agent.update, batch, c)
+    metrics = benchmark(update, agent, batch, c)
     assert metrics.shape == (k, len(METRICS)) and torch.isfinite(metrics).all()
 
 
@@ -134,6 +134,6 @@ def test_episode_schedule_round(benchmark: BenchmarkFixture, due: str) -> None:
     c = coefficients([1.0] * k, [0.2] * k, torch.device("cpu"))
     members = [True] * k if due == "all" else [True] + [False] * (k - 1)
     update(agent, batch, c, members)
-    metrics = benchmark(agent.update, batch, c, members)
+    metrics = benchmark(update, agent, batch, c, members)
     assert torch.isfinite(metrics).all()
     assert (metrics[~torch.as_tensor(members)] == 0).all()
