@@ -30,7 +30,8 @@ from tacbench.tac.losses import LossSettings, tac_losses
 from tacbench.tac.maths import Batch, Coefficients
 from tacbench.tac.parameters import FlatLayout
 
-# What each option buys: docs/performance.md, "One source for the maths"
+# What each option buys: docs/notes/performance-history.md, "Adam, Inductor's options and the
+# private fused-Adam call"
 CPU_COMPILE_OPTIONS: dict[str, str | int | bool | Callable[..., Any]] = {
     # the compiled kernels called from C++, not from a Python wrapper
     "cpp_wrapper": True,
@@ -84,7 +85,7 @@ def _flat(grads: Sequence[torch.Tensor]) -> torch.Tensor:
 # The gradient is taken with respect to the blocks, not the flat buffer they are views of: the
 # gradient of a view of the flat tensor is a zero-padded copy of the whole buffer, and summing
 # one per block cost a pass over the buffer per block (measured in docs/performance.md, "The
-# authors' (400, 300) networks: where the time goes").
+# authors' (400, 300) networks").
 
 
 def eager_gradient(
