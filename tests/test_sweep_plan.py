@@ -330,3 +330,15 @@ def test_the_dry_run_prices_the_wall_time_by_its_units(tmp_path: Path) -> None:
     assert summary.wall_seconds(work, per_step, 2) == pytest.approx(3 * 10_000 * 1e-3)
     assert summary.wall_seconds(work, per_step, 1) == pytest.approx(5 * 10_000 * 1e-3)
     assert "(one core per worker; each unit on one worker" in summary.describe_plan(work, 2, "task")
+
+
+def test_the_summary_compares_the_bill_with_the_price_only_for_a_whole_plan() -> None:
+    bill = {"cpu_class": "x", "workers": 2, "wall_s": 4140.0, "priced_wall_s": 3480.0}
+    counts = dict.fromkeys(("runs", "complete", "failed", "given_up", "partial", "new"), 0)
+    base = {"preset": "p", "out": "o", "counts": {**counts, "to_retry": 0}, "unfinished": []}
+    base["counts"]["recovered_after_failures"] = 0
+    whole = summary.summary_text({**base, "interrupted": False, "bill": bill}, "")
+    assert "took 1h09m on 2 workers (x); priced at the start 58m00s: 1.19x the price" in whole
+    stopped = summary.summary_text({**base, "interrupted": True, "bill": bill}, "")
+    assert "stopped after 1h09m on 2 workers (x); priced at the start 58m00s" in stopped
+    assert "x the price" not in stopped  # a stopped sweep has no whole bill to compare

@@ -149,13 +149,14 @@ def _probability_display(frame: pd.DataFrame, identity: list[str], label: str) -
 def _detectable(values: pd.Series, verdicts: pd.Series, envs: pd.Series | None = None) -> list[str]:
     """Each not-distinguishable verdict's detectable difference ("" for the others); on an
     "all tasks" row a shift in standard deviations of each task's runs."""
+    tasks = [None] * len(values) if envs is None else list(envs)
     shown = []
-    for i, (v, d) in enumerate(zip(values, verdicts, strict=True)):
+    for v, d, task in zip(values, verdicts, tasks, strict=True):
         if d != NOT_DISTINGUISHABLE:
             shown.append("")
         elif math.isinf(v):
             shown.append("beyond these run counts")
-        elif envs is not None and envs.iloc[i] == ALL_TASKS:
+        elif task == ALL_TASKS:
             shown.append("n/a" if math.isnan(v) else f"{v:.2f} SD per task")
         else:
             shown.append(_num(v))

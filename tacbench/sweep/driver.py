@@ -210,7 +210,8 @@ def run_sweep(
         _require_cuda()
     with disk_errors("the sweep's files"), state.Lock(out):
         work, history = load_plan(preset, out, options)
-        priced = summary.price(work, options.worker_count())
+        workers = options.worker_count()
+        priced = summary.price(work, workers)
         started = time.monotonic()
         executor = _executor(out, options)
         driver = _Driver(work, history, executor, options, stream)
@@ -219,7 +220,7 @@ def run_sweep(
         bill = {
             "cpu_class": hardware.cpu_class(),
             "executor": options.executor,
-            "workers": options.worker_count(),
+            "workers": workers,
             "wall_s": round(time.monotonic() - started, 1),
             "priced_wall_s": round(priced.wall_seconds, 1),
             "priced_core_hours": round(priced.core_seconds / 3600, 3),

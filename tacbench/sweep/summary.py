@@ -63,10 +63,7 @@ def price(plan: SweepPlan, workers: int) -> Price:
     """The plan's price on ``workers`` workers (:func:`wall_seconds`), group by group."""
     groups: dict[tuple[str, str], list[PlannedRun]] = defaultdict(list)
     for p in plan.runs:
-        config = p.run.config
-        groups[(cost.cost_algo(config.algo, getattr(config, "profile", None)), config.env)].append(
-            p
-        )
+        groups[_priced_as(p.run.config)].append(p)
     rates = cost.rates(plan.out, groups)
     calibrated = calibration.price(plan, calibration.load())
     priced = []
@@ -144,10 +141,14 @@ def wall_seconds(plan: SweepPlan, per_step: dict[tuple[str, str], float], worker
     left = {p.run.key: p.run.total_steps - p.status.step for p in plan.runs}
     seconds = []
     for unit in plan.units:
-        config = unit.runs[0].config
-        rate = per_step[(cost.cost_algo(config.algo, getattr(config, "profile", None)), config.env)]
+        rate = per_step[_priced_as(unit.runs[0].config)]
         seconds.append(rate * sum(left[run.key] for run in unit.runs))
     return cost.makespan(seconds, workers)
+
+
+def _priced_as(config: Any) -> tuple[str, str]:
+    """The (algo, env) whose rate prices a run: TAC's reference-code profiles have their own."""
+    return cost.cost_algo(config.algo, getattr(config, "profile", None)), config.env
 
 
 def _units(plan: SweepPlan) -> list[str]:
@@ -223,12 +224,13 @@ def summary_text(summary: dict[str, Any], command: str) -> str:
     ]
     bill = summary.get("bill")
     if bill and bill["priced_wall_s"] > 0:
-        lines.append(
-            f"took {duration(bill['wall_s'])} on {bill['workers']} worker"
-            f"{'s' if bill['workers'] != 1 else ''} ({bill['cpu_class']}); priced at the start "
-            f"{duration(bill['priced_wall_s'])}: {bill['wall_s'] / bill['priced_wall_s']:.2f}x "
-            "the price"
+        took = (
+            f"{'stopped after' if summary['interrupted'] else 'took'} {duration(bill['wall_s'])} "
+            f"on {bill['workers']} worker{'s' if bill['workers'] != 1 else ''} "
+            f"({bill['cpu_class']}); priced at the start {duration(bill['priced_wall_s'])}"
         )
+        ratio = bill["wall_s"] / bill["priced_wall_s"]  # only a whole plan's bill is compared
+        lines.append(took if summary["interrupted"] else f"{took}: {ratio:.2f}x the price")
     failed = [u for u in summary["unfinished"] if u["failures"]]
     if failed:
         lines.append("failures:")
