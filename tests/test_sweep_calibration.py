@@ -4,6 +4,7 @@ price, and one short real measurement."""
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import pytest
 from click.testing import CliRunner
@@ -108,3 +109,52 @@ def test_a_short_measurement_times_random_and_learning_steps(
     assert measured.eval_step > 0
     stored = calibration.calibrate([configs], report=lambda line: None)
     assert list(stored) == [calibration.unit_key(configs)]
+
+
+class _Clock:
+    """A CPU clock for the measurement: 0.01 s each time it is read (once per step) and 1 s per
+    member-update."""
+
+    def __init__(self) -> None:
+        self.now = 0.0
+
+    def process_time(self) -> float:
+        self.now += 0.01
+        return self.now
+
+
+@pytest.mark.parametrize("schedule", ["step", "episode"])
+def test_a_learning_step_is_priced_with_one_update_in_either_schedule(
+    schedule: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from tacbench.tac import update as tac_update
+    from tacbench.training import loop
+
+    clock = _Clock()
+    monkeypatch.setattr(calibration, "time", clock)
+    monkeypatch.setattr(calibration, "env_step_seconds", lambda env: 0.0)
+
+    def counted(agent: Any, sample: Any, c: Any, subset: list[int] | None) -> Any:
+        clock.now += float(len(subset) if subset is not None else agent.alive.numel())
+        return tac_update.update(agent, sample, c, subset)
+
+    monkeypatch.setattr(loop, "update", counted)
+    monkeypatch.setattr(calibration, "RANDOM_STEPS", 100)
+    monkeypatch.setattr(calibration, "WARMUP_STEPS", 5)
+    monkeypatch.setattr(calibration, "LEARN_STEPS", 100)
+    configs, _ = make_run_configs(
+        "Pendulum-v1", None, [0, 10], hidden_sizes=(32,), update_schedule=schedule
+    )
+    measured = calibration.measure(configs)
+    # the episode schedule updates in bursts of 200 at Pendulum's episode ends, the step
+    # schedule once a step: either way a learning step is a step and one update
+    assert measured.random == pytest.approx(0.01 / 2)
+    assert measured.learn == pytest.approx(0.01 / 2 + 1.0)
+
+
+def test_updates_during_warm_up_are_priced_from_the_first_episode_end() -> None:
+    (paper,), _ = make_run_configs("HalfCheetah-v4", "HalfCheetah", [0])
+    (authors,), _ = make_run_configs("HalfCheetah-v4", "HalfCheetah", [0], profile="reference")
+    assert paper.warmup_updates == "off" and authors.warmup_updates == "on"
+    assert calibration.run_pricing(paper)[0] == paper.learning_starts == 10_000
+    assert calibration.run_pricing(authors)[0] == 1_000  # HalfCheetah's episodes: 1,000 steps

@@ -1,4 +1,5 @@
-"""``tacbench study NAME commands|analyse``: the published studies' commands and tables
+"""``tacbench study NAME commands|analyse``: the published studies' commands and tables, and
+``tacbench study bills``: what their sweeps took against the dry run's price
 (:mod:`tacbench.studies`)."""
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ def _show(tables: Mapping[str, pd.DataFrame], out: Path | None) -> None:
 
 @click.group()
 def study() -> None:
-    """The published studies: print a study's commands, or analyse its runs."""
+    """The published studies: print a study's commands, analyse its runs, or price its sweeps."""
 
 
 @study.group()
@@ -141,3 +142,48 @@ def sequential_analyse(results: Path, reps: int, out: Path | None) -> None:
     from tacbench.studies import sequential as sequential_study
 
     _show(sequential_study.analyse(results, reps), out)
+
+
+@study.command(name="bills")
+@click.argument("results", nargs=-1, required=True, type=_RESULTS)
+@click.option(
+    "--calibrate",
+    is_flag=True,
+    help="First calibrate, on this CPU class, the units it has not calibrated (a few minutes "
+    "per kind of unit), as `tacbench sweep --dry-run --calibrate` does.",
+)
+def bills(results: tuple[Path, ...], calibrate: bool) -> None:
+    """What each sweep that trained the runs under RESULTS took, against what the dry run
+    prices its command at on this CPU class (docs/sweep.md, "The price and the bill")."""
+    from tacbench.cli.sweep import recorded_sweep
+    from tacbench.hardware import cpu_class
+    from tacbench.progress import duration
+    from tacbench.sweep import bills as sweep_bills
+
+    here = cpu_class()
+    report = (lambda line: click.echo(line, err=True)) if calibrate else None
+    found = [took for folder in results for took in sweep_bills.sweeps(folder)]
+    if not found:
+        raise click.ClickException(
+            f"no run under {', '.join(map(str, results))} was trained by a tacbench sweep."
+        )
+    for took in found:
+        grid, options = recorded_sweep(took.command, Path("unused"))
+        priced = sweep_bills.reprice(grid, options, took.keys, report)
+        runs = f"{took.runs} run{'s' if took.runs != 1 else ''}"
+        ran_on = took.cpu_class or "CPU class not recorded"
+        line = f"  took {duration(took.wall_s)} ({took.source}; {ran_on}); priced here "
+        workers = f"{priced.workers} worker{'s' if priced.workers != 1 else ''}"
+        line += f"{duration(priced.wall_s)} on {workers} ({here}, "
+        if priced.runs != took.runs:
+            runs += f", of which the command's plan names {priced.runs}"
+            line += "not comparable: the plan differs from the runs)"
+        elif not priced.calibrated:
+            line += "not calibrated: give --calibrate)"
+        else:
+            ratio = priced.wall_s / took.wall_s
+            verdict = "within" if sweep_bills.within(took.wall_s, priced.wall_s) else "outside"
+            line += f"calibrated): {ratio:.2f}x what it took, {verdict} 25 %"
+            if took.cpu_class not in (None, here):
+                line += " (another class: not the test)"
+        click.echo(f"{took.command}\n  {runs}\n{line}")

@@ -7,6 +7,7 @@ preset's TAC runs, a run setting to every run.
 
 from __future__ import annotations
 
+import shlex
 from pathlib import Path
 from typing import Any
 
@@ -185,36 +186,9 @@ def sweep(ctx: click.Context, preset: str, **p: Any) -> None:
     times, 130/143/129 when interrupted (Ctrl-C/SIGTERM/SIGHUP; rerun to resume), 2 for a usage
     error.
     """
-    from tacbench.sweep import driver, presets, summary  # torch only when this command runs
+    from tacbench.sweep import driver, summary  # torch only when this command runs
 
-    overrides = {name: p.pop(name) for name in _OVERRIDES}
-    grid = presets.narrow(
-        presets.get_preset(preset),
-        presets.Narrowing(
-            p["envs"],
-            p["qs"],
-            p["algos"],
-            p["seeds"],
-            {name: value for name, value in overrides.items() if value is not None},
-            p.pop("suite"),
-        ),
-    )
-    options = driver.Options(
-        executor=p["executor"],
-        workers=p["workers"],
-        address=p["address"],
-        cpus_per_run=p["cpus_per_run"],
-        gpus_per_run=p["gpus_per_run"],
-        scratch=p["scratch"],
-        shared_fs=p["shared_fs"],
-        group=p["group"],
-        members=p["members"],
-        max_retries=p["max_retries"],
-        command=command_line(ctx),
-        partition=p["partition"],
-        slurm_args=p["slurm_args"],
-        time_limit=p["time_limit"],
-    )
+    grid, options = _grid_and_options(ctx, preset, p)
     sequential = {k: p[k] for k in ("interim_runs", "interims", "fwer", "control")}
     if p["until_decided"]:
         _until_decided(ctx, grid, p["out"], options, sequential, p["dry_run"])
@@ -262,3 +236,50 @@ def _until_decided(
     click.echo(outcome.text)
     click.echo(f"wrote {out / 'sweep' / 'sequential.json'}, summary.json and summary.txt")
     ctx.exit(outcome.exit_code)
+
+
+def _grid_and_options(ctx: click.Context, preset: str, p: dict[str, Any]) -> tuple[Any, Any]:
+    """The sweep's grid (the preset narrowed and its settings replaced) and its options, from
+    the parsed flags ``p`` (the settings' flags are taken out of it)."""
+    from tacbench.sweep import driver, presets
+
+    overrides = {name: p.pop(name) for name in _OVERRIDES}
+    grid = presets.narrow(
+        presets.get_preset(preset),
+        presets.Narrowing(
+            p["envs"],
+            p["qs"],
+            p["algos"],
+            p["seeds"],
+            {name: value for name, value in overrides.items() if value is not None},
+            p.pop("suite"),
+        ),
+    )
+    options = driver.Options(
+        executor=p["executor"],
+        workers=p["workers"],
+        address=p["address"],
+        cpus_per_run=p["cpus_per_run"],
+        gpus_per_run=p["gpus_per_run"],
+        scratch=p["scratch"],
+        shared_fs=p["shared_fs"],
+        group=p["group"],
+        members=p["members"],
+        max_retries=p["max_retries"],
+        command=command_line(ctx),
+        partition=p["partition"],
+        slurm_args=p["slurm_args"],
+        time_limit=p["time_limit"],
+    )
+    return grid, options
+
+
+def recorded_sweep(command: str, out: Path) -> tuple[Any, Any]:
+    """The grid and options of a recorded ``tacbench sweep ...`` command (a run's config.json,
+    a sweep's summary.json), with its results folder replaced by ``out``."""
+    args = shlex.split(command)
+    if args[:2] != ["tacbench", "sweep"]:
+        raise TacbenchError(f"not a tacbench sweep command: {command!r}")
+    with sweep.make_context("sweep", [*args[2:], "--out", str(out)]) as ctx:
+        p = dict(ctx.params)
+        return _grid_and_options(ctx, p.pop("preset"), p)

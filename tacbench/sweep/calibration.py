@@ -4,27 +4,33 @@
 A unit's cost depends on more than its algorithm and task: its networks, its members, its
 schedule, its compilation and the CPU. So the unit is calibrated as it would train, for a few
 thousand steps, in a temporary folder: its own configs (at most :data:`MEMBERS_MEASURED`
-members, as many as one chunk of a CPU agent), with only the budget, the evaluation and the
-checkpoints changed. Three CPU times per member-step come out (``time.process_time``, so other
-work on the machine does not inflate them, one torch thread):
+members, as many as one chunk of a CPU agent), with only the budget, the evaluation, the
+checkpoints and the loss log's interval changed. Three CPU times per member-step come out
+(``time.process_time``, so other work on the machine does not inflate them, one torch thread):
 
-* ``random``: a step before learning starts (random actions, no update), over up to
-  :data:`RANDOM_STEPS` steps;
-* ``learn``: a step after it (environment, update, buffer), over :data:`LEARN_STEPS` steps after
+* ``random``: a step without an update, the median step over up to :data:`RANDOM_STEPS` steps
+  before learning starts (random actions);
+* ``learn``: a step with its one update, over at least :data:`LEARN_STEPS` steps after
   :data:`WARMUP_STEPS` (where ``torch.compile`` compiles), or for PPO and TRPO over at least three
-  rollouts and their updates;
+  rollouts and their updates. A TAC unit in the episode schedule updates in bursts at episode
+  ends (a HalfCheetah window of 1,500 steps holds one burst of 1,000 updates), so its updates
+  are counted (losses.csv's ``updates``) and the window's time is shared out as ``random`` per
+  step plus the rest per update;
 * ``eval_step``: one step of an evaluation episode, taken as one environment step (the median
   of :data:`ENV_STEPS`): an evaluation steps its ten episodes in lockstep, so the policy's
   batched action, shared by them, is left out.
 
-A run of T steps that learns from step L and evaluates E episodes every V steps is then priced at
-``L x random + (T - L) x learn + (T / V) x E x H x eval_step`` per member, H the task's episode
-limit: evaluation episodes are priced at full length, an upper bound for tasks whose episodes end
-early. The compilation of the first update (seconds) and the checkpoints are left out.
+A run of T steps that updates from step L and evaluates E episodes every V steps is then priced
+at ``L x random + (T - L) x learn + (T / V) x E x H x eval_step`` per member, H the task's
+episode limit: evaluation episodes are priced at full length, an upper bound for tasks whose
+episodes end early. A TAC run that updates during warm-up (``--warmup-updates on``, the authors'
+code) starts at its first episode end, priced at ``min(learning_starts, H)``. The compilation of
+the first update (seconds) and the checkpoints are left out.
 
 Calibrations are kept per CPU class (:func:`tacbench.hardware.cpu_class`) in
 ``$TACBENCH_CALIBRATION`` or ``~/.cache/tacbench/calibration/<class>.json``, keyed by what
-decides a unit's cost (:func:`unit_key`).
+decides a unit's cost (:func:`unit_key`) and by :data:`METHOD`, so that a calibration measured
+another way is measured again.
 """
 
 from __future__ import annotations
@@ -52,6 +58,8 @@ LEARN_STEPS = 1500
 ON_POLICY_ROLLOUTS = 3
 ENV_STEPS = 2000  # environment steps timed for an evaluation step
 ON_POLICY = ("ppo", "trpo")
+LOG_EVERY = 50  # the loss log's interval while measuring: the updates counted per 50 steps
+METHOD = 2  # 2: updates counted per window (1 took a window's time per step, whatever it held)
 # config fields that do not change what a step costs (the budget, the evaluation's schedule,
 # priced separately, and the member's identity)
 _FREE_FIELDS = (
@@ -137,7 +145,8 @@ def unit_key(configs: Sequence[Any]) -> str:
     data = (resolve_compile(first) if first.algo == "tac" else first).to_dict()
     shared = {k: v for k, v in data.items() if k not in _FREE_FIELDS}
     members = min(len(configs), MEMBERS_MEASURED)
-    return f"{data['algo']} {data['env']} K={members} {json.dumps(shared, sort_keys=True)}"
+    settings = json.dumps(shared, sort_keys=True)
+    return f"m{METHOD} {data['algo']} {data['env']} K={members} {settings}"
 
 
 def _learning_starts(config: Any) -> int:
@@ -150,13 +159,14 @@ def _learning_starts(config: Any) -> int:
 
 
 def run_pricing(config: Any) -> tuple[int, int, int, int]:
-    """(learning starts, evaluation interval, evaluation episodes, episode limit) of a run."""
-    return (
-        _learning_starts(config),
-        int(config.eval_every),
-        int(config.eval_episodes),
-        envs.env_info(config.env).max_episode_steps,
-    )
+    """(the step its updates start, evaluation interval, evaluation episodes, episode limit) of
+    a run. Updates during warm-up start at the first episode end, priced at the episode limit
+    (at most learning_starts)."""
+    limit = envs.env_info(config.env).max_episode_steps
+    starts = _learning_starts(config)
+    if config.algo == "tac" and config.warmup_updates == "on":
+        starts = min(starts, limit)
+    return starts, int(config.eval_every), int(config.eval_episodes), limit
 
 
 def _for_measurement(configs: Sequence[Any], total: int, starts: int) -> list[Any]:
@@ -168,6 +178,7 @@ def _for_measurement(configs: Sequence[Any], total: int, starts: int) -> list[An
         if config.algo == "tac":  # timed as the real run would train here, compiled or not
             config = resolve_compile(config)
             settings["learning_starts"] = starts
+            settings["log_every"] = LOG_EVERY
         elif config.algo not in ON_POLICY:
             settings["hyperparams"] = {**config.hyperparams, "learning_starts": starts}
         changed.append(dataclasses.replace(config, **settings))
@@ -183,13 +194,17 @@ def measure(configs: Sequence[Any]) -> Calibration:
 
     torch.set_num_threads(1)
     first = configs[0]
+    tac = first.algo == "tac"
     if first.algo in ON_POLICY:
         rollout = int(first.hyperparams["n_steps"])
         starts, total = 0, max(LEARN_STEPS, ON_POLICY_ROLLOUTS * rollout) + rollout
-    else:
+    else:  # a window longer than an episode holds at least one episode end's updates
         starts = min(_learning_starts(first), RANDOM_STEPS)
-        total = starts + WARMUP_STEPS + LEARN_STEPS
-    measured = _for_measurement(configs, total, starts)
+        limit = envs.env_info(first.env).max_episode_steps
+        total = starts + WARMUP_STEPS + max(LEARN_STEPS, limit + LOG_EVERY)
+        total = -(-total // LOG_EVERY) * LOG_EVERY  # the last step of a loss-log window
+    # TAC trains one step more, so that the window ends before the final checkpoint
+    measured = _for_measurement(configs, total + 1 if tac else total, starts)
     marks: list[tuple[int, float]] = []
 
     def stop(step: int) -> bool:
@@ -198,6 +213,7 @@ def measure(configs: Sequence[Any]) -> Calibration:
 
     with tempfile.TemporaryDirectory() as tmp:
         trainers.trainer_for(first.algo).train(measured, Path(tmp), quiet=True, stop=stop)
+        updates = _updates_logged(Path(tmp)) if tac else None
     members = len(measured)
 
     def rate(low: int, high: int) -> float:
@@ -207,17 +223,44 @@ def measure(configs: Sequence[Any]) -> Calibration:
 
     if first.algo in ON_POLICY:  # from the end of the first rollout: rollouts and updates
         learn = rate(int(first.hyperparams["n_steps"]), total)
-        random_rate = learn
-    else:
-        # from a tenth of the way in: the first steps also pay for setting the unit up
-        random_rate = (
-            rate(starts // 10 + 1, starts - 1)
-            if starts > 10
-            else rate(starts, starts + WARMUP_STEPS)
-        )
+        return _calibration(first, random=learn, learn=learn, members=members)
+    # from a tenth of the way in: the first steps also pay for setting the unit up
+    low, high = (starts // 10 + 1, starts - 1) if starts > 10 else (starts, starts + WARMUP_STEPS)
+    if updates is None:
+        random_rate = rate(low, high)
         learn = rate(starts + WARMUP_STEPS, total)
+        return _calibration(first, random=random_rate, learn=learn, members=members)
+    # TAC: the loop calls stop(step) once every step, with the CPU time of steps 1 .. step
+    seconds = dict(marks)
+    random_rate = statistics.median(
+        (seconds[s + 1] - seconds[s]) / members for s in range(low, high)
+    )  # the median: a burst of updates at an episode end inside the random steps is left out
+    begin = -(-(starts + WARMUP_STEPS) // LOG_EVERY) * LOG_EVERY
+    cpu = (seconds[total] - seconds[begin]) / members
+    done = updates(begin, total)
+    if not done:
+        raise RuntimeError(f"no update between steps {begin} and {total} to time")
+    learn = random_rate + (cpu - (total - begin) * random_rate) / done
+    return _calibration(first, random=random_rate, learn=learn, members=members)
+
+
+def _updates_logged(folder: Path) -> Callable[[int, int], float]:
+    """From the loss logs under ``folder``: the updates per member in steps low+1 .. high
+    (both multiples of the log interval, or high the run's last step)."""
+    import pandas as pd
+
+    logs = [pd.read_csv(path) for path in folder.rglob("losses.csv")]
+
+    def between(low: int, high: int) -> float:
+        rows = [log[(log["step"] > low) & (log["step"] <= high)] for log in logs]
+        return float(sum(row["updates"].sum() for row in rows)) / len(logs)
+
+    return between
+
+
+def _calibration(first: Any, *, random: float, learn: float, members: int) -> Calibration:
     return Calibration(
-        random=random_rate,
+        random=random,
         learn=learn,
         eval_step=env_step_seconds(first.env),
         measured=datetime.date.today().isoformat(),

@@ -18,7 +18,7 @@ import functools
 import os
 import time
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
@@ -146,14 +146,22 @@ class SweepResult:
 
 
 def load_plan(
-    preset: Preset, out: Path, options: Options, *, save: bool = True
+    preset: Preset,
+    out: Path,
+    options: Options,
+    *,
+    save: bool = True,
+    only: Collection[str] | None = None,
 ) -> tuple[plan.SweepPlan, state.SweepState]:
     """The plan from the run directories and failure history under ``out``. A failure found in
     a status.json but not in the history (a run that failed outside a sweep) is added to the
-    history, which is saved if ``save`` (not for a dry run)."""
+    history, which is saved if ``save`` (not for a dry run). With ``only``, the plan holds only
+    the runs of those keys (``runs/<algo>/<env>/<variant>/seed<k>``)."""
     device = "cuda" if options.gpus_per_run else "cpu"
     threads = max(1, int(options.cpus_per_run)) if options.executor != "local" else 1
     all_runs = plan.build_runs(preset, device=device, threads=threads)
+    if only is not None:
+        all_runs = [run for run in all_runs if run.key in only]
     history = state.SweepState(out)
     statuses = {run.key: plan.read_status(out, run) for run in all_runs}
     for key, status in statuses.items():

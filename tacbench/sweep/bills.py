@@ -1,0 +1,138 @@
+"""What each sweep that trained a results folder's runs took, and what the dry run prices its
+command at on this CPU class: the test of the price (docs/sweep.md, "The price and the bill").
+
+A sweep records what it took in its summary's ``bill`` (CPU class, workers, wall time). Runs
+trained before sweeps kept a bill still record their command, when each was created
+(config.json) and when it last wrote its status (status.json): a sweep's wall time is then
+from its first run's creation to its last run's status, and its CPU class is not recorded
+(docs/results.md names it in words). A sweep that was stopped and resumed later counts the
+pause as well.
+
+Repricing a command plans it into an empty folder, so that runs already trained do not price
+it, and prices that plan as the dry run does (:func:`tacbench.sweep.summary.price`), with the
+calibrations stored for this class.
+"""
+
+from __future__ import annotations
+
+import datetime
+import tempfile
+from collections import defaultdict
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from tacbench import runs
+from tacbench.sweep import calibration, driver, summary
+from tacbench.sweep.presets import Preset
+
+BILL = "bill"
+RUN_RECORDS = "run records"
+TOLERANCE = 0.25  # the price within 25 % of the wall time (the speed issue's target)
+
+
+@dataclass(frozen=True)
+class Took:
+    """What one sweep took: its command, its runs, its wall time, the CPU class it ran on
+    (None: not recorded) and where the figures come from (:data:`BILL` or :data:`RUN_RECORDS`)."""
+
+    command: str
+    runs: int
+    wall_s: float
+    cpu_class: str | None
+    source: str
+    keys: frozenset[str]  # the runs' directories, ``runs/<algo>/<env>/<variant>/seed<k>``
+
+
+def sweeps(results: Path) -> list[Took]:
+    """Every sweep that trained runs under ``results``, in the order they started. Runs of
+    ``tacbench run`` commands are left out."""
+    created: dict[str, list[datetime.datetime]] = defaultdict(list)
+    updated: dict[str, list[datetime.datetime]] = defaultdict(list)
+    keys: dict[str, set[str]] = defaultdict(set)
+    for config_path in sorted(results.rglob("config.json")):
+        status_path = config_path.with_name("status.json")
+        if not status_path.exists():
+            continue
+        config = runs.read_json(config_path)
+        command = config.get("command", "")
+        if not command.startswith("tacbench sweep "):
+            continue
+        created[command].append(datetime.datetime.fromisoformat(config["created"]))
+        keys[command].add(_key(config_path.parent))
+        updated[command].append(
+            datetime.datetime.fromisoformat(runs.read_json(status_path)["updated"])
+        )
+    bills = _bills(results)
+    took = []
+    for command in sorted(created, key=lambda c: min(created[c])):
+        bill, found = bills.get(command), frozenset(keys[command])
+        if bill is not None:
+            took.append(Took(command, len(found), bill["wall_s"], bill["cpu_class"], BILL, found))
+        else:
+            wall = (max(updated[command]) - min(created[command])).total_seconds()
+            took.append(Took(command, len(found), wall, None, RUN_RECORDS, found))
+    return took
+
+
+def _key(directory: Path) -> str:
+    """A run directory's key in a sweep's plan: its path from the last ``runs`` folder on."""
+    parts = directory.parts
+    if "runs" not in parts:
+        return directory.as_posix()
+    start = len(parts) - 1 - parts[::-1].index("runs")
+    return "/".join(parts[start:])
+
+
+def _bills(results: Path) -> dict[str, dict[str, Any]]:
+    """The bills of the whole sweeps whose summaries lie under ``results`` (a study keeps a
+    sweep's summary.json under a name of its own), by command."""
+    found = {}
+    for path in sorted(results.rglob("*summary.json")):
+        record = runs.read_json(path)
+        if isinstance(record, dict) and record.get(BILL) and not record.get("interrupted"):
+            found[record["command"]] = record[BILL]
+    return found
+
+
+@dataclass(frozen=True)
+class Repriced:
+    """The dry run's price of a sweep's whole plan on this class, and whether every group of
+    its runs was priced from a calibration of this class (otherwise from the defaults)."""
+
+    wall_s: float
+    core_hours: float
+    calibrated: bool
+    workers: int
+    runs: int
+
+
+def reprice(
+    grid: Preset,
+    options: driver.Options,
+    only: frozenset[str] | None = None,
+    report: Callable[[str], None] | None = None,
+) -> Repriced:
+    """The price of ``grid``'s plan with ``options`` (only the runs of keys ``only``: a study
+    may keep some of a sweep's runs), as the dry run gives it before the first run trains. With
+    ``report``, the plan's units this class has not calibrated are calibrated first
+    (``--dry-run --calibrate``), reporting their progress there."""
+    with tempfile.TemporaryDirectory(prefix="tacbench-reprice-") as empty:
+        plan, _ = driver.load_plan(grid, Path(empty), options, save=False, only=only)
+        if report is not None:
+            calibration.calibrate(calibration.unit_configs(plan), report=report)
+        workers = options.worker_count()
+        price = summary.price(plan, workers)
+    return Repriced(
+        price.wall_seconds,
+        price.core_seconds / 3600,
+        all(g.source == summary.CALIBRATED for g in price.groups),
+        workers,
+        len(plan.runs),
+    )
+
+
+def within(took_s: float, priced_s: float, tolerance: float = TOLERANCE) -> bool:
+    """Whether the price is within ``tolerance`` of the wall time it took."""
+    return abs(priced_s - took_s) <= tolerance * took_s

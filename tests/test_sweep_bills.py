@@ -1,0 +1,149 @@
+"""What a study's sweeps took against the dry run's price (tacbench.sweep.bills, ``tacbench study
+bills``): bills and run records, the repricing of a recorded command, and the verdict."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+from tacbench.cli import cli
+from tacbench.cli.sweep import recorded_sweep
+from tacbench.errors import TacbenchError
+from tacbench.members import make_run_configs
+from tacbench.sweep import bills, calibration
+from tacbench.sweep.calibration import Calibration
+
+pytestmark = pytest.mark.unit
+
+STUDY = Path("results/studies/authors-versions-100k/authors-2019-01-16c-h400x300")
+SMOKE = "tacbench sweep --preset smoke --algo tac --workers 1 --out /elsewhere"
+SMOKE_RUNS = [  # its plan: TAC at two q and two seeds on Hopper
+    f"runs/tac/Hopper-v4/q{q}-a0.2-ls500-bs32/seed{seed}" for q in (1, 2) for seed in (0, 10)
+]
+
+
+@pytest.fixture(autouse=True)
+def _own_store(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("TACBENCH_CALIBRATION", str(tmp_path / "calibration"))
+
+
+def _run(folder: Path, command: str, created: str, updated: str) -> None:
+    folder.mkdir(parents=True)
+    (folder / "config.json").write_text(json.dumps({"command": command, "created": created}))
+    (folder / "status.json").write_text(json.dumps({"state": "complete", "updated": updated}))
+
+
+def _calibrate_smoke() -> float:
+    """Store a calibration of the smoke preset's TAC unit; return what one of its runs costs."""
+    configs, _ = make_run_configs(
+        "Hopper-v4",
+        "Hopper",
+        [0, 10],
+        qs=[1.0, 2.0],
+        total_steps=1000,
+        learning_starts=500,
+        batch_size=32,
+        eval_every=500,
+        eval_episodes=2,
+        log_every=250,
+        checkpoint_every=500,
+    )
+    calibration.save({calibration.unit_key(configs): Calibration(1e-4, 2e-3, 5e-5, "-", 4)})
+    return 500 * 1e-4 + 500 * 2e-3 + 2 * 2 * 1_000 * 5e-5  # random, learning, evaluation
+
+
+def test_run_records_give_a_sweeps_wall_time_and_leave_out_single_runs(tmp_path: Path) -> None:
+    first = "tacbench sweep --preset smoke --q 1.0"
+    _run(tmp_path / "a", first, "2026-12-05T01:00:00+00:00", "2026-12-05T01:40:00+00:00")
+    _run(tmp_path / "b", first, "2026-12-05T01:00:05+00:00", "2026-12-05T02:00:00+00:00")
+    later = "tacbench sweep --preset smoke --q 2.0"
+    _run(tmp_path / "c", later, "2026-12-05T03:00:00+00:00", "2026-12-05T03:10:00+00:00")
+    _run(tmp_path / "d", "tacbench run --q 2", "2026-12-05T00:00:00+00:00", "2026-12-05T09:00Z")
+    took = bills.sweeps(tmp_path)
+    assert [(t.command, t.runs, t.wall_s) for t in took] == [(first, 2, 3600.0), (later, 1, 600.0)]
+    assert {(t.source, t.cpu_class) for t in took} == {(bills.RUN_RECORDS, None)}
+    assert took[1].keys == {(tmp_path / "c").as_posix()}  # not under a runs folder: its path
+
+
+def test_a_whole_sweeps_bill_comes_before_its_run_records(tmp_path: Path) -> None:
+    command = "tacbench sweep --preset smoke --q 1.0"
+    _run(tmp_path / "runs" / "a", command, "2026-12-05T01:00:00+00:00", "2026-12-05T02:00:00Z")
+    bill = {"cpu_class": "some-class", "wall_s": 3000.0, "priced_wall_s": 2900.0}
+    summary = {"command": command, "interrupted": False, "bill": bill}
+    (tmp_path / "sweep").mkdir()
+    (tmp_path / "sweep" / "q1-summary.json").write_text(json.dumps(summary))
+    (tmp_path / "sweep" / "stopped-summary.json").write_text(
+        json.dumps({**summary, "command": "other", "interrupted": True})
+    )
+    [took] = bills.sweeps(tmp_path)
+    assert (took.wall_s, took.cpu_class, took.source) == (3000.0, "some-class", bills.BILL)
+
+
+def test_a_committed_studys_sweeps_from_their_run_records() -> None:
+    took = bills.sweeps(STUDY)
+    assert [t.runs for t in took] == [10, 10, 5]  # q = 1 and 1.5, then 2 and 3, then 5
+    assert took[1].wall_s == 66 * 60 + 48  # 02:01:56 to 03:08:44 on 5 December
+    assert "runs/tac/HalfCheetah-v4/q5-a0.2-authors20190116c/seed40" in took[2].keys
+
+
+def test_a_recorded_command_is_repriced_from_scratch_as_the_dry_run_prices_it(
+    tmp_path: Path,
+) -> None:
+    grid, options = recorded_sweep(SMOKE, tmp_path / "ignored")
+    assert not bills.reprice(grid, options).calibrated  # this class has no calibration yet
+    per_run = _calibrate_smoke()
+    priced = bills.reprice(grid, options)
+    assert priced.calibrated and priced.workers == 1
+    assert priced.wall_s == pytest.approx(4 * per_run)  # one unit: two q times two seeds
+    assert priced.core_hours == pytest.approx(4 * per_run / 3600)
+    assert priced.runs == 4
+    kept = bills.reprice(grid, options, only=frozenset(SMOKE_RUNS[:2]))  # a study kept two
+    assert kept.runs == 2 and not kept.calibrated  # a unit of two members: another calibration
+
+
+def test_only_a_sweep_command_is_repriced() -> None:
+    with pytest.raises(TacbenchError, match="not a tacbench sweep command"):
+        recorded_sweep("tacbench run --q 2", Path("x"))
+
+
+def test_within_is_the_price_against_the_wall_time() -> None:
+    assert bills.within(100.0, 125.0) and bills.within(100.0, 75.0)
+    assert not bills.within(100.0, 126.0) and not bills.within(100.0, 74.0)
+
+
+def test_the_bills_command_gives_each_sweeps_ratio_once_calibrated(tmp_path: Path) -> None:
+    on_time, late = tmp_path / "on-time", tmp_path / "late"
+    for key in SMOKE_RUNS:
+        _run(on_time / key, SMOKE, "2026-12-05T01:00:00+00:00", "2026-12-05T01:00:05+00:00")
+        _run(late / key, SMOKE, "2026-12-05T01:00:00+00:00", "2026-12-05T01:00:10+00:00")
+    before = CliRunner().invoke(cli, ["study", "bills", str(on_time)])
+    assert before.exit_code == 0, before.output
+    assert "4 runs\n  took 0m05s (run records; CPU class not recorded)" in before.output
+    assert "not calibrated: give --calibrate" in before.output
+    assert _calibrate_smoke() * 4 == pytest.approx(5.0)  # one unit of four runs
+    after = CliRunner().invoke(cli, ["study", "bills", str(on_time), str(late)])
+    assert "1.00x what it took, within 25 %" in after.output
+    assert "0.50x what it took, outside 25 %" in after.output
+
+
+def test_runs_the_recorded_command_does_not_plan_are_not_compared(tmp_path: Path) -> None:
+    _run(tmp_path / SMOKE_RUNS[0], SMOKE, "2026-12-05T01:00:00+00:00", "2026-12-05T01:00:05Z")
+    _run(
+        tmp_path / "runs/tac/Hopper-v4/q3-a0.2/seed0",
+        SMOKE,
+        "2026-12-05T01:00:00Z",
+        "2026-12-05T01:00:09Z",
+    )
+    _calibrate_smoke()
+    result = CliRunner().invoke(cli, ["study", "bills", str(tmp_path)])
+    assert "2 runs, of which the command's plan names 1" in result.output
+    assert "not comparable" in result.output and "what it took" not in result.output
+
+
+def test_the_bills_command_says_when_no_sweep_trained_the_runs(tmp_path: Path) -> None:
+    _run(tmp_path / "a", "tacbench run", "2026-12-05T01:00:00+00:00", "2026-12-05T01:00:10Z")
+    result = CliRunner().invoke(cli, ["study", "bills", str(tmp_path)])
+    assert result.exit_code == 1 and "was trained by a tacbench sweep" in result.output
