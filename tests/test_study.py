@@ -27,8 +27,10 @@ RUNS = {
     "authors-versions-100k/authors-2019-01-11b": 5 * 5,
     "authors-versions-100k/authors-2019-01-16c": 5 * 5,
     "authors-versions-100k/authors-2019-01-22": 5 * 5,
-    # the "Final plot" version with the authors' (400, 300) networks: q = 1 and 1.5 x 5 seeds
+    # the "Final plot" version with the authors' (400, 300) networks: 5 q x 5 seeds
     "authors-versions-100k/authors-2019-01-16c-h400x300": 5 * 5,
+    # 2019-01-07b with the authors' (400, 300) networks: q = 1 and 1.5 x 5 seeds so far
+    "authors-versions-100k/authors-2019-01-07b-h400x300": 2 * 5,
     # Hopper, the closest version: 2 q x 5 seeds
     "authors-versions-100k/authors-2019-01-07b-hopper": 2 * 5,
     # Hopper and HalfCheetah: PPO, TRPO, DDPG, SB3's SAC and TD3 x 5 seeds, and TAC at q = 1
