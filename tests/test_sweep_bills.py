@@ -80,6 +80,9 @@ def test_a_whole_sweeps_bill_comes_before_its_run_records(tmp_path: Path) -> Non
     )
     [took] = bills.sweeps(tmp_path)
     assert (took.wall_s, took.cpu_class, took.source) == (3000.0, "some-class", bills.BILL)
+    assert took.priced_at_start_s == 2900.0
+    shown = CliRunner().invoke(cli, ["study", "bills", str(tmp_path)])
+    assert "took 50m00s (bill; some-class; priced at its start 48m20s)" in shown.output
 
 
 def test_a_committed_studys_sweeps_from_their_run_records() -> None:
@@ -125,8 +128,8 @@ def test_the_bills_command_gives_each_sweeps_ratio_once_calibrated(tmp_path: Pat
     assert "not calibrated: give --calibrate" in before.output
     assert _calibrate_smoke() * 4 == pytest.approx(5.0)  # one unit of four runs
     after = CliRunner().invoke(cli, ["study", "bills", str(on_time), str(late)])
-    assert "1.00x what it took, within 25 %" in after.output
-    assert "0.50x what it took, outside 25 %" in after.output
+    assert "took 1.00x the price, the price within 25 % of it" in after.output
+    assert "took 2.00x the price, the price outside 25 % of it" in after.output
 
 
 def test_runs_the_recorded_command_does_not_plan_are_not_compared(tmp_path: Path) -> None:
@@ -140,7 +143,7 @@ def test_runs_the_recorded_command_does_not_plan_are_not_compared(tmp_path: Path
     _calibrate_smoke()
     result = CliRunner().invoke(cli, ["study", "bills", str(tmp_path)])
     assert "2 runs, of which the command's plan names 1" in result.output
-    assert "not comparable" in result.output and "what it took" not in result.output
+    assert "not comparable" in result.output and "the price" not in result.output
 
 
 def test_the_bills_command_says_when_no_sweep_trained_the_runs(tmp_path: Path) -> None:

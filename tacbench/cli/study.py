@@ -172,7 +172,10 @@ def bills(results: tuple[Path, ...], calibrate: bool) -> None:
         priced = sweep_bills.reprice(grid, options, took.keys, report)
         runs = f"{took.runs} run{'s' if took.runs != 1 else ''}"
         ran_on = took.cpu_class or "CPU class not recorded"
-        line = f"  took {duration(took.wall_s)} ({took.source}; {ran_on}); priced here "
+        line = f"  took {duration(took.wall_s)} ({took.source}; {ran_on}"
+        if took.priced_at_start_s is not None:
+            line += f"; priced at its start {duration(took.priced_at_start_s)}"
+        line += "); priced here "
         workers = f"{priced.workers} worker{'s' if priced.workers != 1 else ''}"
         line += f"{duration(priced.wall_s)} on {workers} ({here}, "
         if priced.runs != took.runs:
@@ -181,9 +184,9 @@ def bills(results: tuple[Path, ...], calibrate: bool) -> None:
         elif not priced.calibrated:
             line += "not calibrated: give --calibrate)"
         else:
-            ratio = priced.wall_s / took.wall_s
+            ratio = took.wall_s / priced.wall_s
             verdict = "within" if sweep_bills.within(took.wall_s, priced.wall_s) else "outside"
-            line += f"calibrated): {ratio:.2f}x what it took, {verdict} 25 %"
+            line += f"calibrated): took {ratio:.2f}x the price, the price {verdict} 25 % of it"
             if took.cpu_class not in (None, here):
                 line += " (another class: not the test)"
         click.echo(f"{took.command}\n  {runs}\n{line}")

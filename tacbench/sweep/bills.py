@@ -43,6 +43,7 @@ class Took:
     cpu_class: str | None
     source: str
     keys: frozenset[str]  # the runs' directories, ``runs/<algo>/<env>/<variant>/seed<k>``
+    priced_at_start_s: float | None = None  # a bill's: the dry run's price when it started
 
 
 def sweeps(results: Path) -> list[Took]:
@@ -69,7 +70,17 @@ def sweeps(results: Path) -> list[Took]:
     for command in sorted(created, key=lambda c: min(created[c])):
         bill, found = bills.get(command), frozenset(keys[command])
         if bill is not None:
-            took.append(Took(command, len(found), bill["wall_s"], bill["cpu_class"], BILL, found))
+            took.append(
+                Took(
+                    command,
+                    len(found),
+                    bill["wall_s"],
+                    bill["cpu_class"],
+                    BILL,
+                    found,
+                    bill["priced_wall_s"],
+                )
+            )
         else:
             wall = (max(updated[command]) - min(created[command])).total_seconds()
             took.append(Took(command, len(found), wall, None, RUN_RECORDS, found))
