@@ -70,9 +70,14 @@ def test_run_records_give_a_sweeps_wall_time_and_leave_out_single_runs(tmp_path:
 
 def test_a_whole_sweeps_bill_comes_before_its_run_records(tmp_path: Path) -> None:
     command = "tacbench sweep --preset smoke --q 1.0"
-    _run(tmp_path / "runs" / "a", command, "2026-12-05T01:00:00+00:00", "2026-12-05T02:00:00Z")
-    bill = {"cpu_class": "some-class", "wall_s": 3000.0, "priced_wall_s": 2900.0}
-    summary = {"command": command, "interrupted": False, "bill": bill}
+    _run(tmp_path / "runs" / "a", command, "2026-12-05T01:00:03+00:00", "2026-12-05T02:00:00Z")
+    bill = {"cpu_class": "some-class", "workers": 2, "wall_s": 3000.0, "priced_wall_s": 2900.0}
+    summary = {  # the sweep started at 01:00:00, before it created its run
+        "command": command,
+        "interrupted": False,
+        "finished": "2026-12-05T01:50:00+00:00",
+        "bill": bill,
+    }
     (tmp_path / "sweep").mkdir()
     (tmp_path / "sweep" / "q1-summary.json").write_text(json.dumps(summary))
     (tmp_path / "sweep" / "stopped-summary.json").write_text(
@@ -80,9 +85,25 @@ def test_a_whole_sweeps_bill_comes_before_its_run_records(tmp_path: Path) -> Non
     )
     [took] = bills.sweeps(tmp_path)
     assert (took.wall_s, took.cpu_class, took.source) == (3000.0, "some-class", bills.BILL)
-    assert took.priced_at_start_s == 2900.0
+    assert (took.priced_at_start_s, took.workers) == (2900.0, 2)
     shown = CliRunner().invoke(cli, ["study", "bills", str(tmp_path)])
     assert "took 50m00s (bill; some-class; priced at its start 48m20s)" in shown.output
+    assert "on 2 workers" in shown.output  # the bill's, not this machine's
+
+
+def test_the_bill_of_a_sweep_that_resumed_runs_is_not_the_whole_sweeps(tmp_path: Path) -> None:
+    command = "tacbench sweep --preset smoke --q 1.0"
+    _run(tmp_path / "runs" / "a", command, "2026-12-05T00:00:00+00:00", "2026-12-05T01:50:00Z")
+    bill = {"cpu_class": "some-class", "workers": 1, "wall_s": 600.0, "priced_wall_s": 550.0}
+    summary = {  # a rerun from 01:40 that finished the run a stopped sweep had started
+        "command": command,
+        "interrupted": False,
+        "finished": "2026-12-05T01:50:00+00:00",
+        "bill": bill,
+    }
+    (tmp_path / "summary.json").write_text(json.dumps(summary))
+    [took] = bills.sweeps(tmp_path)
+    assert (took.source, took.wall_s, took.workers) == (bills.RUN_RECORDS, 6600.0, None)
 
 
 def test_a_committed_studys_sweeps_from_their_run_records() -> None:

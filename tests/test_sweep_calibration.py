@@ -3,6 +3,7 @@ price, and one short real measurement."""
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 from typing import Any
 
@@ -135,7 +136,7 @@ def test_a_learning_step_is_priced_with_one_update_in_either_schedule(
     monkeypatch.setattr(calibration, "env_step_seconds", lambda env: 0.0)
 
     def counted(agent: Any, sample: Any, c: Any, subset: list[int] | None) -> Any:
-        clock.now += float(len(subset) if subset is not None else agent.alive.numel())
+        clock.now += float(sum(subset) if subset is not None else agent.alive.numel())
         return tac_update.update(agent, sample, c, subset)
 
     monkeypatch.setattr(loop, "update", counted)
@@ -158,3 +159,5 @@ def test_updates_during_warm_up_are_priced_from_the_first_episode_end() -> None:
     assert paper.warmup_updates == "off" and authors.warmup_updates == "on"
     assert calibration.run_pricing(paper)[0] == paper.learning_starts == 10_000
     assert calibration.run_pricing(authors)[0] == 1_000  # HalfCheetah's episodes: 1,000 steps
+    early = dataclasses.replace(authors, learning_starts=300)  # still the first episode's end
+    assert calibration.run_pricing(early)[0] == 1_000

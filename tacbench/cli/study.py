@@ -4,6 +4,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -169,6 +170,8 @@ def bills(results: tuple[Path, ...], calibrate: bool) -> None:
         )
     for took in found:
         grid, options = recorded_sweep(took.command, Path("unused"))
+        if took.workers is not None:  # what it ran on, whatever the command left to the machine
+            options = dataclasses.replace(options, workers=took.workers)
         priced = sweep_bills.reprice(grid, options, took.keys, report)
         runs = f"{took.runs} run{'s' if took.runs != 1 else ''}"
         ran_on = took.cpu_class or "CPU class not recorded"
@@ -177,6 +180,8 @@ def bills(results: tuple[Path, ...], calibrate: bool) -> None:
             line += f"; priced at its start {duration(took.priced_at_start_s)}"
         line += "); priced here "
         workers = f"{priced.workers} worker{'s' if priced.workers != 1 else ''}"
+        if took.workers is None and "--workers" not in took.command.split():
+            workers += " (this machine's: the command left them to it)"
         line += f"{duration(priced.wall_s)} on {workers} ({here}, "
         if priced.runs != took.runs:
             runs += f", of which the command's plan names {priced.runs}"

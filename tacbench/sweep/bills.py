@@ -30,6 +30,7 @@ from tacbench.sweep.presets import Preset
 BILL = "bill"
 RUN_RECORDS = "run records"
 TOLERANCE = 0.25  # the price within 25 % of the wall time (the speed issue's target)
+CLOCK_SLACK = datetime.timedelta(seconds=5)  # the bill's start is the summary's end less its wall
 
 
 @dataclass(frozen=True)
@@ -44,6 +45,7 @@ class Took:
     source: str
     keys: frozenset[str]  # the runs' directories, ``runs/<algo>/<env>/<variant>/seed<k>``
     priced_at_start_s: float | None = None  # a bill's: the dry run's price when it started
+    workers: int | None = None  # a bill's: the workers it ran on
 
 
 def sweeps(results: Path) -> list[Took]:
@@ -69,22 +71,28 @@ def sweeps(results: Path) -> list[Took]:
     took = []
     for command in sorted(created, key=lambda c: min(created[c])):
         bill, found = bills.get(command), frozenset(keys[command])
-        if bill is not None:
-            took.append(
-                Took(
-                    command,
-                    len(found),
-                    bill["wall_s"],
-                    bill["cpu_class"],
-                    BILL,
-                    found,
-                    bill["priced_wall_s"],
-                )
+        if bill is not None and _created_every_run(bill, min(created[command])):
+            wall, cpu, source, priced = (
+                bill["wall_s"],
+                bill["cpu_class"],
+                BILL,
+                bill["priced_wall_s"],
             )
-        else:
+            workers = bill["workers"]
+        else:  # no bill, or one of a sweep that resumed runs another had started
             wall = (max(updated[command]) - min(created[command])).total_seconds()
-            took.append(Took(command, len(found), wall, None, RUN_RECORDS, found))
+            cpu, source, priced, workers = None, RUN_RECORDS, None, None
+        took.append(Took(command, len(found), wall, cpu, source, found, priced, workers))
     return took
+
+
+def _created_every_run(bill: dict[str, Any], first_created: datetime.datetime) -> bool:
+    """Whether the sweep of ``bill`` started before its first run was created: a sweep that
+    resumed runs (after a stop) billed only its own part."""
+    started = datetime.datetime.fromisoformat(bill["finished"]) - datetime.timedelta(
+        seconds=bill["wall_s"]
+    )
+    return bill["priced_wall_s"] > 0 and first_created >= started - CLOCK_SLACK
 
 
 def _key(directory: Path) -> str:
@@ -103,7 +111,7 @@ def _bills(results: Path) -> dict[str, dict[str, Any]]:
     for path in sorted(results.rglob("*summary.json")):
         record = runs.read_json(path)
         if isinstance(record, dict) and record.get(BILL) and not record.get("interrupted"):
-            found[record["command"]] = record[BILL]
+            found[record["command"]] = {**record[BILL], "finished": record["finished"]}
     return found
 
 

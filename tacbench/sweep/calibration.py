@@ -24,8 +24,8 @@ A run of T steps that updates from step L and evaluates E episodes every V steps
 at ``L x random + (T - L) x learn + (T / V) x E x H x eval_step`` per member, H the task's
 episode limit: evaluation episodes are priced at full length, an upper bound for tasks whose
 episodes end early. A TAC run that updates during warm-up (``--warmup-updates on``, the authors'
-code) starts at its first episode end, priced at ``min(learning_starts, H)``. The compilation of
-the first update (seconds) and the checkpoints are left out.
+code) starts at its first episode end, priced at H. The compilation of the first update
+(seconds; the measurement's window starts after it) and the checkpoints are left out.
 
 Calibrations are kept per CPU class (:func:`tacbench.hardware.cpu_class`) in
 ``$TACBENCH_CALIBRATION`` or ``~/.cache/tacbench/calibration/<class>.json``, keyed by what
@@ -48,6 +48,7 @@ from pathlib import Path
 from typing import Any
 
 from tacbench import envs, runs
+from tacbench.errors import TacbenchError
 from tacbench.hardware import cpu_class
 from tacbench.members import resolve_compile
 
@@ -160,12 +161,11 @@ def _learning_starts(config: Any) -> int:
 
 def run_pricing(config: Any) -> tuple[int, int, int, int]:
     """(the step its updates start, evaluation interval, evaluation episodes, episode limit) of
-    a run. Updates during warm-up start at the first episode end, priced at the episode limit
-    (at most learning_starts)."""
+    a run. Updates during warm-up start at the first episode end, whatever learning_starts,
+    priced at the episode limit."""
     limit = envs.env_info(config.env).max_episode_steps
-    starts = _learning_starts(config)
-    if config.algo == "tac" and config.warmup_updates == "on":
-        starts = min(starts, limit)
+    warmup = config.algo == "tac" and config.warmup_updates == "on"
+    starts = limit if warmup else _learning_starts(config)
     return starts, int(config.eval_every), int(config.eval_episodes), limit
 
 
@@ -213,7 +213,7 @@ def measure(configs: Sequence[Any]) -> Calibration:
 
     with tempfile.TemporaryDirectory() as tmp:
         trainers.trainer_for(first.algo).train(measured, Path(tmp), quiet=True, stop=stop)
-        updates = _updates_logged(Path(tmp)) if tac else None
+        updates = _LoggedUpdates.read(Path(tmp)) if tac else None
     members = len(measured)
 
     def rate(low: int, high: int) -> float:
@@ -235,27 +235,44 @@ def measure(configs: Sequence[Any]) -> Calibration:
     random_rate = statistics.median(
         (seconds[s + 1] - seconds[s]) / members for s in range(low, high)
     )  # the median: a burst of updates at an episode end inside the random steps is left out
-    begin = -(-(starts + WARMUP_STEPS) // LOG_EVERY) * LOG_EVERY
+    # the window starts after the first update (where torch.compile compiles), which in the
+    # episode schedule waits for an episode end after the random steps
+    begin = max(-(-(starts + WARMUP_STEPS) // LOG_EVERY) * LOG_EVERY, updates.first_step())
+    done = updates.between(begin, total)
+    if total not in seconds or not done:
+        raise TacbenchError(
+            f"calibrating {first.algo} {first.env}: no update between steps {begin} and "
+            f"{total} to time (members failed, or no episode ended); price this unit from "
+            "runs under --out instead."
+        )
     cpu = (seconds[total] - seconds[begin]) / members
-    done = updates(begin, total)
-    if not done:
-        raise RuntimeError(f"no update between steps {begin} and {total} to time")
     learn = random_rate + (cpu - (total - begin) * random_rate) / done
     return _calibration(first, random=random_rate, learn=learn, members=members)
 
 
-def _updates_logged(folder: Path) -> Callable[[int, int], float]:
-    """From the loss logs under ``folder``: the updates per member in steps low+1 .. high
-    (both multiples of the log interval, or high the run's last step)."""
-    import pandas as pd
+@dataclass(frozen=True)
+class _LoggedUpdates:
+    """The updates in the loss logs of a measurement (one per member), logged every
+    :data:`LOG_EVERY` steps and at the last step."""
 
-    logs = [pd.read_csv(path) for path in folder.rglob("losses.csv")]
+    logs: tuple[Any, ...]
 
-    def between(low: int, high: int) -> float:
-        rows = [log[(log["step"] > low) & (log["step"] <= high)] for log in logs]
-        return float(sum(row["updates"].sum() for row in rows)) / len(logs)
+    @classmethod
+    def read(cls, folder: Path) -> _LoggedUpdates:
+        import pandas as pd
 
-    return between
+        return cls(tuple(pd.read_csv(path) for path in sorted(folder.rglob("losses.csv"))))
+
+    def between(self, low: int, high: int) -> float:
+        """Updates per member in steps low+1 .. high (logged steps)."""
+        rows = [log[(log["step"] > low) & (log["step"] <= high)] for log in self.logs]
+        return float(sum(row["updates"].sum() for row in rows)) / len(self.logs)
+
+    def first_step(self) -> int:
+        """The first logged step whose window holds an update of any member (0: none)."""
+        steps = [int(log.loc[log["updates"] > 0, "step"].min()) for log in self.logs]
+        found = [step for step in steps if step > 0]
+        return min(found) if found else 0
 
 
 def _calibration(first: Any, *, random: float, learn: float, members: int) -> Calibration:
