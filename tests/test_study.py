@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 
 from tacbench.report import ReportOptions, analyse, write_report
+from tacbench.sweep import bills
 from tests.helpers import Q_GRID_STUDIES, STUDIES
 
 pytestmark = pytest.mark.smoke
@@ -29,8 +30,8 @@ RUNS = {
     "authors-versions-100k/authors-2019-01-22": 5 * 5,
     # the "Final plot" version with the authors' (400, 300) networks: 5 q x 5 seeds
     "authors-versions-100k/authors-2019-01-16c-h400x300": 5 * 5,
-    # 2019-01-07b with the authors' (400, 300) networks: q = 1 and 1.5 x 5 seeds so far
-    "authors-versions-100k/authors-2019-01-07b-h400x300": 2 * 5,
+    # 2019-01-07b with the authors' (400, 300) networks: q = 1, 1.5, 2 and 3 x 5 seeds so far
+    "authors-versions-100k/authors-2019-01-07b-h400x300": 4 * 5,
     # Hopper, the closest version: 2 q x 5 seeds
     "authors-versions-100k/authors-2019-01-07b-hopper": 2 * 5,
     # Hopper and HalfCheetah: PPO, TRPO, DDPG, SB3's SAC and TD3 x 5 seeds, and TAC at q = 1
@@ -113,3 +114,14 @@ def test_the_comparisons_tac_runs_are_the_q_grid_studys() -> None:
         relative = path.relative_to(comparison)
         original = STUDIES / Q_GRID_STUDIES[relative.parts[2]] / relative
         assert path.read_bytes() == original.read_bytes(), path
+
+
+def test_every_committed_sweeps_bill_is_within_a_quarter_of_its_price() -> None:
+    """docs/sweep.md, "The price and the bill": every sweep that trained a committed study's
+    runs and billed the whole of it took within 25 % of the price its dry run gave it when it
+    started."""
+    billed = [took for took in bills.sweeps(STUDIES) if took.source == bills.BILL]
+    assert billed  # the first: 2019-01-07b with (400, 300) networks at q = 2 and 3
+    for took in billed:
+        assert took.priced_at_start_s is not None
+        assert bills.within(took.wall_s, took.priced_at_start_s), took.command
