@@ -304,3 +304,24 @@ def assert_tensorboard_matches_csvs(run: Path) -> None:
             expected = rows[column].to_numpy(dtype=np.float32)
             got = np.array([p.value for p in points], dtype=np.float32)
             np.testing.assert_array_equal(got, expected, err_msg=f"{group}/{tag}")
+
+
+def smoke_tac_unit() -> list[Any]:
+    """The configs of the smoke preset's TAC unit (Hopper, q = 1 and 2, seeds 0 and 10), as
+    ``tacbench sweep --preset smoke --algo tac --workers 1`` plans it."""
+    from tacbench.members import make_run_configs
+
+    configs, _ = make_run_configs(
+        "Hopper-v4",
+        "Hopper",
+        [0, 10],
+        qs=[1.0, 2.0],
+        total_steps=1000,
+        learning_starts=500,
+        batch_size=32,
+        eval_every=500,
+        eval_episodes=2,
+        log_every=250,
+        checkpoint_every=500,
+    )
+    return list(configs)

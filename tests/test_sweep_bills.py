@@ -12,9 +12,9 @@ from click.testing import CliRunner
 from tacbench.cli import cli
 from tacbench.cli.sweep import recorded_sweep
 from tacbench.errors import TacbenchError
-from tacbench.members import make_run_configs
 from tacbench.sweep import bills, calibration
 from tacbench.sweep.calibration import Calibration
+from tests.helpers import smoke_tac_unit
 
 pytestmark = pytest.mark.unit
 
@@ -38,19 +38,7 @@ def _run(folder: Path, command: str, created: str, updated: str) -> None:
 
 def _calibrate_smoke() -> float:
     """Store a calibration of the smoke preset's TAC unit; return what one of its runs costs."""
-    configs, _ = make_run_configs(
-        "Hopper-v4",
-        "Hopper",
-        [0, 10],
-        qs=[1.0, 2.0],
-        total_steps=1000,
-        learning_starts=500,
-        batch_size=32,
-        eval_every=500,
-        eval_episodes=2,
-        log_every=250,
-        checkpoint_every=500,
-    )
+    configs = smoke_tac_unit()
     calibration.save({calibration.unit_key(configs): Calibration(1e-4, 2e-3, 5e-5, "-", 4)})
     return 500 * 1e-4 + 500 * 2e-3 + 2 * 2 * 1_000 * 5e-5  # random, learning, evaluation
 

@@ -15,6 +15,7 @@ from tacbench.cli import cli
 from tacbench.members import make_run_configs
 from tacbench.sweep import calibration
 from tacbench.sweep.calibration import Calibration
+from tests.helpers import smoke_tac_unit
 
 pytestmark = pytest.mark.unit
 
@@ -64,19 +65,7 @@ def test_the_dry_run_uses_the_calibration_of_every_unit_and_says_so(tmp_path: Pa
     before = CliRunner().invoke(cli, args)
     assert before.exit_code == 0, before.output
     assert "default*" in before.output and "--dry-run --calibrate" in before.output
-    configs, _ = make_run_configs(
-        "Hopper-v4",
-        "Hopper",
-        [0, 10],
-        qs=[1.0, 2.0],
-        total_steps=1000,
-        learning_starts=500,
-        batch_size=32,
-        eval_every=500,
-        eval_episodes=2,
-        log_every=250,
-        checkpoint_every=500,
-    )
+    configs = smoke_tac_unit()
     key = calibration.unit_key(configs[:2])
     calibration.save({key: Calibration(1e-4, 2e-3, 5e-5, "2026-12-03", 2)})
     after = CliRunner().invoke(cli, args)
