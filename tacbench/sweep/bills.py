@@ -1,12 +1,13 @@
 """What each sweep that trained a results folder's runs took, and what the dry run prices its
 command at on this CPU class: the test of the price (docs/sweep.md, "The price and the bill").
 
-A sweep records what it took in its summary's ``bill`` (CPU class, workers, wall time). Runs
-trained before sweeps kept a bill still record their command, when each was created
-(config.json) and when it last wrote its status (status.json): a sweep's wall time is then
-from its first run's creation to its last run's status, and its CPU class is not recorded
-(docs/results.md names it in words). A sweep that was stopped and resumed later counts the
-pause as well.
+A sweep records what it took in its summary's ``bill`` (CPU class, workers, wall time), which
+stands for the sweep when that sweep created every run (a sweep that resumed runs another had
+started billed only its part). Otherwise, and for runs trained before sweeps kept a bill, the
+runs' records give it: each run's command, when it was created (config.json) and when it last
+wrote its status (status.json). A sweep's wall time is then from its first run's creation to its
+last run's status, a pause included, and its CPU class is not recorded (docs/results.md names
+it in words).
 
 Repricing a command plans it into an empty folder, so that runs already trained do not price
 it, and prices that plan as the dry run does (:func:`tacbench.sweep.summary.price`), with the
@@ -39,13 +40,17 @@ class Took:
     (None: not recorded) and where the figures come from (:data:`BILL` or :data:`RUN_RECORDS`)."""
 
     command: str
-    runs: int
+    keys: frozenset[str]  # the runs' directories, ``runs/<algo>/<env>/<variant>/seed<k>``
     wall_s: float
     cpu_class: str | None
     source: str
-    keys: frozenset[str]  # the runs' directories, ``runs/<algo>/<env>/<variant>/seed<k>``
     priced_at_start_s: float | None = None  # a bill's: the dry run's price when it started
     workers: int | None = None  # a bill's: the workers it ran on
+
+    @property
+    def runs(self) -> int:
+        """How many of the sweep's runs lie under the results folder."""
+        return len(self.keys)
 
 
 def sweeps(results: Path) -> list[Took]:
@@ -72,17 +77,20 @@ def sweeps(results: Path) -> list[Took]:
     for command in sorted(created, key=lambda c: min(created[c])):
         bill, found = bills.get(command), frozenset(keys[command])
         if bill is not None and _created_every_run(bill, min(created[command])):
-            wall, cpu, source, priced = (
-                bill["wall_s"],
-                bill["cpu_class"],
-                BILL,
-                bill["priced_wall_s"],
+            took.append(
+                Took(
+                    command,
+                    found,
+                    bill["wall_s"],
+                    bill["cpu_class"],
+                    BILL,
+                    bill["priced_wall_s"],
+                    bill["workers"],
+                )
             )
-            workers = bill["workers"]
         else:  # no bill, or one of a sweep that resumed runs another had started
             wall = (max(updated[command]) - min(created[command])).total_seconds()
-            cpu, source, priced, workers = None, RUN_RECORDS, None, None
-        took.append(Took(command, len(found), wall, cpu, source, found, priced, workers))
+            took.append(Took(command, found, wall, None, RUN_RECORDS))
     return took
 
 
