@@ -30,8 +30,8 @@ RUNS = {
     "authors-versions-100k/authors-2019-01-22": 5 * 5,
     # the "Final plot" version with the authors' (400, 300) networks: 5 q x 5 seeds
     "authors-versions-100k/authors-2019-01-16c-h400x300": 5 * 5,
-    # 2019-01-07b with the authors' (400, 300) networks: q = 1, 1.5, 2 and 3 x 5 seeds so far
-    "authors-versions-100k/authors-2019-01-07b-h400x300": 4 * 5,
+    # 2019-01-07b with the authors' (400, 300) networks: 5 q x 5 seeds
+    "authors-versions-100k/authors-2019-01-07b-h400x300": 5 * 5,
     # Hopper, the closest version: 2 q x 5 seeds
     "authors-versions-100k/authors-2019-01-07b-hopper": 2 * 5,
     # Hopper and HalfCheetah: PPO, TRPO, DDPG, SB3's SAC and TD3 x 5 seeds, and TAC at q = 1
