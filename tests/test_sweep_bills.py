@@ -155,6 +155,20 @@ def test_runs_the_recorded_command_does_not_plan_are_not_compared(tmp_path: Path
     assert "not comparable" in result.output and "the price" not in result.output
 
 
+def test_a_sweep_with_a_failed_run_is_not_compared_with_its_price(tmp_path: Path) -> None:
+    for key in SMOKE_RUNS:
+        _run(tmp_path / key, SMOKE, "2026-12-05T01:00:00+00:00", "2026-12-05T01:00:05+00:00")
+    status = tmp_path / SMOKE_RUNS[0] / "status.json"
+    status.write_text(json.dumps({"state": "failed", "updated": "2026-12-05T01:00:01+00:00"}))
+    [took] = bills.sweeps(tmp_path)
+    assert (took.failed, took.comparable) == (1, False)
+    _calibrate_smoke()
+    result = CliRunner().invoke(cli, ["study", "bills", str(tmp_path)])
+    assert "4 runs, of which 1 failed" in result.output
+    assert "not comparable: a failed run stops" in result.output
+    assert "x the price" not in result.output
+
+
 def test_the_bills_command_says_when_no_sweep_trained_the_runs(tmp_path: Path) -> None:
     _run(tmp_path / "a", "tacbench run", "2026-12-05T01:00:00+00:00", "2026-12-05T01:00:10Z")
     result = CliRunner().invoke(cli, ["study", "bills", str(tmp_path)])

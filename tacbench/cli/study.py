@@ -186,6 +186,9 @@ def bills(results: tuple[Path, ...], calibrate: bool) -> None:
         if priced.runs != took.runs:
             runs += f", of which the command's plan names {priced.runs}"
             line += "not comparable: the plan differs from the runs)"
+        elif not took.comparable:
+            runs += f", of which {took.failed} failed"
+            line += "not comparable: a failed run stops before the budget the price trains to)"
         elif not priced.calibrated:
             line += "not calibrated: give --calibrate)"
         else:

@@ -9,6 +9,9 @@ wrote its status (status.json). A sweep's wall time is then from its first run's
 last run's status, a pause included, and its CPU class is not recorded (docs/results.md names
 it in words).
 
+A sweep with a failed run is not compared with its price: the price trains every run to its
+budget, and a run that fails (a non-finite loss) stops early.
+
 Repricing a command plans it into an empty folder, so that runs already trained do not price
 it, and prices that plan as the dry run does (:func:`tacbench.sweep.summary.price`), with the
 calibrations stored for this class.
@@ -46,6 +49,12 @@ class Took:
     source: str
     priced_at_start_s: float | None = None  # a bill's: the dry run's price when it started
     workers: int | None = None  # a bill's: the workers it ran on
+    failed: int = 0  # runs whose status is failed
+
+    @property
+    def comparable(self) -> bool:
+        """Whether the price is a test of its wall time: no run failed before its budget."""
+        return self.failed == 0
 
     @property
     def runs(self) -> int:
@@ -59,6 +68,7 @@ def sweeps(results: Path) -> list[Took]:
     created: dict[str, list[datetime.datetime]] = defaultdict(list)
     updated: dict[str, list[datetime.datetime]] = defaultdict(list)
     keys: dict[str, set[str]] = defaultdict(set)
+    failed: dict[str, int] = defaultdict(int)
     for config_path in sorted(results.rglob("config.json")):
         status_path = config_path.with_name("status.json")
         if not status_path.exists():
@@ -69,9 +79,9 @@ def sweeps(results: Path) -> list[Took]:
             continue
         created[command].append(datetime.datetime.fromisoformat(config["created"]))
         keys[command].add(_key(config_path.parent))
-        updated[command].append(
-            datetime.datetime.fromisoformat(runs.read_json(status_path)["updated"])
-        )
+        status = runs.read_json(status_path)
+        updated[command].append(datetime.datetime.fromisoformat(status["updated"]))
+        failed[command] += status.get("state") == "failed"
     bills = _bills(results)
     took = []
     for command in sorted(created, key=lambda c: min(created[c])):
@@ -86,11 +96,12 @@ def sweeps(results: Path) -> list[Took]:
                     BILL,
                     bill["priced_wall_s"],
                     bill["workers"],
+                    failed[command],
                 )
             )
         else:  # no bill, or one of a sweep that resumed runs another had started
             wall = (max(updated[command]) - min(created[command])).total_seconds()
-            took.append(Took(command, found, wall, None, RUN_RECORDS))
+            took.append(Took(command, found, wall, None, RUN_RECORDS, failed=failed[command]))
     return took
 
 
