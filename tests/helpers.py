@@ -296,7 +296,9 @@ def assert_tensorboard_matches_csvs(run: Path) -> None:
         "train": {"return": "episode_return", "length": "episode_length"},
     }
     for group in ("eval", "train", "losses"):
-        rows = pd.read_csv(run / f"{group}.csv")
+        # pandas' default parser may miss a value's last bit, which can move it across a
+        # float32 rounding boundary: the round-trip parser reads back exactly what was written
+        rows = pd.read_csv(run / f"{group}.csv", float_precision="round_trip")
         names = columns.get(group, {c: c for c in rows.columns if c != "step"})
         for column, tag in names.items():
             points = board.Scalars(f"{group}/{tag}") if len(rows) else []
