@@ -32,6 +32,9 @@ RUNS = {
     "authors-versions-100k/authors-2019-01-16c-h400x300": 5 * 5,
     # 2019-01-07b with the authors' (400, 300) networks: 5 q x 5 seeds
     "authors-versions-100k/authors-2019-01-07b-h400x300": 5 * 5,
+    # 2019-01-11b with the authors' (400, 300) networks: q = 2 x 5 seeds (its q = 1 and 1.5 are
+    # the "Final plot" version's formulas)
+    "authors-versions-100k/authors-2019-01-11b-h400x300": 1 * 5,
     # Hopper, the closest version: 2 q x 5 seeds
     "authors-versions-100k/authors-2019-01-07b-hopper": 2 * 5,
     # Hopper and HalfCheetah: PPO, TRPO, DDPG, SB3's SAC and TD3 x 5 seeds, and TAC at q = 1
