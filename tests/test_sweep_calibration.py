@@ -101,6 +101,47 @@ def test_a_short_measurement_times_random_and_learning_steps(
     assert list(stored) == [calibration.unit_key(configs)]
 
 
+def _fail_at_first_update(monkeypatch: pytest.MonkeyPatch, hidden: tuple[int, ...], k: int) -> None:
+    """Members ``0 .. k-1`` of the units with ``hidden`` layers get non-finite losses at their
+    first update (as the authors' 2019-01-11b version at q = 3 does), so the loop retires them
+    with no row in losses.csv."""
+    from tacbench.tac import update as tac_update
+    from tacbench.training import loop
+
+    def failing(agent: Any, sample: Any, c: Any, subset: Any) -> Any:
+        metrics = tac_update.update(agent, sample, c, subset)
+        if agent.config.hidden_sizes == hidden:
+            metrics[:k] = float("nan")
+        return metrics
+
+    monkeypatch.setattr(loop, "update", failing)
+    monkeypatch.setattr(calibration, "RANDOM_STEPS", 100)
+    monkeypatch.setattr(calibration, "WARMUP_STEPS", 5)
+    monkeypatch.setattr(calibration, "LEARN_STEPS", 100)
+
+
+def test_a_member_that_fails_at_its_first_update_leaves_the_others_measured(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    _fail_at_first_update(monkeypatch, (32,), k=1)
+    configs, _ = make_run_configs("Pendulum-v1", None, [0, 10], hidden_sizes=(32,))
+    measured = calibration.measure(configs)
+    assert 0 < measured.random < measured.learn
+
+
+def test_a_unit_whose_members_all_fail_is_reported_and_the_others_stored(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    _fail_at_first_update(monkeypatch, (32,), k=2)
+    failing, _ = make_run_configs("Pendulum-v1", None, [0, 10], hidden_sizes=(32,))
+    other, _ = make_run_configs("Pendulum-v1", None, [0], hidden_sizes=(16,))
+    lines: list[str] = []
+    stored = calibration.calibrate([failing, other], report=lines.append)
+    assert list(stored) == [calibration.unit_key(other)]
+    assert calibration.load() == stored
+    assert any("not calibrated" in line and "members failed" in line for line in lines)
+
+
 class _Clock:
     """A CPU clock for the measurement: 0.01 s each time it is read (once per step) and 1 s per
     member-update."""

@@ -245,8 +245,8 @@ def measure(configs: Sequence[Any]) -> Calibration:
     if total not in seconds or not done:
         raise TacbenchError(
             f"calibrating {first.algo} {first.env}: no update between steps {begin} and "
-            f"{total} to time (members failed, or no episode ended); price this unit from "
-            "runs under --out instead."
+            f"{total} to time (members failed, or no episode ended); the dry run prices "
+            "this unit from runs under --out, or from the defaults (it says which)"
         )
     cpu = (seconds[total] - seconds[begin]) / members
     learn = random_rate + (cpu - (total - begin) * random_rate) / done
@@ -272,9 +272,10 @@ class _LoggedUpdates:
         return float(sum(row["updates"].sum() for row in rows)) / len(self.logs)
 
     def first_step(self) -> int:
-        """The first logged step whose window holds an update of any member (0: none)."""
-        steps = [int(log.loc[log["updates"] > 0, "step"].min()) for log in self.logs]
-        found = [step for step in steps if step > 0]
+        """The first logged step whose window holds an update of any member (0: none; a member
+        that failed at its first update logged no row)."""
+        steps = [log.loc[log["updates"] > 0, "step"] for log in self.logs]
+        found = [int(step.min()) for step in steps if len(step)]
         return min(found) if found else 0
 
 
@@ -316,7 +317,9 @@ def calibrate(
     units: Sequence[Sequence[Any]], report: Callable[[str], None] = print
 ) -> dict[str, Calibration]:
     """Measure every unit (a sequence of its configs) whose key this class has not calibrated,
-    store the results and return all of this class's calibrations."""
+    store the results and return all of this class's calibrations. A unit that cannot be
+    measured (every member failed before the timed window) is reported and left out; the others
+    are stored."""
     known = load()
     todo: dict[str, Sequence[Any]] = {}
     for configs in units:
@@ -331,7 +334,11 @@ def calibrate(
             f"{min(len(configs), MEMBERS_MEASURED)} member(s) ..."
         )
         start = time.perf_counter()
-        new[key] = measure(configs)
+        try:
+            new[key] = measure(configs)
+        except TacbenchError as err:  # the other units' measurements are still stored
+            report(f"  not calibrated: {err}")
+            continue
         report(
             f"  {new[key].learn * 1e3:.2f} ms per member-step learning, "
             f"{new[key].random * 1e3:.2f} before ({time.perf_counter() - start:.0f} s)"
