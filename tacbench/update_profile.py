@@ -29,6 +29,8 @@ from typing import Any
 import numpy as np
 import torch
 
+from tacbench.hardware import configure_process
+
 PEAK_SIZE = 2048  # the square product whose rate stands for the core's peak
 PROFILED_UPDATES = 50  # updates timed, and then profiled
 ELEMENTWISE = "elementwise (compiled kernels)"  # Inductor's fused kernels, graph_*_cpp_fused_*
@@ -228,10 +230,12 @@ def profile_update(
     """Peak, the update's unprofiled time (as training runs it) and its profile over
     :data:`PROFILED_UPDATES` updates, for one thread (or, with ``device`` ``cuda``, by the GPU's
     kernels: :func:`kernel_rows`); with ``bf16`` of the update with bfloat16 products
-    (``--matmul-precision bf16``), against a bfloat16 product's peak."""
+    (``--matmul-precision bf16``), against a bfloat16 product's peak. The process is set up as
+    training sets it up (:func:`tacbench.hardware.configure_process`: one thread, subnormals
+    flushed)."""
     from tacbench.tac import gradient
 
-    torch.set_num_threads(1)
+    configure_process(1)
     updates = PROFILED_UPDATES
     step = _update(env, members, hidden_sizes, compile, bf16, device)
     unprofiled_us = best_seconds(step, repeats=max(10, updates)) * 1e6

@@ -129,6 +129,8 @@ def test_bench_profile_splits_an_update_into_products_and_the_rest(
 
     monkeypatch.setattr(update_profile, "PROFILED_UPDATES", 3)  # a profile, not a measurement
     monkeypatch.setattr(update_profile, "PEAK_SIZE", 256)
+    configured: list[int] = []
+    monkeypatch.setattr(update_profile, "configure_process", configured.append)
     out = tmp_path / "profile.json"
     args = ["bench", "--profile", "--no-compile-profile", "--env", "Pendulum-v1"]
     args += ["--members", "2", "--hidden-sizes", "16,8", "--json", str(out)]
@@ -137,6 +139,7 @@ def test_bench_profile_splits_an_update_into_products_and_the_rest(
     assert "| where | calls/update |" in result.output
     profiles = json.loads(out.read_text())["profiles"]
     assert [p["members"] for p in profiles] == [1, 2]
+    assert configured == [1, 1]  # one thread and the flush of subnormals, as training runs
     for profile in profiles:
         rows = {r["what"]: r for r in profile["rows"]}
         # Pendulum (3 observations, 1 action): the policy's first layer, 3 -> 16 for a batch of
@@ -182,6 +185,8 @@ def test_bench_profile_of_the_bf16_update_counts_its_bfloat16_products(
 
     monkeypatch.setattr(update_profile, "PROFILED_UPDATES", 3)
     monkeypatch.setattr(update_profile, "PEAK_SIZE", 256)
+    configured: list[int] = []
+    monkeypatch.setattr(update_profile, "configure_process", configured.append)
     out = tmp_path / "profile.json"
     args = ["bench", "--profile", "--bf16", "--no-compile-profile", "--env", "Pendulum-v1"]
     args += ["--members", "1", "--hidden-sizes", "16,8", "--json", str(out)]
