@@ -185,8 +185,6 @@ def test_bench_profile_of_the_bf16_update_counts_its_bfloat16_products(
 
     monkeypatch.setattr(update_profile, "PROFILED_UPDATES", 3)
     monkeypatch.setattr(update_profile, "PEAK_SIZE", 256)
-    configured: list[int] = []
-    monkeypatch.setattr(update_profile, "configure_process", configured.append)
     out = tmp_path / "profile.json"
     args = ["bench", "--profile", "--bf16", "--no-compile-profile", "--env", "Pendulum-v1"]
     args += ["--members", "1", "--hidden-sizes", "16,8", "--json", str(out)]
