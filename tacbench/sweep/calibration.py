@@ -246,7 +246,8 @@ def measure(configs: Sequence[Any]) -> Calibration:
         raise TacbenchError(
             f"calibrating {first.algo} {first.env}: no update between steps {begin} and "
             f"{total} to time (members failed, or no episode ended); the dry run prices "
-            "this unit from runs under --out, or from the defaults (it says which)"
+            f"every {first.algo} {first.env} run from runs under --out, or from the defaults "
+            "(its table says which)."
         )
     cpu = (seconds[total] - seconds[begin]) / members
     learn = random_rate + (cpu - (total - begin) * random_rate) / done
