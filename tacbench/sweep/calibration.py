@@ -191,11 +191,8 @@ def _for_measurement(configs: Sequence[Any], total: int, starts: int) -> list[An
 def measure(configs: Sequence[Any]) -> Calibration:
     """Train the unit of ``configs`` briefly in a temporary folder and time it (module
     docstring)."""
-    import torch
-
     from tacbench import trainers
 
-    torch.set_num_threads(1)
     first = configs[0]
     tac = first.algo == "tac"
     if first.algo in ON_POLICY:

@@ -174,12 +174,9 @@ def measure(
     process, ``compile`` as ``--compile``. About 10 minutes for the paper's 30 pairs at K = 1."""
     import time
 
-    import torch
-
     from tacbench import trainers
     from tacbench.paper import paper_task
 
-    torch.set_num_threads(1)
     settings = {"total_steps": 3000, "eval_every": 1000, "eval_episodes": 4}
     result = {}
     for algo, env in pairs:
