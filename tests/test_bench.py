@@ -104,10 +104,17 @@ def test_phase_table_gives_each_phases_share_and_the_rest() -> None:
     assert phase_table([sb3]) == ""
 
 
-def test_bench_command_refuses_bad_options() -> None:
+def test_bench_command_refuses_bad_options(tmp_path: Path) -> None:
     result = CliRunner().invoke(cli, ["bench", "--steps", "1", "--rounds", "3"])
     assert result.exit_code == 2
     assert "--steps must be at least --rounds" in result.output
+    result = CliRunner().invoke(cli, ["bench", "--no-sb3", "--no-eager"])
+    assert result.exit_code == 2 and "leave nothing to measure" in result.output
+    (tmp_path / "afile").write_text("")  # --json below a file: refused before measuring
+    json_path = str(tmp_path / "afile" / "bench.json")
+    result = CliRunner().invoke(cli, ["bench", "--env", "Pendulum-v1", "--json", json_path])
+    assert result.exit_code == 2 and "choose one you can write with --json" in result.output
+    assert "SB3 SAC" not in result.output
 
 
 def test_hidden_sizes_reach_tac_and_sb3_and_bad_widths_are_refused() -> None:

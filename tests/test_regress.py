@@ -303,6 +303,30 @@ def test_regress_cli_usage_errors_exit_two(tmp_path: Path) -> None:
     assert result.exit_code == 2 and "is not an empty folder" in result.output
     result = runner.invoke(cli, ["regress", "--only", "nope", "--against", str(REFERENCE)])
     assert result.exit_code == 2 and "no reference named nope" in result.output
+    result = runner.invoke(
+        cli, ["regress", "--tier", "theory", "--only", "x", "--against", str(REFERENCE)]
+    )
+    assert result.exit_code == 2 and "the theory tier compares all of its CSVs" in result.output
+    (tmp_path / "afile").write_text("")
+    below_a_file = str(tmp_path / "afile" / "ref")
+    result = runner.invoke(
+        cli, ["regress", "--update", "--tier", "theory", "--against", below_a_file]
+    )
+    assert result.exit_code == 2 and "choose one you can write with --against" in result.output
+
+
+def test_a_reference_file_missing_from_its_manifest_is_a_clear_error(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    reference = tmp_path / "ref"
+    _fake_theory(monkeypatch, {"a.csv": CSV})
+    update = ["regress", "--update", "--tier", "theory", "--against", str(reference)]
+    assert CliRunner().invoke(cli, update).exit_code == 0
+    (reference / "theory" / "a.csv").unlink()
+    result = CliRunner().invoke(cli, ["regress", "--tier", "theory", "--against", str(reference)])
+    assert result.exit_code == 2 and "Traceback" not in result.output
+    assert "the theory references lack" in result.output and "a.csv" in result.output
+    assert "tacbench regress --update --tier theory" in result.output
 
 
 def test_format_result_lists_rows_notes_and_verdict() -> None:

@@ -125,6 +125,10 @@ def test_user_errors_exit_with_status_two(tmp_path: Path) -> None:
     code, output = _invoke("--results", str(tmp_path), "--out", str(tmp_path / "r"), "--reps", "5")
     assert code == 2 and "--reps must be at least 100" in output
     assert not (tmp_path / "r").exists()
+    (tmp_path / "afile").write_text("")  # an --out below a file: refused before any analysis
+    code, output = _invoke("--results", str(tmp_path), "--out", str(tmp_path / "afile" / "r"))
+    assert code == 2 and "cannot create or write the output folder" in output
+    assert "choose one you can write with --out" in output and "Traceback" not in output
 
 
 def test_config_provenance_reaches_the_page(results: Path, report_dir: Path) -> None:

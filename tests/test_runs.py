@@ -171,3 +171,11 @@ def test_plain_progress_prints_a_line_per_interval() -> None:
     assert len(lines) == 3
     assert lines[0].startswith("TAC Hopper-v4: step 1000/3000 | ")
     assert "steps/s | eval 42.5 | ETA" in lines[0]
+
+
+def test_check_writable_probes_without_creating_anything(tmp_path: Path) -> None:
+    runs.check_writable(tmp_path / "new" / "deeper")  # its nearest existing folder takes files
+    assert list(tmp_path.iterdir()) == []
+    (tmp_path / "afile").write_text("")
+    with pytest.raises(TacbenchError, match=r"cannot create or write the output folder .*--json"):
+        runs.check_writable(tmp_path / "afile" / "sub", "--json")

@@ -83,6 +83,10 @@ def test_bad_requests_are_clear_errors(tmp_path: Path) -> None:
     assert result.exit_code == 2 and "must end in .mp4 or .gif" in result.output
     result = CliRunner().invoke(cli, ["video", str(tmp_path), "--out", str(tmp_path / "x.mp4")])
     assert result.exit_code == 2 and "is not a run directory" in result.output
+    (tmp_path / "afile").write_text("")
+    below_a_file = str(tmp_path / "afile" / "x.mp4")
+    result = CliRunner().invoke(cli, ["video", str(tmp_path), "--out", below_a_file])
+    assert result.exit_code == 2 and "cannot create or write the output folder" in result.output
     (tmp_path / "config.json").write_text("")
     result = CliRunner().invoke(cli, ["video", str(tmp_path), "--out", str(tmp_path / "x.mp4")])
     assert result.exit_code == 2 and "config.json is empty" in result.output

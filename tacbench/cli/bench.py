@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING
 import click
 
 from tacbench.cli.options import NumberTuple
+from tacbench.errors import TacbenchError
 
 if TYPE_CHECKING:
     from tacbench.bench import BenchOptions
@@ -100,7 +101,13 @@ def bench(
     from tacbench import bench as measure  # torch and SB3 only when this command runs
     from tacbench import envs, training
     from tacbench.hardware import check_matmul_precision
+    from tacbench.runs.files import check_writable
 
+    if not (profile or compile_ or grid or not no_sb3 or not no_eager):
+        raise TacbenchError(
+            "--no-sb3 and --no-eager leave nothing to measure; add --compile or --grid, or drop "
+            "one of them."
+        )
     env_id = envs.resolve_env_id(env)
     envs.env_info(env_id)
     options = measure.BenchOptions(
@@ -119,6 +126,8 @@ def bench(
         bf16=bf16,
     )
     check_matmul_precision("bf16" if bf16 else "float32", options.device)
+    if json_path is not None:  # before minutes of measuring, not after
+        check_writable(json_path.parent, "--json")
     if profile:
         _profile(options, not no_compile_profile, json_path)
         return

@@ -65,6 +65,9 @@ def report(
 ) -> None:
     """Figures, tables and rliable statistics from the run directories under --results."""
     from tacbench.report import ReportOptions, analyse, write_report  # pandas etc. only here
+    from tacbench.runs.files import check_writable
+
+    check_writable(out)  # before the analysis, which can take minutes
 
     options = ReportOptions(
         results=results,

@@ -39,9 +39,11 @@ def video(
     """Render RUN_DIR's policy at its newest checkpoint (deterministic, the evaluation's
     seeds) with MuJoCo's offscreen renderer (EGL or OSMesa, whichever works here)."""
     from tacbench import video as rendering  # torch, SB3 and imageio only when this runs
+    from tacbench.runs.files import check_writable
 
     if out.suffix not in rendering.FORMATS:
         raise TacbenchError(f"--out must end in {' or '.join(rendering.FORMATS)}, not {out.name!r}")
+    check_writable(out.parent)
     backend = rendering.choose_gl_backend()
     policy = rendering.load_policy(run_dir)
     click.echo(

@@ -19,6 +19,7 @@ from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 
+from tacbench import runs
 from tacbench.errors import TacbenchError
 from tacbench.regress.exact import check_exact, check_theory, update_exact, update_theory
 from tacbench.regress.manifest import Runner, subprocess_runner
@@ -75,6 +76,11 @@ def check(
             f"--against {reference}: no such folder; the committed references are in "
             "results/reference (run from the repository root)."
         )
+    if names and tier == "theory":
+        raise TacbenchError(
+            "--only names exact runs or statistical groups; the theory tier compares all of its "
+            "CSVs (leave --only out)."
+        )
     with _scratch(work) as scratch:
         if tier == "stat":
             return [check_stat(reference, scratch / "stat", names, log, runner)]
@@ -95,6 +101,7 @@ def update(
     CSVs); returns the manifests written."""
     _check_tier(tier)
     reference = Path(reference)
+    runs.check_writable(reference, "--against")  # before minutes of training, not after
     with locks.writing([reference], hint=""), _scratch(work) as scratch:
         if tier == "stat":
             return [update_stat(reference, scratch / "stat", log=log, runner=runner)]

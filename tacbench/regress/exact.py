@@ -166,6 +166,8 @@ def check_exact(
     manifest = mf.read_manifest(reference, "exact")
     notes = [mf.provenance_note(manifest)]
     entries = mf.select(manifest["runs"], names, reference)
+    expected = [references / e["name"] / file for e in entries for file in manifest["files"]]
+    mf.require_files(expected, "exact", reference)
     differences = mf.environment_differences(manifest["environment"], mf.environment())
     if differences:
         return TierResult(
@@ -243,6 +245,9 @@ def update_theory(reference: Path, work: Path) -> Path:
 def check_theory(reference: Path, work: Path) -> TierResult:
     """Rewrite the theory figures and compare each recorded CSV's text."""
     start, manifest = time.perf_counter(), mf.read_manifest(reference, "theory")
+    mf.require_files(
+        [reference / "theory" / name for name in manifest["files"]], "theory", reference
+    )
     notes = [mf.provenance_note(manifest)]
     fresh = _theory_csvs(work)
     rows = []

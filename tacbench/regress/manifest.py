@@ -112,13 +112,29 @@ def read_manifest(reference: Path, tier: str, cpu: str | None = None) -> dict[st
             f"no {tier} references at {path.parent}; create them with: "
             f"{regenerate_command(tier, reference)}"
         )
-    manifest = runs.read_json(path)
+    manifest = runs.read_json(
+        path, f"restore it from git, or regenerate it with: {regenerate_command(tier, reference)}"
+    )
     if manifest.get("tier") != tier or manifest.get("format") != FORMAT:
         raise TacbenchError(
             f"{path} is not a format-{FORMAT} {tier} manifest; regenerate it with: "
             f"{regenerate_command(tier, reference)}"
         )
     return manifest
+
+
+def require_files(paths: Sequence[Path], tier: str, reference: Path) -> None:
+    """A TacbenchError, before anything is trained, when reference files that ``tier``'s
+    manifest lists are missing."""
+    missing = [str(path) for path in paths if not path.is_file()]
+    if missing:
+        shown = ", ".join(missing[:3]) + (
+            f" and {len(missing) - 3} more" if len(missing) > 3 else ""
+        )
+        raise TacbenchError(
+            f"the {tier} references lack {shown}, which their manifest lists; restore them from "
+            f"git, or regenerate them with: {regenerate_command(tier, reference)}"
+        )
 
 
 def select(entries: list[dict[str, Any]], names: Sequence[str], reference: Path) -> list[Any]:

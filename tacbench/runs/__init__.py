@@ -16,11 +16,13 @@ docs/results-schema.md describes every file, column and field.
 
 from tacbench.runs.files import (
     EVAL_COLUMNS,
+    RESTORE_OR_DELETE,
     TRAIN_COLUMNS,
     CsvLog,
     RunWriter,
     State,
     atomic_write_json,
+    check_writable,
     ensure_writable,
     now_iso,
     read_json,
@@ -38,6 +40,7 @@ from tacbench.runs.provenance import VERSIONED_PACKAGES, git_commit, package_ver
 
 __all__ = [
     "EVAL_COLUMNS",
+    "RESTORE_OR_DELETE",
     "TRAIN_COLUMNS",
     "VERSIONED_PACKAGES",
     "CsvLog",
@@ -46,6 +49,7 @@ __all__ = [
     "RunWriter",
     "State",
     "atomic_write_json",
+    "check_writable",
     "differing_fields",
     "ensure_writable",
     "git_commit",

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import errno
 import hashlib
 import io
 import json
@@ -27,7 +28,7 @@ from typing import IO, TYPE_CHECKING, Any, Literal
 
 from tacbench.errors import TacbenchError
 from tacbench.runs.checkpoints import DISK_ERRNOS, recorded_logs, write_durably
-from tacbench.runs.resume_checks import LogDigest, ResumePlan, check_log
+from tacbench.runs.resume_checks import START_OVER, LogDigest, ResumePlan, check_log
 
 if TYPE_CHECKING:
     from tacbench.interrupts import SecondSignal
@@ -52,22 +53,44 @@ def atomic_write_json(path: Path, data: Mapping[str, Any]) -> None:
     write_durably(path, lambda handle: handle.write(payload))
 
 
-def ensure_writable(folder: Path) -> None:
+def ensure_writable(folder: Path, flag: str = "--out") -> None:
     """Create ``folder`` (with its parents) and check that a file can be written in it, before
-    anything is trained; else a TacbenchError that says what to do."""
+    anything is trained; else a TacbenchError that says what to do (choose another ``flag``)."""
     try:
         folder.mkdir(parents=True, exist_ok=True)
         with tempfile.TemporaryFile(dir=folder):
             pass
     except OSError as err:
-        reason = os.strerror(err.errno).lower() if err.errno else str(err)
-        raise TacbenchError(
-            f"cannot create or write the output folder {folder} ({reason}); "
-            "choose one you can write with --out."
-        ) from None
+        raise _unwritable(folder, err, flag) from None
 
 
-RESTORE_OR_FORCE = "restore it, or rerun with --force to start the run over"
+def check_writable(folder: Path, flag: str = "--out") -> None:
+    """:func:`ensure_writable` without creating anything: the nearest existing folder at or
+    above ``folder`` must take a file (so that ``folder`` can be made there later), checked
+    before minutes of work whose output would have nowhere to go."""
+    existing = Path(os.path.abspath(folder))
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    try:
+        if not existing.is_dir():
+            raise NotADirectoryError(errno.ENOTDIR, os.strerror(errno.ENOTDIR), str(existing))
+        with tempfile.TemporaryFile(dir=existing):
+            pass
+    except OSError as err:
+        raise _unwritable(folder, err, flag) from None
+
+
+def _unwritable(folder: Path, err: OSError, flag: str) -> TacbenchError:
+    reason = os.strerror(err.errno).lower() if err.errno else str(err)
+    return TacbenchError(
+        f"cannot create or write the output folder {folder} ({reason}); choose one you can "
+        f"write with {flag}."
+    )
+
+
+RESTORE_OR_FORCE = f"restore it, or {START_OVER}"
+RESTORE_OR_DELETE = "restore it, or delete the run's directory to train that run again"
+"""The advice where there is no ``--force`` (``tacbench sweep``)."""
 
 
 def read_json(path: Path, advice: str = RESTORE_OR_FORCE) -> dict[str, Any]:
@@ -186,7 +209,7 @@ class RunWriter:
             if recorded is not None and digest is None:
                 raise TacbenchError(
                     f"cannot resume: the checkpoint at step {step} of {self.directory} records "
-                    f"no {file}; rerun with --force to start the run over."
+                    f"no {file}; {START_OVER}."
                 )
             plan.kept[name], notes = check_log(self.directory / file, columns, step, digest)
             plan.notes += notes
