@@ -114,8 +114,8 @@ def flags_as_overrides(algo: str, given: Mapping[str, Any]) -> list[str]:
             raise TacbenchError(
                 f"--{name.replace('_', '-')} is a TAC option that {algo} does not use; leave it "
                 f"out for {algo} (tacbench sweep: --algo tac keeps TAC's runs only) and set "
-                f"{algo}'s hyperparameters with --hp KEY=VALUE, KEY one of "
-                f"{', '.join(sorted(hyperparams.ALGO_KEYS[algo]))}."
+                f"{algo}'s hyperparameters with tacbench run --algo {algo} --hp KEY=VALUE, KEY "
+                f"one of {', '.join(sorted(hyperparams.ALGO_KEYS[algo]))}."
             )
         items.append(f"{key}={value}")
     return items

@@ -95,7 +95,10 @@ def test_no_usable_generation_is_an_error_and_nothing_is_deleted(tmp_path: Path)
     before = sorted(tmp_path.rglob("*"))
     with pytest.raises(TacbenchError, match=r"no usable checkpoint.*shared: its checksum") as err:
         checkpoints.choose([tmp_path])
-    assert str(err.value).endswith("Nothing was deleted; rerun with --force to start again.")
+    assert str(err.value).endswith(
+        "Nothing was deleted; rerun with --force to start the run over (tacbench sweep: delete "
+        "the run's directory)."
+    )
     assert sorted(tmp_path.rglob("*")) == before
 
 

@@ -20,6 +20,7 @@ import pytest
 from click.testing import CliRunner
 
 from tacbench.cli import cli
+from tacbench.runs.resume_checks import START_OVER
 from tests.helpers import assert_same_results, run_cli, start_cli, tiny_configs, train, wait_for
 
 pytestmark = pytest.mark.smoke
@@ -181,7 +182,7 @@ def test_no_usable_checkpoint_is_one_clear_line_and_nothing_is_deleted(
     line = _error_line(result.stderr)
     assert "no usable checkpoint to resume from" in line
     assert "replay/000000000000-000000000500.npz: its checksum does not match" in line
-    assert line.endswith("Nothing was deleted; rerun with --force to start again.")
+    assert line.endswith("Nothing was deleted; " + START_OVER + ".")
     assert _tree(run) == before
     forced = run_cli([*TINY_TAC_ARGS, "--out", str(tmp_path), "--force"])
     assert forced.returncode == 0, forced.stderr

@@ -61,6 +61,7 @@ def test_counts_and_steps_left_match_a_hand_count(smoke_out: tuple[Path, list[pl
         "new": 5,
         "to_retry": 1,
         "given_up": 0,
+        "to_train": 7,
     }
     assert work.steps_left() == 5 * 1000 + (1000 - 500) + (1000 - 700) == 5800
     assert [p.action for p in work.runs] == [
@@ -205,6 +206,9 @@ def test_measured_throughput_replaces_the_default(tmp_path: Path) -> None:
     assert rates[("tac", "Hopper-v4")] == cost.Rate(0.002, f"measured: 1 run under {tmp_path}")
     assert rates[("trpo", "Hopper-v4")].source == cost.DEFAULT_SOURCE
     assert rates[("trpo", "Hopper-v4")].seconds_per_step > 0
+    with (directory / "eval.csv").open("a") as handle:  # a damaged log: the price goes without
+        handle.write("garbage\n")
+    assert cost.run_seconds_per_step(directory) is None
 
 
 def test_the_reference_profile_is_priced_on_its_own(tmp_path: Path) -> None:
@@ -335,10 +339,36 @@ def test_the_dry_run_prices_the_wall_time_by_its_units(tmp_path: Path) -> None:
 def test_the_summary_compares_the_bill_with_the_price_only_for_a_whole_plan() -> None:
     bill = {"cpu_class": "x", "workers": 2, "wall_s": 4140.0, "priced_wall_s": 3480.0}
     counts = dict.fromkeys(("runs", "complete", "failed", "given_up", "partial", "new"), 0)
-    base = {"preset": "p", "out": "o", "counts": {**counts, "to_retry": 0}, "unfinished": []}
+    base = {
+        "preset": "p",
+        "out": "o",
+        "counts": {**counts, "to_retry": 0, "to_train": 0},
+        "unfinished": [],
+    }
     base["counts"]["recovered_after_failures"] = 0
     whole = summary.summary_text({**base, "interrupted": False, "bill": bill}, "")
     assert "took 1h09m on 2 workers (x); priced at the start 58m00s: 1.19x the price" in whole
     stopped = summary.summary_text({**base, "interrupted": True, "bill": bill}, "")
     assert "stopped after 1h09m on 2 workers (x); priced at the start 58m00s" in stopped
     assert "x the price" not in stopped  # a stopped sweep has no whole bill to compare
+
+
+@pytest.mark.parametrize(
+    ("partial", "given_up", "to_train", "advice"),
+    [
+        (1, 1, 0, "given up"),  # an interrupted run given up: the same command trains nothing
+        (1, 0, 1, "to continue"),
+        (0, 0, 0, None),
+    ],
+)
+def test_the_summary_says_what_continues_a_sweep(
+    partial: int, given_up: int, to_train: int, advice: str | None
+) -> None:
+    counts = dict.fromkeys(("runs", "complete", "failed", "new", "to_retry"), 0)
+    counts |= {"partial": partial, "given_up": given_up, "to_train": to_train}
+    record = {"preset": "p", "out": "o", "counts": counts, "unfinished": [], "interrupted": False}
+    text = summary.summary_text(
+        {**record, "counts": {**counts, "recovered_after_failures": 0}}, "c"
+    )
+    assert ("to continue, run the same command again: c" in text) == (advice == "to continue")
+    assert ("a larger --max-retries to try again" in text) == (advice == "given up")

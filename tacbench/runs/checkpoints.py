@@ -32,7 +32,7 @@ from pathlib import Path
 from typing import IO, Any
 
 from tacbench.errors import TacbenchError
-from tacbench.runs.resume_checks import LogDigest
+from tacbench.runs.resume_checks import START_OVER, LogDigest
 
 GENERATIONS = 2  # kept after each commit: the new one and the previous one
 MANIFEST = "manifest-{step:012d}.json"
@@ -210,13 +210,13 @@ def choose(folders: Sequence[Path]) -> tuple[int | None, list[str]]:
         if folder.exists() and not folder.is_dir():
             raise TacbenchError(
                 f"{folder} is a file, not a checkpoint folder; nothing was changed. Move it "
-                "away, or rerun with --force to start the run over."
+                f"away, or {START_OVER}."
             )
         if (folder / "state.pt").exists():
             raise TacbenchError(
                 f"{folder} holds a checkpoint written by an older tacbench (state.pt, no "
                 "manifest), which this version cannot resume; finish it with the tacbench "
-                "that wrote it, or rerun with --force to start again."
+                f"that wrote it, or {START_OVER}."
             )
         good, bad = usable_steps(folder)
         any_checkpoint |= bool(good or bad)
@@ -230,7 +230,7 @@ def choose(folders: Sequence[Path]) -> tuple[int | None, list[str]]:
         raise NoCommonCheckpoint(
             "no usable checkpoint to resume from: "
             + ("; ".join(notes) or "the members' checkpoints are at different steps")
-            + ". Nothing was deleted; rerun with --force to start again."
+            + f". Nothing was deleted; {START_OVER}."
         )
     return max(common), notes
 

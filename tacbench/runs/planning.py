@@ -13,9 +13,10 @@ from typing import Any, Literal, TypeVar
 from tacbench.config import RESULT_NEUTRAL_FIELDS
 from tacbench.errors import TacbenchError
 from tacbench.runs import checkpoints
-from tacbench.runs.files import CRASHED, ensure_writable, read_json
+from tacbench.runs.files import CRASHED, RESTORE_OR_FORCE, ensure_writable, read_json
 from tacbench.runs.locks import writing
 from tacbench.runs.provenance import RunIdentity
+from tacbench.runs.resume_checks import START_OVER
 
 
 def run_directory(out: Path, algo: str, env: str, variant: str, seed: int) -> Path:
@@ -61,10 +62,7 @@ def plan_run(
         )
     stored = read_json(config_path).get("config")
     if not isinstance(stored, dict):
-        raise TacbenchError(
-            f"{config_path} holds no run config; restore it, or rerun with --force to start the "
-            "run over."
-        )
+        raise TacbenchError(f"{config_path} holds no run config; {RESTORE_OR_FORCE}.")
     differences = differing_fields(stored, config, neutral)
     if differences:
         raise TacbenchError(
@@ -80,8 +78,7 @@ def plan_run(
     step = status.get("step", 0)
     if not isinstance(step, int) or isinstance(step, bool) or step < 0:
         raise TacbenchError(
-            f"{status_path} records the step {step!r}, not a step count; restore it, or rerun "
-            "with --force to start the run over."
+            f"{status_path} records the step {step!r}, not a step count; {RESTORE_OR_FORCE}."
         )
     if status.get("state") == "complete":
         return DirectoryPlan("skip", f"already complete ({step} steps); --force retrains it")
@@ -117,8 +114,7 @@ def _check_checkpoint(directory: Path, step: int) -> None:
         what = "is a file" if checkpoint.is_file() else "holds no checkpoint"
         raise TacbenchError(
             f"cannot resume {directory}: status.json records step {step}, but {checkpoint} "
-            f"{what}; nothing was changed. Restore the checkpoint, or rerun with --force to "
-            "start the run over."
+            f"{what}; nothing was changed. Restore the checkpoint, or {START_OVER}."
         )
 
 
@@ -130,8 +126,7 @@ def _check_no_rows(directory: Path) -> None:
         if path.exists() and len(path.read_bytes().splitlines()) > 1:
             raise TacbenchError(
                 f"{directory} has rows in {name} but no status.json, so its progress is unknown; "
-                "nothing was changed. Restore status.json, or rerun with --force to start the "
-                "run over."
+                f"nothing was changed. Restore status.json, or {START_OVER}."
             )
 
 

@@ -20,7 +20,8 @@ from typing import Any
 
 from tacbench.errors import TacbenchError
 
-START_OVER = "nothing was changed; fix the file, or rerun with --force to start the run over"
+START_OVER = "rerun with --force to start the run over (tacbench sweep: delete the run's directory)"
+"""How to start a run over, in ``tacbench run`` and in a sweep (which has no ``--force``)."""
 
 
 @dataclass(frozen=True)
@@ -52,7 +53,9 @@ class ResumePlan:
 
 
 def _refuse(path: Path, what: str) -> TacbenchError:
-    return TacbenchError(f"cannot resume: {path} {what}; {START_OVER}.")
+    return TacbenchError(
+        f"cannot resume: {path} {what}; nothing was changed; fix the file, or {START_OVER}."
+    )
 
 
 def _rows(path: Path, columns: Sequence[str]) -> tuple[list[bytes], list[int], bool]:

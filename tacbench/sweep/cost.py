@@ -110,13 +110,18 @@ def run_seconds_per_step(directory: Path) -> float | None:
     eval_csv, config_json = directory / "eval.csv", directory / "config.json"
     if not eval_csv.exists() or not config_json.exists():
         return None
-    return _seconds_per_step(eval_csv, runs.read_json(config_json))
+    return _seconds_per_step(eval_csv, runs.read_json(config_json, runs.RESTORE_OR_DELETE))
 
 
 def _seconds_per_step(eval_csv: Path, metadata: dict[str, Any]) -> float | None:
-    """:func:`run_seconds_per_step` from the run's eval.csv and its config.json's contents."""
-    with eval_csv.open(newline="") as handle:
-        rows = [(int(r["step"]), float(r["wall_s"])) for r in csv.DictReader(handle)]
+    """:func:`run_seconds_per_step` from the run's eval.csv and its config.json's contents (None
+    also when eval.csv is damaged: a price does without that rate, and the run's own resume
+    check says what is wrong with it)."""
+    try:
+        with eval_csv.open(newline="") as handle:
+            rows = [(int(r["step"]), float(r["wall_s"])) for r in csv.DictReader(handle)]
+    except (OSError, UnicodeDecodeError, csv.Error, KeyError, TypeError, ValueError):
+        return None
     if len(rows) < 2:
         return None
     (step_a, wall_a), (step_b, wall_b) = rows[(len(rows) - 1) // 2], rows[-1]
@@ -136,7 +141,8 @@ def rates(out: Path, pairs: Iterable[tuple[str, str]]) -> dict[tuple[str, str], 
         eval_csv = config_json.parent / "eval.csv"
         if not eval_csv.exists():
             continue
-        metadata = runs.read_json(config_json)  # once: the rate's divisors and the profile
+        # once: the rate's divisors and the profile
+        metadata = runs.read_json(config_json, runs.RESTORE_OR_DELETE)
         value = _seconds_per_step(eval_csv, metadata)
         if value is not None:
             profile = metadata.get("config", {}).get("profile")

@@ -17,13 +17,16 @@ from tacbench.sweep.plan import PlannedRun, SweepPlan
 
 
 def counts(plan: SweepPlan) -> dict[str, int]:
-    """Runs by state (complete, partial, failed, new) and failed runs by what happens next."""
+    """Runs by state (complete, partial, failed, new), failed runs by what happens next, and
+    the runs that the same command would train (``to_train``: new, partial or to retry, none
+    of them given up)."""
     by_state = Counter(p.status.state for p in plan.runs)
     return {
         "runs": len(plan.runs),
         **{name: by_state.get(name, 0) for name in ("complete", "partial", "failed", "new")},
         "to_retry": plan.count(action="retry"),
         "given_up": plan.count(action="give-up"),
+        "to_train": plan.count(action="train") + plan.count(action="retry"),
     }
 
 
@@ -245,7 +248,13 @@ def summary_text(summary: dict[str, Any], command: str) -> str:
                 f"    {i}. {failure['time']} {failure['host']}, step {failure['step']:,}: "
                 f"{failure['reason']}"
             )
-    if c["partial"] or c["new"] or c["to_retry"]:
+    if c["given_up"]:
+        lines.append(
+            f"{c['given_up']} run{'s' if c['given_up'] > 1 else ''} given up after more than "
+            "--max-retries failures: fix what the failures say, then run the same command with "
+            "a larger --max-retries to try again"
+        )
+    if c["to_train"]:
         lines.append(
             f"to continue, run the same command again: {command}"
             if command
