@@ -12,6 +12,7 @@ from click.testing import CliRunner
 
 from tacbench.cli import cli
 from tacbench.studies import adaptive as study
+from tests.report_fixtures import write_run
 
 
 @pytest.mark.unit
@@ -72,3 +73,20 @@ def test_the_published_study_is_complete_and_its_tables_regenerate(tmp_path: Pat
     assert result.exit_code == 0, result.output
     for table in sorted((STUDY / "analysis").glob("*.csv")):
         assert (tmp_path / table.name).read_text() == table.read_text(), table.name
+
+
+@pytest.mark.unit
+def test_a_folder_without_a_learned_q_population_is_a_clear_error(tmp_path: Path) -> None:
+    write_run(
+        tmp_path,
+        algo="tac",
+        env="Hopper-v4",
+        variant="q1-a0.2",
+        seed=0,
+        steps=[1.0],
+        returns=[1.0],
+        q=1.0,
+        alpha=0.2,
+    )
+    result = CliRunner().invoke(cli, ["study", "adaptive", "analyse", "--results", str(tmp_path)])
+    assert result.exit_code == 2 and "no population of learned-q runs (--q auto)" in result.output

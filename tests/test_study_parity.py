@@ -197,3 +197,19 @@ def test_the_published_study_is_complete_and_its_tables_regenerate(
     assert result.exit_code == 0, result.output
     for table in sorted((results / "analysis").glob("*.csv")):
         assert (tmp_path / table.name).read_text() == table.read_text(), table.name
+
+
+def test_a_folder_without_the_studys_runs_is_a_clear_error(tmp_path: Path) -> None:
+    write_run(
+        tmp_path,
+        algo="tac",
+        env="Hopper-v4",
+        variant="q2-a0.2",
+        seed=0,
+        steps=[1.0],
+        returns=[1.0],
+        q=2.0,
+        alpha=0.2,
+    )
+    with pytest.raises(TacbenchError, match="no complete run of TAC at q = 1 or of sac-sb3"):
+        parity.analyse(tmp_path)

@@ -24,6 +24,7 @@ import pandas as pd
 
 from tacbench import paper
 from tacbench.bootstrap import mean_difference
+from tacbench.errors import TacbenchError
 from tacbench.report.load import load_runs
 from tacbench.report.tables import DEFAULT_LAST, run_scores
 
@@ -114,6 +115,11 @@ def final_q(results: Path) -> pd.DataFrame:
     """Each population member's q at the end (the last losses.csv row)."""
     runset = load_runs(results, "eval")
     learned = runset.runs[runset.runs["q"].isna()]
+    if learned.empty:
+        raise TacbenchError(
+            f"no population of learned-q runs (--q auto) under {results}; the study compares "
+            "them with fixed q on the same seeds: tacbench study adaptive commands lists its runs."
+        )
     rows = []
     for run in learned.itertuples():
         losses = pd.read_csv(runset.root / str(run.path) / "losses.csv", usecols=["step", "q"])

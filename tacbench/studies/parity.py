@@ -74,6 +74,11 @@ def load(results: Path, by_variant: bool = False) -> pd.DataFrame:
     runs = runset.runs
     chosen = runs[((runs["algo"] == "tac") & (runs["q"] == 1.0)) | (runs["algo"] == "sac-sb3")]
     chosen = chosen[chosen["state"] == "complete"].copy()
+    if chosen.empty:
+        raise TacbenchError(
+            f"no complete run of TAC at q = 1 or of sac-sb3 under {results}; tacbench study "
+            "parity commands lists the study's runs."
+        )
     pairs = zip(chosen["algo"], chosen["variant"], strict=True)
     chosen["method"] = [_method(algo, variant, by_variant) for algo, variant in pairs]
     several = chosen.groupby(["method", "env"])["variant"].nunique()
