@@ -91,6 +91,12 @@ def make_run_configs(
                 f"q = {q:g} >= 2: the policy density is capped at {cap:.3g} "
                 "(paper, Numerical Issue)"
             )
+    if configs[0].learning_steps == 0:
+        notes.append(
+            f"WARNING: --learning-starts {configs[0].learning_starts:,} is not below --steps "
+            f"{configs[0].total_steps:,}: every step takes a random action and the networks are "
+            "never updated"
+        )
     notes.append(compile_note(resolve_compile(configs[0]), overrides.get("compile", "auto")))
     return configs, notes
 
