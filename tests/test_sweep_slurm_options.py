@@ -21,9 +21,11 @@ pytestmark = pytest.mark.unit
     ("text", "minutes"),
     [
         ("90", 90),
-        ("1:30", 90),
+        ("30:00", 30),  # MINUTES:SECONDS, as sbatch reads it
+        ("1:30", 2),  # a minute and a half, rounded up
         ("1:30:00", 90),
         ("0:00:01", 1),
+        ("2-0", 2880),
         ("2-00:00", 2880),
         ("1-2:03:04", 1564),
     ],
@@ -32,7 +34,9 @@ def test_time_limits_in_slurms_formats(text: str, minutes: int) -> None:
     assert slurm.parse_time(text) == minutes
 
 
-@pytest.mark.parametrize("text", ["", "abc", "1:2:3:4", "-5", "0", "0:00"])
+@pytest.mark.parametrize(
+    "text", ["", "abc", "1:2:3:4", "-5", "0", "0:00", "0:99", "1:60:00", "1-2-3", "1-"]
+)
 def test_bad_time_limits_say_what_to_give(text: str) -> None:
     with pytest.raises(TacbenchError, match="--time"):
         slurm.parse_time(text)
@@ -59,6 +63,10 @@ def test_slurm_args_become_sbatch_options() -> None:
         ({"cpus_per_run": 2.0}, "--cpus-per-run is a Ray or Slurm request"),
         ({"gpus_per_run": 2.0}, "shares one GPU between its workers"),
         ({"gpus_per_run": 0.25, "workers": 5}, "needs 1.25 GPUs.*--workers 4 or less"),
+        ({"executor": "ray", "cpus_per_run": float("nan")}, "--cpus-per-run must be > 0"),
+        ({"executor": "ray", "gpus_per_run": float("inf")}, "--gpus-per-run >= 0"),
+        ({"executor": "slurm", "gpus_per_run": 0.3}, "Slurm allocates whole CPUs and GPUs"),
+        ({"executor": "slurm", "cpus_per_run": 1.5}, "Slurm allocates whole CPUs and GPUs"),
     ],
 )
 def test_options_that_do_not_go_together_are_refused(options: dict, message: str) -> None:

@@ -15,6 +15,7 @@ recorded against its runs, which are retried.
 from __future__ import annotations
 
 import functools
+import math
 import os
 import time
 from collections import deque
@@ -64,8 +65,18 @@ class Options:
             raise TacbenchError(f"--members must be at least 1 (got {self.members}).")
         if self.max_retries < 0:
             raise TacbenchError(f"--max-retries must be 0 or more (got {self.max_retries}).")
-        if self.cpus_per_run <= 0 or self.gpus_per_run < 0:
-            raise TacbenchError("--cpus-per-run must be > 0 and --gpus-per-run >= 0.")
+        resources = (self.cpus_per_run, self.gpus_per_run)
+        if (
+            not all(map(math.isfinite, resources))
+            or self.cpus_per_run <= 0
+            or self.gpus_per_run < 0
+        ):
+            raise TacbenchError("--cpus-per-run must be > 0 and --gpus-per-run >= 0 (numbers).")
+        if self.executor == "slurm" and any(value != int(value) for value in resources):
+            raise TacbenchError(
+                "Slurm allocates whole CPUs and GPUs: give --cpus-per-run and --gpus-per-run as "
+                "whole numbers (a fractional share of a GPU is a Ray request: --executor ray)."
+            )
         if self.executor == "local" and (self.address or self.scratch or self.shared_fs):
             raise TacbenchError(
                 "--address, --scratch and --shared-fs are Ray options: add --executor ray."

@@ -16,7 +16,6 @@ No accounting database is needed: jobs are followed with ``squeue``, not ``sacct
 
 from __future__ import annotations
 
-import re
 import shutil
 import subprocess
 import time
@@ -38,26 +37,32 @@ longer run is requeued at the limit and resumes, so a short limit costs only que
 MAX_UNITS = 1000
 """Units in flight without --workers: Slurm's default MaxArraySize is 1001."""
 GONE_POLLS = 2  # polls a job must be missing from squeue (and have no result) to have died
-_TIME = re.compile(r"^(?:(?P<days>\d+)-)?(?P<h>\d+):(?P<m>\d{1,2})(?::(?P<s>\d{1,2}))?$")
+TIME_FORMATS = "MINUTES, MINUTES:SECONDS, H:MM:SS, D-H, D-H:MM or D-H:MM:SS"
+"""sbatch's --time formats (its manual page), which --time takes as sbatch reads them."""
 
 
 def parse_time(text: str) -> int:
-    """Slurm's time limit in whole minutes: ``MINUTES``, ``H:MM``, ``H:MM:SS`` or
-    ``D-H:MM[:SS]`` (seconds round up)."""
+    """Slurm's time limit in whole minutes from any of sbatch's formats (:data:`TIME_FORMATS`;
+    seconds round up): ``90`` and ``1:30:00`` are 90 minutes, ``30:00`` is 30 and ``2-0`` two
+    days."""
     text = text.strip()
-    if text.isdigit():
-        minutes = int(text)
-    else:
-        match = _TIME.match(text)
-        if not match:
-            raise TacbenchError(
-                f"--time {text!r}: give minutes (90) or [D-]H:MM[:SS] (1:30:00, 2-00:00)."
-            )
-        days, seconds = int(match["days"] or 0), int(match["s"] or 0)
-        minutes = (days * 24 + int(match["h"])) * 60 + int(match["m"]) + (seconds > 0)
-    if minutes < 1:
-        raise TacbenchError(f"--time {text!r} must be at least one minute.")
-    return minutes
+    days, dash, clock = text.rpartition("-")
+    fields = clock.split(":")
+    if not all(f.isdigit() for f in [*fields, *([days] if dash else [])]) or len(fields) > 3:
+        raise TacbenchError(f"--time {text!r}: give one of sbatch's formats, {TIME_FORMATS}.")
+    values = [int(f) for f in fields]
+    if dash:  # D-H, D-H:MM, D-H:MM:SS
+        h, m, s = [*values, 0, 0][:3]
+        seconds = ((int(days) * 24 + h) * 60 + m) * 60 + s
+    elif len(values) == 3:  # H:MM:SS
+        seconds = (values[0] * 60 + values[1]) * 60 + values[2]
+    else:  # MINUTES or MINUTES:SECONDS
+        seconds = values[0] * 60 + (values[1] if len(values) == 2 else 0)
+    if any(v > 59 for v in values[1:]):
+        raise TacbenchError(f"--time {text!r}: minutes and seconds after a ':' are below 60.")
+    if seconds < 1:
+        raise TacbenchError(f"--time {text!r} must be at least one second.")
+    return -(-seconds // 60)
 
 
 def parse_slurm_args(pairs: tuple[str, ...]) -> dict[str, str]:
