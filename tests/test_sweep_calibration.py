@@ -34,6 +34,8 @@ def test_a_run_is_priced_by_phase_and_by_evaluation() -> None:
     rest = c.seconds(100_000, 10_000, 5_000, 10, 1_000, steps_left=40_000)
     assert rest == pytest.approx(40_000 * 2e-3 + 8 * 10 * 1_000 * 5e-5)
     assert c.seconds(100_000, 10_000, 0, 10, 1_000, steps_left=0) == 0.0
+    # learning would start after the end (--steps 400, 10,000 random steps): all 400 random
+    assert c.seconds(400, 10_000, 0, 10, 1_000, steps_left=400) == pytest.approx(400 * 1e-4)
 
 
 def test_the_key_ignores_the_members_identity_and_budget_but_not_their_networks(

@@ -102,8 +102,8 @@ class Calibration:
     ) -> float:
         """CPU seconds per member for the last ``steps_left`` of a ``total_steps`` run."""
         start = total_steps - steps_left
-        random_left = max(0, learning_starts - start)
-        learn_left = steps_left - random_left
+        random_left = min(steps_left, max(0, learning_starts - start))
+        learn_left = steps_left - random_left  # none where learning would start after the end
         evaluations = total_steps // eval_every - start // eval_every if eval_every else 0
         return (
             random_left * self.random
