@@ -88,5 +88,15 @@ def test_a_folder_without_a_learned_q_population_is_a_clear_error(tmp_path: Path
         q=1.0,
         alpha=0.2,
     )
+    write_run(
+        tmp_path,
+        algo="ddpg",
+        env="Hopper-v4",
+        variant="default",
+        seed=0,
+        steps=[1.0],
+        returns=[2.0],
+    )
+    assert list(study.finals(tmp_path)["variant"]) == ["q1-a0.2"]  # a baseline is not a member
     result = CliRunner().invoke(cli, ["study", "adaptive", "analyse", "--results", str(tmp_path)])
     assert result.exit_code == 2 and "no population of learned-q runs (--q auto)" in result.output

@@ -54,11 +54,17 @@ def commands(out: str = "results/adaptive") -> list[str]:
     return [shlex.join(["tacbench", "run", *line]) for line in lines]
 
 
+def _study_runs(runs: pd.DataFrame) -> pd.DataFrame:
+    """The study's runs among ``runs``: TAC's on its tasks (a folder may hold others too)."""
+    return runs[(runs["algo"] == "tac") & runs["env"].isin(ENVS)]
+
+
 def finals(results: Path) -> pd.DataFrame:
-    """One row per run: env, variant, q (NaN: learned), seed, population, final return."""
+    """One row per run of the study: env, variant, q (NaN: learned), seed, population, final
+    return."""
     runset = load_runs(results, "eval")
     scores = run_scores(runset.data, DEFAULT_LAST)
-    table = runset.runs.join(scores, on="run")
+    table = _study_runs(runset.runs).join(scores, on="run")
     return table[["env", "variant", "q", "seed", "population", "final"]]
 
 
@@ -114,10 +120,12 @@ def alpha_table(table: pd.DataFrame, reps: int = REPS) -> pd.DataFrame:
 def final_q(results: Path) -> pd.DataFrame:
     """Each population member's q at the end (the last losses.csv row)."""
     runset = load_runs(results, "eval")
-    learned = runset.runs[runset.runs["q"].isna()]
+    study = _study_runs(runset.runs)
+    learned = study[study["q"].isna()]
     if learned.empty:
         raise TacbenchError(
-            f"no population of learned-q runs (--q auto) under {results}; the study compares "
+            f"no population of learned-q runs (--q auto) on {' or '.join(ENVS)} under {results}; "
+            "the study compares "
             "them with fixed q on the same seeds: tacbench study adaptive commands lists its runs."
         )
     rows = []
