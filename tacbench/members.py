@@ -78,19 +78,21 @@ def make_run_configs(
             for alpha in alphas or (paper_alpha,)
             for seed in seeds
         ]
+    rule = configs[0].density_cap
     if learned_q:
-        if max(c.q_range[1] for c in configs) >= 2:
+        if rule == "every-q" or (rule == "paper" and max(c.q_range[1] for c in configs) >= 2):
             notes.append(
-                "q = auto: while a member's q is 2 or more, its policy density is capped at "
-                "10^(8/(q-1)) (paper, Numerical Issue)"
+                f"q = auto: while a member's q is {'2 or more' if rule == 'paper' else 'not 1'}, "
+                f"its policy density is capped at 10^(8/(q-1)) (--density-cap {rule})"
             )
     else:
-        for q in sorted({c.q for c in configs if c.q >= 2}):
-            cap = 10 ** (8 / (q - 1))
-            notes.append(
-                f"q = {q:g} >= 2: the policy density is capped at {cap:.3g} "
-                "(paper, Numerical Issue)"
-            )
+        for q in sorted({c.q for c in configs}):
+            log_cap = paper.density_log_cap(q, rule)
+            if math.isfinite(log_cap):
+                notes.append(
+                    f"q = {q:g}: the policy density is capped at {math.exp(log_cap):.3g} "
+                    f"(--density-cap {rule}; the paper's Numerical Issue)"
+                )
     if configs[0].learning_steps == 0:
         notes.append(
             f"WARNING: --learning-starts {configs[0].learning_starts:,} is not below --steps "

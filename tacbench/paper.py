@@ -11,6 +11,7 @@ No imports beyond the standard library: the CLI reads this at start-up.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Any
@@ -132,6 +133,17 @@ DENSITY_CAP_RULES: tuple[str, ...] = ("paper", "every-q", "off")
 """Where the density cap ``10^(8/(q-1))`` applies (``--density-cap``): ``paper`` for q >= 2 (the
 appendix "Numerical Issue", line 1712; the authors' final code), ``every-q`` for every q != 1
 (the authors' code of 2019-01-16, 7b0308a), ``off`` nowhere (their code before that)."""
+
+
+def density_log_cap(q: float, rule: str = "paper") -> float:
+    """The log of the density cap ``10^(8/(q-1))`` where ``rule`` (:data:`DENSITY_CAP_RULES`)
+    applies it: the paper's for q >= 2 ("Numerical Issue"); +inf (no cap) elsewhere and at
+    q = 1."""
+    if rule not in DENSITY_CAP_RULES:
+        raise ValueError(f"unknown density cap rule {rule!r}")
+    applies = {"paper": q >= 2.0, "every-q": q != 1.0, "off": False}[rule]
+    return 8.0 * math.log(10.0) / (q - 1.0) if applies else math.inf
+
 
 _PAPER_DENSITY: dict[str, Any] = {
     "lnq": "per-dim",  # the authors' final code; the paper writes the joint density (docs/tac.md)

@@ -10,14 +10,9 @@ import pytest
 import torch
 
 from tacbench import paper
+from tacbench.paper import density_log_cap
 from tacbench.tac.losses import tac_losses
-from tacbench.tac.maths import (
-    Batch,
-    Coefficients,
-    density_log_cap,
-    lnq_of_policy,
-    squashed_gaussian,
-)
+from tacbench.tac.maths import Batch, Coefficients, lnq_of_policy, squashed_gaussian
 from tests.helpers import tac_agent
 
 pytestmark = pytest.mark.unit

@@ -61,7 +61,7 @@ def test_members_are_the_cross_product_of_q_alpha_and_seed() -> None:
         (q, alpha, seed) for q in (0.5, 2.0) for alpha in (0.1, 0.2) for seed in (0, 10)
     ]
     assert {c.variant for c in configs} == {"q0.5-a0.1", "q0.5-a0.2", "q2-a0.1", "q2-a0.2"}
-    assert any(note.startswith("q = 2 >= 2: the policy density is capped") for note in notes)
+    assert any(note.startswith("q = 2: the policy density is capped") for note in notes)
     for flag, kwargs in (("--q", {"qs": [1, 1]}), ("--alpha", {"alphas": [0.2, 0.2]})):
         with pytest.raises(TacbenchError, match=f"{flag} values must differ"):
             make_run_configs("Hopper-v4", "Hopper", [0], **kwargs)  # type: ignore[arg-type]
@@ -98,9 +98,13 @@ def test_a_run_that_never_learns_is_warned_about(steps: int, warned: bool) -> No
     assert any(note.startswith(warning) for note in notes) == warned, notes
 
 
-def test_q_at_least_two_mentions_the_density_cap() -> None:
+def test_the_density_cap_is_mentioned_where_its_rule_applies() -> None:
     _, notes = make_run_configs("Hopper-v4", "Hopper", [0])
-    assert any("q = 2 >= 2: the policy density is capped at 1e+08" in note for note in notes)
+    assert any("q = 2: the policy density is capped at 1e+08" in note for note in notes)
+    _, notes = make_run_configs("Hopper-v4", "Hopper", [0], [2.0], density_cap="off")
+    assert not any("capped" in note for note in notes)
+    _, notes = make_run_configs("Hopper-v4", "Hopper", [0], [1.5], density_cap="every-q")
+    assert any("q = 1.5: the policy density is capped at 1e+16" in note for note in notes)
 
 
 @pytest.mark.parametrize(

@@ -21,7 +21,7 @@ from typing import NamedTuple
 import torch
 import torch.nn.functional as F
 
-from tacbench.paper import DENSITY_CAP_RULES
+from tacbench.paper import density_log_cap
 
 LOG_DENSITY_FLOOR = math.log(1e-6)  # reference code: each per-dimension density >= 1e-6
 JACOBIAN_EPS = 1e-6  # SAC v1 and reference code: log(1 - tanh(z)^2 + 1e-6)
@@ -44,16 +44,6 @@ class Batch(NamedTuple):
     reward: torch.Tensor  # (K, B)
     next_obs: torch.Tensor  # (K, B, obs_dim)
     terminated: torch.Tensor  # (K, B), 1.0 where s' is terminal (never for a time-limit end)
-
-
-def density_log_cap(q: float, rule: str = "paper") -> float:
-    """The log of the density cap ``10^(8/(q-1))`` where ``rule`` (``paper.DENSITY_CAP_RULES``)
-    applies it: the paper's for q >= 2 ("Numerical Issue"); +inf (no cap) elsewhere and at
-    q = 1."""
-    if rule not in DENSITY_CAP_RULES:
-        raise ValueError(f"unknown density cap rule {rule!r}")
-    applies = {"paper": q >= 2.0, "every-q": q != 1.0, "off": False}[rule]
-    return 8.0 * math.log(10.0) / (q - 1.0) if applies else math.inf
 
 
 class Coefficients(NamedTuple):
