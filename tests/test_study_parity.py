@@ -112,6 +112,10 @@ def test_recorded_finals_join_the_runs_and_are_compared(tmp_path: Path) -> None:
         ("env,method,seed\nHopper-v4,SAC (SB3),0\n", "lacks the columns ['return']"),
         ("env,method,seed,return\nHopper-v4,SAC,0,1.0\n", "unknown methods ['SAC']"),
         ("env,method,seed,return\nHopper-v4,TAC q=1,0,1.0\n", "keep one source"),
+        ("", "is not a readable CSV"),
+        ("env,method,seed,return\nHopper-v4,SAC (SB3),0,abc\n", "row 1 is not a finite number"),
+        ("env,method,seed,return\nHopper-v4,SAC (SB3),0,\n", "row 1 is not a finite number"),
+        ("env,method,seed,return\nHopper-v4,SAC (SB3),0,1\nHopper-v4,SAC (SB3),0,1\n", "seed 0"),
     ],
 )
 def test_recorded_finals_refuse_bad_files(tmp_path: Path, rows: str, message: str) -> None:

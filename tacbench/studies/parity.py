@@ -124,20 +124,39 @@ FINALS_COLUMNS = ("env", "method", "seed", "return")
 
 def recorded_finals(path: Path, finals: pd.DataFrame) -> pd.DataFrame:
     """``finals`` with the final returns recorded in the CSV at ``path`` added (columns
-    :data:`FINALS_COLUMNS`; others are kept out). A method and task in both is an error."""
-    recorded = pd.read_csv(path)
+    :data:`FINALS_COLUMNS`; others are kept out). A method and task in both, a seed recorded
+    twice and a return that is not a finite number are errors."""
+    try:
+        recorded = pd.read_csv(path)
+    except (OSError, UnicodeDecodeError, pd.errors.ParserError, pd.errors.EmptyDataError) as err:
+        raise TacbenchError(f"{path} is not a readable CSV ({err}).") from None
     missing = [c for c in FINALS_COLUMNS if c not in recorded.columns]
     if missing:
         raise TacbenchError(f"{path} lacks the columns {missing}; it needs {list(FINALS_COLUMNS)}.")
     unknown = sorted(set(recorded["method"]) - set(METHODS))
     if unknown:
         raise TacbenchError(f"{path}: unknown methods {unknown}; the study's are {list(METHODS)}.")
-    recorded = recorded[list(FINALS_COLUMNS)]
+    recorded = recorded[list(FINALS_COLUMNS)].copy()
+    recorded["return"] = pd.to_numeric(recorded["return"], errors="coerce")
+    bad = recorded.index[~np.isfinite(recorded["return"])]
+    if len(bad):
+        raise TacbenchError(
+            f"{path}: the return of data row {bad[0] + 1} is not a finite number; every row "
+            "needs one."
+        )
+    repeated = recorded[recorded.duplicated(["env", "method", "seed"])]
+    if not repeated.empty:
+        first = repeated.iloc[0]
+        raise TacbenchError(
+            f"{path} records seed {first['seed']} of {first['method']} on {first['env']} more "
+            "than once; keep one row per seed."
+        )
     both = recorded[["env", "method"]].merge(finals[["env", "method"]].drop_duplicates())
     if not both.empty:
         pairs = sorted({(e, m) for e, m in zip(both["env"], both["method"], strict=True)})
         raise TacbenchError(
-            f"{path} records {pairs}, which the run directories also hold: keep one source."
+            f"{path} records {pairs}, which the run directories or an earlier --finals file "
+            "also hold: keep one source."
         )
     return pd.concat([finals, recorded], ignore_index=True)
 
