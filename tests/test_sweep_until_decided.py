@@ -213,6 +213,11 @@ def test_sequential_flags_need_until_decided() -> None:
     result = CliRunner().invoke(cli, ["sweep", "--preset", "smoke", "--interims", "3"])
     assert result.exit_code == 2
     assert "--interims only apply with --until-decided" in result.output
+    decided = ["sweep", "--preset", "smoke", "--until-decided", "--dry-run"]
+    result = CliRunner().invoke(cli, [*decided, "--seed", "0"])
+    assert result.exit_code == 2 and "leave --seed out" in result.output
+    result = CliRunner().invoke(cli, [*decided, "--calibrate"])
+    assert result.exit_code == 2 and "--calibrate prices a plain sweep's plan" in result.output
 
 
 def test_q_auto_is_refused_in_one_line_saying_where_populations_train(tmp_path: Path) -> None:

@@ -192,6 +192,17 @@ def sweep(ctx: click.Context, preset: str, **p: Any) -> None:
     grid, options = _grid_and_options(ctx, preset, p)
     sequential = {k: p[k] for k in ("interim_runs", "interims", "fwer", "control")}
     if p["until_decided"]:
+        if p["seeds"]:
+            raise click.UsageError(
+                "--until-decided takes its seeds from the design (--interim-runs per interim, "
+                "the preset's seeds first): leave --seed out."
+            )
+        if p["calibrate"]:
+            raise click.UsageError(
+                "--calibrate prices a plain sweep's plan: run the same sweep without "
+                "--until-decided with --dry-run --calibrate first; this dry run then prices the "
+                "same kinds of unit from the rates it stored."
+            )
         _until_decided(ctx, grid, p["out"], options, sequential, p["dry_run"])
         return
     given = [f"--{k.replace('_', '-')}" for k, v in sequential.items() if v is not None]
