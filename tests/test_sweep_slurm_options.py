@@ -121,3 +121,11 @@ def test_a_gpu_sweep_plans_cuda_runs_and_refuses_to_start_without_a_gpu(
     with pytest.raises(TacbenchError, match="--gpus-per-run trains on a CUDA GPU"):
         driver.run_sweep(presets.get_preset("smoke"), tmp_path, options)
     assert not (tmp_path / "runs").exists()
+
+
+def test_a_cluster_estimate_says_its_workers_are_this_machines_cores() -> None:
+    assert driver.Options().workers_source() == "this machine's cores"
+    assert driver.Options(workers=3).workers_source() == "--workers"
+    for executor in ("ray", "slurm"):
+        source = driver.Options(executor=executor).workers_source()
+        assert "not the cluster's: give --workers N" in source

@@ -218,7 +218,8 @@ def sweep(ctx: click.Context, preset: str, **p: Any) -> None:
             calibration.calibrate(
                 calibration.unit_configs(work), report=lambda line: click.echo(line, err=True)
             )
-        click.echo(summary.describe_plan(work, options.worker_count(), options.group))
+        workers = options.worker_count()
+        click.echo(summary.describe_plan(work, workers, options.group, options.workers_source()))
         return
     result = driver.run_sweep(grid, p["out"], options)
     click.echo(result.text)

@@ -138,6 +138,17 @@ class Options:
             return min(cores, self.gpu_workers())
         return cores
 
+    def workers_source(self) -> str:
+        """Where :meth:`worker_count` comes from, for the dry run's estimate."""
+        if self.workers:
+            return "--workers"
+        if self.executor == "local":
+            return "this machine's cores"
+        return (
+            f"this machine's cores, not the cluster's: give --workers N for a {self.executor} "
+            "estimate"
+        )
+
 
 @dataclass(frozen=True)
 class SweepResult:

@@ -86,7 +86,7 @@ def price(plan: SweepPlan, workers: int) -> Price:
     )
 
 
-def describe_plan(plan: SweepPlan, workers: int, group: str) -> str:
+def describe_plan(plan: SweepPlan, workers: int, group: str, workers_from: str = "") -> str:
     """The dry-run report: counts by state, the units with their members and memory, steps left
     and the cost estimate."""
     c = counts(plan)
@@ -116,7 +116,8 @@ def describe_plan(plan: SweepPlan, workers: int, group: str) -> str:
     lines += [
         "",
         f"cost estimate: {priced.core_seconds / 3600:,.1f} core-hours; with {workers} worker"
-        f"{'s' if workers != 1 else ''} about {duration(priced.wall_seconds)} "
+        f"{'s' if workers != 1 else ''}{f' ({workers_from})' if workers_from else ''} about "
+        f"{duration(priced.wall_seconds)} "
         "(one core per worker; each unit on one worker, started in plan order)",
     ]
     if CALIBRATED in sources:

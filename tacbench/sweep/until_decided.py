@@ -378,5 +378,6 @@ def describe_design(preset: Preset, out: Path, options: driver.Options, design: 
         f"at most {len(work.runs)} runs (a fixed design of {design.n} x {design.K} seeds: "
         f"{fixed}); fewer as comparisons are decided. The most it can still cost:"
     )
-    lines.append(summary.describe_plan(work, options.worker_count(), options.group))
+    workers, source = options.worker_count(), options.workers_source()
+    lines.append(summary.describe_plan(work, workers, options.group, source))
     return "\n".join(lines)
