@@ -88,6 +88,12 @@ def make_configs(
         f"{algo} hyperparameters: baselines/hyperparams/{algo}.yaml, sections "
         f"{' + '.join(sections)}" + (f"; overridden: {changed}" if changed else "")
     ]
+    starts, steps = effective.get("learning_starts"), configs[0].total_steps
+    if configs[0].off_policy and starts is not None and int(starts) >= steps:
+        notes.append(
+            f"WARNING: {algo}'s learning_starts {int(starts):,} is not below --steps {steps:,}: "
+            "every step takes a random action and the networks are never updated"
+        )
     return configs, changed, notes
 
 

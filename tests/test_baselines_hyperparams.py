@@ -184,6 +184,11 @@ def test_make_configs_applies_overrides_and_run_settings() -> None:
     assert "sections default + Humanoid; overridden: {'batch_size': 256}" in notes[0]
     data = configs[1].to_dict()
     assert data["hyperparams"]["ent_coef"] == 0.05 and data["seed"] == 10
+    assert any(note.startswith("WARNING: sac-sb3's learning_starts 10,000") for note in notes)
+    _, _, notes = make_configs("sac-sb3", "Humanoid-v4", "Humanoid", [0], total_steps=10_001)
+    assert not any(note.startswith("WARNING") for note in notes)
+    _, _, notes = make_configs("ppo", "Hopper-v4", "Hopper", [0], total_steps=300)
+    assert not any(note.startswith("WARNING") for note in notes)  # on-policy: no warm-up
     with pytest.raises(TacbenchError, match="must differ"):
         make_configs("ppo", "Hopper-v4", "Hopper", [0, 0])
     with pytest.raises(TacbenchError, match="total_steps must be an integer >= 1"):
