@@ -93,6 +93,13 @@ def make_run_configs(
                     f"q = {q:g}: the policy density is capped at {math.exp(log_cap):.3g} "
                     f"(--density-cap {rule}; the paper's Numerical Issue)"
                 )
+    first = configs[0]
+    if learned_q and 0 < first.learning_steps <= first.pbt_every:  # no round at the last step
+        notes.append(
+            f"WARNING: --pbt-every {first.pbt_every:,} is not shorter than the run's "
+            f"{first.learning_steps:,} learning steps: no population round happens, so each "
+            "member keeps the q it starts with"
+        )
     if configs[0].learning_steps == 0:
         notes.append(
             f"WARNING: --learning-starts {configs[0].learning_starts:,} is not below --steps "

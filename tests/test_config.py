@@ -98,6 +98,15 @@ def test_a_run_that_never_learns_is_warned_about(steps: int, warned: bool) -> No
     assert any(note.startswith(warning) for note in notes) == warned, notes
 
 
+def test_a_population_that_never_exploits_is_warned_about() -> None:
+    seeds = [0, 10, 20, 30]
+    population = {"q_mode": "auto"}
+    _, notes = make_run_configs("Hopper-v4", "Hopper", seeds, total_steps=20_000, **population)
+    assert any(note.startswith("WARNING: --pbt-every 10,000 is not shorter") for note in notes)
+    _, notes = make_run_configs("Hopper-v4", "Hopper", seeds, total_steps=20_001, **population)
+    assert not any(note.startswith("WARNING: --pbt-every") for note in notes)
+
+
 def test_the_density_cap_is_mentioned_where_its_rule_applies() -> None:
     _, notes = make_run_configs("Hopper-v4", "Hopper", [0])
     assert any("q = 2: the policy density is capped at 1e+08" in note for note in notes)
