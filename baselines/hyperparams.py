@@ -254,7 +254,8 @@ def coerce(algo: str, key: str, value: Any) -> Any:
         and value.startswith("auto")
     ):
         initial = kind == "ent-coef" and value.startswith("auto_")  # the learned value's start
-        if value == "auto" or (initial and (_number(value[5:]) or 0) > 0):
+        start = _number(value[5:]) if initial else None
+        if value == "auto" or (start is not None and 0 < start < math.inf):
             return value
         raise bad
     number = _number(value)

@@ -147,6 +147,8 @@ def test_a_bad_key_names_the_valid_keys() -> None:
         ("ppo", "normalize=yes please", "true or false"),
         ("ppo", "ent_coef=auto", "ent_coef for ppo must be a number >= 0"),
         ("sac-sb3", "ent_coef=automatic", '"auto" or "auto_<initial value>"'),
+        ("sac-sb3", "ent_coef=auto_inf", '"auto" or "auto_<initial value>"'),
+        ("sac-sb3", "ent_coef=auto_nan", '"auto" or "auto_<initial value>"'),
         ("td3", "train_freq=[1, day]", 'an integer >= 1, or [n,"step"]'),
     ],
 )
