@@ -65,6 +65,7 @@ def report(
 ) -> None:
     """Figures, tables and rliable statistics from the run directories under --results."""
     from tacbench.report import ReportOptions, analyse, write_report  # pandas etc. only here
+    from tacbench.report.mixing import cautions
     from tacbench.runs.files import check_writable
 
     check_writable(out)  # before the analysis, which can take minutes
@@ -81,6 +82,8 @@ def report(
     analysed = analyse(options)
     write_report(analysed)
     runs, skipped = analysed.runset.runs, analysed.runset.skipped
+    for caution in cautions(runs):
+        click.echo(f"caution: {caution}", err=True)
     click.echo(
         f"{len(runs)} runs loaded ({int(runs['partial'].sum())} partial), {len(skipped)} skipped"
         f"{' (see skipped.csv)' if skipped else ''}; wrote {out / 'index.html'} and "

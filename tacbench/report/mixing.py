@@ -1,0 +1,45 @@
+"""What a report's runs mix that its comparisons take as alike: several TAC settings on one task
+(compared with one q = 1 and pooled into the q ranges by q alone) and several budgets on one task
+(final returns of different lengths of training). The report says so; it does not refuse."""
+
+from __future__ import annotations
+
+import math
+import re
+
+import pandas as pd
+
+# a TAC variant's q and alpha part: q1.5-a0.2, qauto-aauto0.2, q1e-05-a0.2 (numbers in %g form)
+_Q_ALPHA = re.compile(r"^q(?:auto|[0-9.]+(?:e[+-]\d+)?)-a(?:auto)?[0-9.]+(?:e[+-]\d+)?")
+
+
+def tac_setting(variant: str) -> str:
+    """A TAC variant without its q and alpha: the settings that differ from the defaults
+    (``q1.5-a0.2-bs32`` -> ``bs32``; ``""`` for the defaults)."""
+    match = _Q_ALPHA.match(variant)
+    return variant[match.end() :].lstrip("-") if match else variant
+
+
+def cautions(runs: pd.DataFrame) -> list[str]:
+    """One sentence per task whose TAC runs have several settings, and per task whose runs
+    were planned for several budgets."""
+    found = []
+    tac = runs[runs["algo"] == "tac"]
+    for env, group in tac.groupby("env"):
+        settings = sorted({tac_setting(v) for v in group["variant"]})
+        if len(settings) > 1:
+            shown = ", ".join(f"`{s}`" if s else "the defaults" for s in settings)
+            found.append(
+                f"{env}: TAC runs of {len(settings)} settings ({shown}); the comparisons with "
+                "q = 1 and the q ranges take them as one family (rows carry the variant where a "
+                "q has several). Report one setting at a time to compare like with like."
+            )
+    for env, group in runs.groupby("env"):
+        budgets = sorted({int(b) for b in group["total_steps"] if not math.isnan(b)})
+        if len(budgets) > 1:
+            found.append(
+                f"{env}: runs planned for {len(budgets)} budgets "
+                f"({', '.join(f'{b:,}' for b in budgets)} steps); final returns after different "
+                "lengths of training are compared as if alike."
+            )
+    return found

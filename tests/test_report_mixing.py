@@ -1,0 +1,67 @@
+"""The report's cautions: several TAC settings or several budgets on one task."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import pandas as pd
+import pytest
+from click.testing import CliRunner
+
+from tacbench.cli import cli
+from tacbench.report.mixing import cautions, tac_setting
+from tests.report_fixtures import write_run
+
+pytestmark = pytest.mark.unit
+
+
+@pytest.mark.parametrize(
+    ("variant", "setting"),
+    [
+        ("q1.5-a0.2", ""),
+        ("q1.5-a0.2-bs32", "bs32"),
+        ("qauto-aauto0.2-joint-log_std_min-5", "joint-log_std_min-5"),
+        ("q1e-05-a0.2-ref", "ref"),
+    ],
+)
+def test_a_tac_setting_is_its_variant_without_q_and_alpha(variant: str, setting: str) -> None:
+    assert tac_setting(variant) == setting
+
+
+def _runs(rows: list[tuple[str, str, str, float]]) -> pd.DataFrame:
+    return pd.DataFrame(rows, columns=["algo", "env", "variant", "total_steps"])
+
+
+def test_several_settings_or_budgets_on_a_task_are_cautioned() -> None:
+    alike = _runs([("tac", "H", "q1-a0.2", 1e5), ("tac", "H", "q2-a0.05", 1e5)])
+    assert cautions(alike) == []  # q and alpha are what a report compares
+    settings = _runs([("tac", "H", "q1-a0.2-bs32", 1e5), ("tac", "H", "q2-a0.2", 1e5)])
+    [caution] = cautions(settings)
+    assert caution.startswith("H: TAC runs of 2 settings (the defaults, `bs32`)")
+    budgets = _runs([("tac", "H", "q1-a0.2", 1e3), ("td3", "H", "default", 1e5)])
+    [caution] = cautions(budgets)
+    assert caution.startswith("H: runs planned for 2 budgets (1,000, 100,000 steps)")
+    unknown = _runs([("tac", "H", "q1-a0.2", math.nan), ("td3", "H", "default", 1e5)])
+    assert cautions(unknown) == []
+
+
+def test_the_report_prints_and_shows_its_cautions(tmp_path: Path) -> None:
+    for variant, q in (("q1-a0.2", 1.0), ("q2-a0.2-bs32", 2.0)):
+        for seed in (0, 10):
+            write_run(
+                tmp_path,
+                algo="tac",
+                env="Hopper-v4",
+                variant=variant,
+                seed=seed,
+                steps=[1.0, 2.0],
+                returns=[1.0, 2.0 + seed],
+                q=q,
+                alpha=0.2,
+            )
+    out = tmp_path / "report"
+    result = CliRunner().invoke(cli, ["report", "--results", str(tmp_path), "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    assert "caution: Hopper-v4: TAC runs of 2 settings" in result.output
+    assert "Caution: Hopper-v4: TAC runs of 2 settings" in (out / "report.md").read_text()
