@@ -159,6 +159,7 @@ def test_failed_unreadable_and_duplicate_runs_are_skipped_with_reasons(tmp_path:
     config.write_text(json.dumps({**json.loads(config.read_text()), "seed": "three"}))
     (_tac(tmp_path, seed=4) / "eval.csv").unlink()
     (_tac(tmp_path, seed=5) / "eval.csv").write_text("step,wall_s,return_mean\n")
+    (_tac(tmp_path, seed=9, state="running") / "eval.csv").write_text("step,wall_s,return_mean\n")
     (_tac(tmp_path, seed=6) / "eval.csv").write_text("step,reward\n1,2\n")
     (_tac(tmp_path, seed=7) / "eval.csv").write_text("")
     duplicate = _tac(tmp_path / "copy", seed=0).parent.parent.parent.parent.parent
@@ -176,12 +177,13 @@ def test_failed_unreadable_and_duplicate_runs_are_skipped_with_reasons(tmp_path:
     assert reasons["seed2"].reason.startswith("config.json unreadable")
     assert reasons["seed3"].reason == "config.json: 'seed' missing or not an integer"
     assert reasons["seed4"].reason == "eval.csv missing"
-    assert reasons["seed5"].reason == "eval.csv has no rows yet"
+    assert reasons["seed5"].reason.startswith("eval.csv has no rows (the run made no evaluation")
+    assert reasons["seed9"].reason == "eval.csv has no rows yet"  # still running
     assert reasons["seed6"].reason.startswith("eval.csv unreadable")
     assert reasons["seed7"].reason == "eval.csv is empty"
     assert reasons["seed8"].reason == "config.json: a TAC run needs a number q > 0"
     assert reasons["seed0-copy"].reason.startswith("duplicate of tac/Hopper-v4/q1.5-a0.2/seed0")
-    assert len(runset.skipped) == 9
+    assert len(runset.skipped) == 10
 
 
 def test_no_runs_is_a_clear_error(tmp_path: Path) -> None:

@@ -244,7 +244,12 @@ def _series(
             )
         _check_numbers(fields, filename, number)
     if not lines:
-        raise _Unreadable(f"{filename} has no rows yet")
+        raise _Unreadable(
+            f"{filename} has no rows (the run made no evaluation: --eval-every 0? report "
+            "--metric train)"
+            if state == "complete" and metric == "eval"
+            else f"{filename} has no rows yet"
+        )
     # the checked lines, parsed by pandas as the published reports were (its fast parser can
     # differ from Python's float in the last bit)
     whole = io.StringIO("\n".join([header, *lines]))
