@@ -261,6 +261,13 @@ def replay_study(
     replays = {}
     for env, runs in table.groupby("env", sort=True):
         by_q = {f"q={q:g}": group["final"].tolist() for q, group in runs.groupby("q", sort=True)}
+        short = sorted(q for q, scores in by_q.items() if len(scores) < n * K)
+        if short:
+            raise TacbenchError(
+                f"{env}: {', '.join(short)} {'has' if len(short) == 1 else 'have'} fewer than "
+                f"the {n * K} complete runs a replay of n = {n}, K = {K} needs; the replayed "
+                "study needs every q's runs on every task."
+            )
         replays[str(env)] = run_sequential(by_q, n, K, alpha, control=f"q={control_q:g}")
     return replays
 

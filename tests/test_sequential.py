@@ -14,6 +14,7 @@ import pytest
 
 from tacbench import sequential as sq
 from tacbench.errors import TacbenchError
+from tests.report_fixtures import write_run
 
 pytestmark = pytest.mark.unit
 
@@ -112,3 +113,21 @@ def test_a_design_it_cannot_run_is_refused(kwargs: dict, message: str) -> None:
         sq.run_sequential({"a": [1.0] * 4, "b": [2.0] * 4}, **kwargs)
     with pytest.raises(TacbenchError, match="at least two methods"):
         sq.run_sequential({"a": [1.0] * 4}, n=2, K=2)
+
+
+def test_a_replay_of_a_study_short_of_runs_names_the_task_and_the_q(tmp_path: Path) -> None:
+    for q, seeds in ((1.0, range(0, 50, 10)), (2.0, range(0, 40, 10))):
+        for seed in seeds:
+            write_run(
+                tmp_path,
+                algo="tac",
+                env="Hopper-v4",
+                variant=f"q{q:g}-a0.2",
+                seed=seed,
+                steps=[1.0, 2.0],
+                returns=[1.0, float(seed)],
+                q=q,
+                alpha=0.2,
+            )
+    with pytest.raises(TacbenchError, match="Hopper-v4: q=2 has fewer than the 5 complete runs"):
+        sq.replay_study(tmp_path, 5, 1)
