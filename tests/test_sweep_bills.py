@@ -173,3 +173,22 @@ def test_the_bills_command_says_when_no_sweep_trained_the_runs(tmp_path: Path) -
     _run(tmp_path / "a", "tacbench run", "2026-12-05T01:00:00+00:00", "2026-12-05T01:00:10Z")
     result = CliRunner().invoke(cli, ["study", "bills", str(tmp_path)])
     assert result.exit_code == 1 and "was trained by a tacbench sweep" in result.output
+
+
+def test_a_recorded_command_this_tacbench_refuses_does_not_hide_the_other_bills(
+    tmp_path: Path,
+) -> None:
+    bogus = "tacbench sweep --preset bogus --out /elsewhere"
+    _run(
+        tmp_path / "old/runs/tac/Hopper-v4/q1-a0.2/seed0",
+        bogus,
+        "2026-12-05T01:00:00Z",
+        "2026-12-05T01:00:05Z",
+    )
+    for key in SMOKE_RUNS:
+        _run(tmp_path / "new" / key, SMOKE, "2026-12-05T02:00:00Z", "2026-12-05T02:00:05Z")
+    folders = [str(tmp_path / "old"), str(tmp_path / "new"), str(tmp_path / "new")]
+    result = CliRunner().invoke(cli, ["study", "bills", *folders])
+    assert result.exit_code == 0, result.output
+    assert f"{bogus}\n  cannot be priced here: this tacbench does not accept" in result.output
+    assert result.output.count(SMOKE) == 1  # a folder given twice is read once

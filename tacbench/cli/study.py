@@ -12,6 +12,7 @@ import click
 import pandas as pd
 
 from tacbench.cli.options import ResultsFolder
+from tacbench.errors import TacbenchError
 from tacbench.studies import parity as parity_study
 
 _RESULTS = click.Path(exists=True, file_okay=False, path_type=Path)
@@ -163,13 +164,18 @@ def bills(results: tuple[Path, ...], calibrate: bool) -> None:
 
     here = cpu_class()
     report = (lambda line: click.echo(line, err=True)) if calibrate else None
-    found = [took for folder in results for took in sweep_bills.sweeps(folder)]
+    folders = dict.fromkeys(folder.resolve() for folder in results)  # each folder once
+    found = [took for folder in folders for took in sweep_bills.sweeps(folder)]
     if not found:
         raise click.ClickException(
             f"no run under {', '.join(map(str, results))} was trained by a tacbench sweep."
         )
     for took in found:
-        grid, options = recorded_sweep(took.command, Path("unused"))
+        try:
+            grid, options = recorded_sweep(took.command, Path("unused"))
+        except TacbenchError as err:  # one sweep that cannot be priced does not hide the others
+            click.echo(f"{took.command}\n  cannot be priced here: {err}")
+            continue
         if took.workers is not None:  # what it ran on, whatever the command left to the machine
             options = dataclasses.replace(options, workers=took.workers)
         priced = sweep_bills.reprice(grid, options, took.keys, report)

@@ -293,6 +293,11 @@ def recorded_sweep(command: str, out: Path) -> tuple[Any, Any]:
     args = shlex.split(command)
     if args[:2] != ["tacbench", "sweep"]:
         raise TacbenchError(f"not a tacbench sweep command: {command!r}")
-    with sweep.make_context("sweep", [*args[2:], "--out", str(out)]) as ctx:
-        p = dict(ctx.params)
-        return _grid_and_options(ctx, p.pop("preset"), p)
+    try:
+        with sweep.make_context("sweep", [*args[2:], "--out", str(out)]) as ctx:
+            p = dict(ctx.params)
+            return _grid_and_options(ctx, p.pop("preset"), p)
+    except click.ClickException as err:  # a flag renamed or removed since it was recorded
+        raise TacbenchError(
+            f"this tacbench does not accept the recorded command: {err.format_message()}"
+        ) from None
