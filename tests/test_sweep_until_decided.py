@@ -99,6 +99,11 @@ def test_methods_are_labelled_as_the_report_labels_them_and_the_control_is_resol
     best = until_decided.control_of(Design(control="best-q"), "HalfCheetah-v4", cheetah)
     assert best == "TAC q=1.5"
     assert until_decided.control_of(Design(control="td3"), "HalfCheetah-v4", cheetah) == "TD3"
+    upper = until_decided.control_of(Design(control="BEST-Q"), "HalfCheetah-v4", cheetah)
+    assert upper == "TAC q=1.5"  # the keywords ignore case, as the method names do
+    assert until_decided.control_of(Design(control="Pairs"), "HalfCheetah-v4", cheetah) is None
+    baselines = narrow(get_preset("paper-comparison"), Narrowing(algos=("td3", "ppo")))
+    assert until_decided.default_control(baselines) == "pairs"  # no TAC to compare them with
     with pytest.raises(TacbenchError, match="--control q=x: HalfCheetah-v4 has no such method"):
         until_decided.control_of(Design(control="q=x"), "HalfCheetah-v4", cheetah)
 

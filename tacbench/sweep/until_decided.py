@@ -98,9 +98,13 @@ def seed_order(seeds: Sequence[int], count: int) -> tuple[int, ...]:
 
 
 def default_control(preset: Preset) -> str:
-    """TAC at the paper's best q for a grid that holds baselines (the comparison study), else
-    SAC (TAC q = 1, the paper's question: does a q other than 1 help?)."""
-    return BEST_Q if any(e.algo != "tac" for e in preset.entries) else tac_label(1.0)
+    """TAC at the paper's best q for a grid that holds baselines (the comparison study), SAC
+    (TAC q = 1, the paper's question: does a q other than 1 help?) for TAC alone, and every
+    pair for baselines alone (no TAC to compare them with)."""
+    algos = {e.algo for e in preset.entries}
+    if "tac" not in algos:
+        return PAIRS
+    return BEST_Q if algos != {"tac"} else tac_label(1.0)
 
 
 def methods_of(preset: Preset) -> dict[str, list[Method]]:
@@ -131,9 +135,9 @@ def control_of(design: Design, env: str, methods: Sequence[Method]) -> str | Non
             f"{', '.join(labels)}); keep more of the preset's q values or algorithms."
         )
     wanted = design.control
-    if wanted == PAIRS:
+    if wanted.lower() == PAIRS:
         return None
-    if wanted == BEST_Q:
+    if wanted.lower() == BEST_Q:
         facts = paper.TASK_FACTS[paper.task_name(env)]
         wanted = tac_label(facts.best_q)
     found = [label for label in labels if label.lower() == wanted.lower()]
