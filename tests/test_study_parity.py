@@ -217,3 +217,14 @@ def test_a_folder_without_the_studys_runs_is_a_clear_error(tmp_path: Path) -> No
     )
     with pytest.raises(TacbenchError, match="no complete run of TAC at q = 1 or of sac-sb3"):
         parity.analyse(tmp_path)
+
+
+def test_the_commands_refuse_what_tacbench_run_would_refuse() -> None:
+    runner = CliRunner()
+    result = runner.invoke(cli, ["study", "parity", "commands", "--env", "Nope-v0"])
+    assert result.exit_code == 2 and "unknown environment 'Nope-v0'" in result.output
+    for flag, value in (("--seed", "-1"), ("--steps", "0")):
+        result = runner.invoke(cli, ["study", "parity", "commands", flag, value])
+        assert result.exit_code == 2 and "is not in the range" in result.output
+    result = runner.invoke(cli, ["study", "parity", "commands", "--env", "hopper"])
+    assert result.exit_code == 0 and "--env Hopper-v4" in result.output

@@ -68,21 +68,33 @@ def parity() -> None:
 
 @parity.command(name="commands")
 @click.option("--env", "envs", multiple=True, help="Repeatable.  [default: the study's]")
-@click.option("--seed", "seeds", type=int, multiple=True, help="Repeatable.  [default: 0-40]")
-@click.option("--steps", type=int, default=parity_study.STEPS, show_default=True)
+@click.option(
+    "--seed",
+    "seeds",
+    type=click.IntRange(min=0),
+    multiple=True,
+    help="Repeatable.  [default: 0-40]",
+)
+@click.option("--steps", type=click.IntRange(min=1), default=parity_study.STEPS, show_default=True)
 @click.option("--out", default="results/parity", show_default=True, help="Results folder.")
 def parity_commands(envs: tuple[str, ...], seeds: tuple[int, ...], steps: int, out: str) -> None:
     """Print the study's tacbench run commands."""
-    lines = parity_study.commands(
-        envs or parity_study.ENVS, seeds or parity_study.SEEDS, steps, out
-    )
+    from tacbench.envs import resolve_env_id
+
+    tasks = [resolve_env_id(env) for env in envs] or parity_study.ENVS  # a bad name says so now
+    lines = parity_study.commands(tasks, seeds or parity_study.SEEDS, steps, out)
     click.echo("\n".join(lines))
 
 
 @parity.command(name="analyse")
 @click.option("--results", type=_RESULTS, default=Path("results/parity"), show_default=True)
 @click.option("--out", type=_OUT, help="Also write each table here as CSV, and curves.png.")
-@click.option("--reps", type=click.IntRange(min=1), default=parity_study.REPS, show_default=True)
+@click.option(
+    "--reps",
+    type=click.IntRange(min=100),  # as tacbench report: fewer make no interval worth reading
+    default=parity_study.REPS,
+    show_default=True,
+)
 @click.option(
     "--fraction",
     type=float,
