@@ -19,16 +19,18 @@ def envs_command(suite: str) -> None:
     """List the paper's task suite with its Gymnasium ids and the paper's alpha and best q."""
     from tacbench.envs import suite_table
 
+    rows = suite_table(suite)
+    width = max(len("best q"), *(len(paper.TASK_FACTS[r["task"]].best_q_label) for r in rows))
     header = (
         f"{'task':<12} {'env':<16} {'obs':>4} {'act':>4} {'limit':>6} {'alpha':>6}  "
-        f"{'best q':<20} loads"
+        f"{'best q':<{width}}  loads"
     )
     click.echo(header)
-    for row in suite_table(suite):
+    for row in rows:
         facts = paper.TASK_FACTS[row["task"]]
         click.echo(
             f"{row['task']:<12} {row['env']:<16} {row['obs']!s:>4} {row['act']!s:>4} "
-            f"{row['limit']!s:>6} {facts.alpha:>6g}  {facts.best_q_label:<20} {row['ok']}"
+            f"{row['limit']!s:>6} {facts.alpha:>6g}  {facts.best_q_label:<{width}}  {row['ok']}"
         )
     click.echo(
         "alpha and best q: paper appendix, per-task table"
