@@ -88,6 +88,10 @@ class Options:
             )
         if self.shares_local_gpu:
             self._check_local_gpu_share()
+        if self.partition is not None and not self.partition.strip():
+            raise TacbenchError(
+                "--partition needs a partition's name (leave it out for the default)."
+            )
         slurm_only = self.partition or self.slurm_args or self.time_limit is not None
         if self.executor != "slurm" and slurm_only:
             raise TacbenchError(

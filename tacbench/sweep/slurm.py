@@ -65,17 +65,42 @@ def parse_time(text: str) -> int:
     return -(-seconds // 60)
 
 
+OWN_OPTIONS = {
+    "time": "--time",
+    "partition": "--partition",
+    "cpus_per_task": "--cpus-per-run",
+    "gpus_per_node": "--gpus-per-run",
+    "gpus": "--gpus-per-run",
+    "requeue": "",
+    "array": "",
+    "job_name": "",
+    "signal": "",
+}
+"""sbatch options the sweep sets itself (with the flag that sets each, where there is one):
+the array holds the units, and requeueing after the SIGUSR2 checkpoint is how a unit longer
+than --time continues."""
+
+
 def parse_slurm_args(pairs: tuple[str, ...]) -> dict[str, str]:
-    """``--slurm-arg KEY=VALUE`` pairs as sbatch options (``mem=8G`` is ``#SBATCH --mem=8G``)."""
+    """``--slurm-arg KEY=VALUE`` pairs as sbatch options (``mem=8G`` is ``#SBATCH --mem=8G``);
+    one that the sweep sets itself (:data:`OWN_OPTIONS`) or given twice is refused."""
     parsed: dict[str, str] = {}
     for pair in pairs:
         key, sep, value = pair.partition("=")
         key = key.strip().lstrip("-").replace("-", "_")
-        if not sep or not key:
+        if not sep or not key or not value.strip():
             raise TacbenchError(
                 f"--slurm-arg {pair!r}: give KEY=VALUE, an sbatch option without its dashes "
                 "(e.g. --slurm-arg mem=8G --slurm-arg qos=normal)."
             )
+        if key in OWN_OPTIONS:
+            flag = OWN_OPTIONS[key]
+            raise TacbenchError(
+                f"--slurm-arg {pair!r}: the sweep sets --{key.replace('_', '-')} itself"
+                + (f"; give {flag} instead." if flag else " (docs/sweep.md, 'Slurm').")
+            )
+        if key in parsed:
+            raise TacbenchError(f"--slurm-arg {key.replace('_', '-')} is given twice.")
         parsed[key] = value
     return parsed
 
