@@ -301,7 +301,7 @@ def test_cli_sweep_dry_run_and_option_errors(tmp_path: Path) -> None:
     assert dry.exit_code == 0, dry.output
     assert "540 runs: 0 complete, 0 partial, 0 failed" in dry.output
     assert "environment steps left: 540,000,000 of 540,000,000" in dry.output
-    assert "with 4 workers about" in dry.output
+    assert "with 4 workers (--workers) about" in dry.output
     assert not (tmp_path / "sweep").exists()  # a dry run writes nothing
     for args, message in [
         (["--address", "auto"], "are Ray options: add --executor ray"),

@@ -12,7 +12,7 @@ from click.testing import CliRunner
 
 from tacbench.cli import cli
 from tacbench.errors import TacbenchError
-from tacbench.sweep import driver, presets, slurm, summary
+from tacbench.sweep import driver, options, presets, slurm, summary
 
 pytestmark = pytest.mark.unit
 
@@ -109,10 +109,10 @@ def test_the_cli_refuses_a_bad_time_with_status_2(tmp_path: Path) -> None:
 def test_the_local_executor_shares_its_gpu_between_one_over_the_share_workers(
     share: float, workers: int, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    monkeypatch.setattr(driver.os, "sched_getaffinity", lambda _: set(range(16)), raising=False)
+    monkeypatch.setattr(options.os, "sched_getaffinity", lambda _: set(range(16)), raising=False)
     assert driver.Options(gpus_per_run=share).worker_count() == workers
     assert driver.Options(gpus_per_run=share, workers=1).worker_count() == 1
-    monkeypatch.setattr(driver.os, "sched_getaffinity", lambda _: {0}, raising=False)
+    monkeypatch.setattr(options.os, "sched_getaffinity", lambda _: {0}, raising=False)
     assert driver.Options(gpus_per_run=share).worker_count() == 1  # never more than the cores
 
 

@@ -254,7 +254,8 @@ def _until_decided(
 def _grid_and_options(ctx: click.Context, preset: str, p: dict[str, Any]) -> tuple[Any, Any]:
     """The sweep's grid (the preset narrowed and its settings replaced) and its options, from
     the parsed flags ``p`` (the settings' flags are taken out of it)."""
-    from tacbench.sweep import driver, presets
+    from tacbench.sweep import presets
+    from tacbench.sweep.options import Options
 
     overrides = {name: p.pop(name) for name in _OVERRIDES}
     grid = presets.narrow(
@@ -268,7 +269,7 @@ def _grid_and_options(ctx: click.Context, preset: str, p: dict[str, Any]) -> tup
             p.pop("suite"),
         ),
     )
-    options = driver.Options(
+    options = Options(
         executor=p["executor"],
         workers=p["workers"],
         address=p["address"],

@@ -29,6 +29,7 @@ from typing import Any
 
 from tacbench import runs
 from tacbench.sweep import calibration, driver, summary
+from tacbench.sweep.options import Options
 from tacbench.sweep.presets import Preset
 
 BILL = "bill"
@@ -148,7 +149,7 @@ class Repriced:
 
 def reprice(
     grid: Preset,
-    options: driver.Options,
+    options: Options,
     only: frozenset[str] | None = None,
     report: Callable[[str], None] | None = None,
 ) -> Repriced:

@@ -41,13 +41,14 @@ from tacbench.sequential import (
     run_sequential,
 )
 from tacbench.sweep import driver, plan, state, summary
+from tacbench.sweep.options import Options
 from tacbench.sweep.presets import Entry, Preset
 
 # the paper's seeds are 0, 10, ..., 90 (line 2054); further seeds continue that spacing
 SEED_SPACING = 10
 PAIRS = "pairs"  # --control pairs: every pair of methods
 BEST_Q = "best-q"  # --control best-q: TAC at the paper's best q of each task
-Train = Callable[[Preset, Path, driver.Options, IO[str] | None], driver.SweepResult]
+Train = Callable[[Preset, Path, Options, IO[str] | None], driver.SweepResult]
 
 
 @dataclass(frozen=True)
@@ -270,7 +271,7 @@ class Outcome:
 def run_until_decided(
     preset: Preset,
     out: Path,
-    options: driver.Options,
+    options: Options,
     design: Design,
     stream: IO[str] | None = None,
     train: Train = driver.run_sweep,
@@ -343,7 +344,7 @@ def _decisions(decisions: dict[Pair, str]) -> str:
     return "; ".join(f"{a} vs {b}: {d}" for (a, b), d in decisions.items())
 
 
-def describe_design(preset: Preset, out: Path, options: driver.Options, design: Design) -> str:
+def describe_design(preset: Preset, out: Path, options: Options, design: Design) -> str:
     """The dry run: each task's methods and comparisons, what the record holds (its decisions),
     the most runs and core-hours the design can still take (every open comparison to the last
     interim; a method no longer in one keeps the runs it has), the fixed design's runs, and the
