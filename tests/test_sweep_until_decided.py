@@ -187,6 +187,11 @@ def test_a_record_of_another_design_or_an_edited_decision_is_refused(tmp_path: P
     run_until_decided(HOPPER, tmp_path, driver.Options(), Design(n=5, K=2), train=FakeTrain())
     with pytest.raises(TacbenchError, match=r"another sequential design.*another --out"):
         run_until_decided(HOPPER, tmp_path, driver.Options(), Design(n=5, K=3))
+    with pytest.raises(TacbenchError, match=r"another sequential design"):
+        run_until_decided(HOPPER, tmp_path, driver.Options(), Design(n=5, K=2, control="q=2"))
+    same = Design(n=5, K=2, control="q=1")  # the recorded default control, spelled another way
+    resumed = run_until_decided(HOPPER, tmp_path, driver.Options(), same, train=FakeTrain())
+    assert resumed.exit_code == 0
     path = tmp_path / "sweep" / "sequential.json"
     record = json.loads(path.read_text())
     record["interims"]["Hopper-v4"][0]["decisions"][1]["decision"] = "continue"

@@ -201,7 +201,8 @@ class Record:
         if not self.path.exists():
             return
         stored = runs.read_json(self.path)
-        if stored.get("design") != asdict(design) or stored.get("methods") != self.methods:
+        same = _same_design(stored.get("design"), design, tasks)
+        if stored.get("methods") != self.methods or not same:
             raise TacbenchError(
                 f"{self.path} records another sequential design or other methods "
                 f"({stored.get('design')}, {stored.get('methods')}); rerun with the flags it "
@@ -232,6 +233,20 @@ class Record:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         data = {"design": asdict(self.design), "methods": self.methods, "interims": self.interims}
         runs.atomic_write_json(self.path, data)
+
+
+def _same_design(stored: Any, design: Design, tasks: dict[str, list[Method]]) -> bool:
+    """Whether a recorded design is ``design``, its control compared as resolved on each task
+    (``q=1`` is ``SAC (TAC q=1)``, ``BEST-Q`` is ``best-q``), not as spelled."""
+    try:
+        before = Design(**stored)
+        resolved = [
+            {env: control_of(d, env, methods) for env, methods in tasks.items()}
+            for d in (before, design)
+        ]
+    except (TypeError, TacbenchError):  # not a design, or a control these tasks do not have
+        return False
+    return replace(before, control="") == replace(design, control="") and resolved[0] == resolved[1]
 
 
 def comparisons(record: Record, controls: dict[str, str | None]) -> dict[str, SequentialComparison]:
