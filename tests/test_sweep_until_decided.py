@@ -21,9 +21,10 @@ from tacbench.cli import cli
 from tacbench.detectable import detectable_difference
 from tacbench.errors import TacbenchError
 from tacbench.report.build import ReportOptions, analyse
-from tacbench.sweep import driver, plan, until_decided
+from tacbench.sweep import driver, plan, sequential_design, until_decided
 from tacbench.sweep.presets import Narrowing, Preset, get_preset, narrow
-from tacbench.sweep.until_decided import Design, run_until_decided
+from tacbench.sweep.sequential_design import Design
+from tacbench.sweep.until_decided import run_until_decided
 from tests.helpers import assert_same_results, past_checkpoint, start_cli, wait_for
 from tests.report_fixtures import write_run
 
@@ -77,35 +78,35 @@ def _write_complete(out: Path, run: plan.Run, value: float) -> None:
 
 
 def test_seeds_are_the_presets_then_further_ones_at_its_spacing() -> None:
-    assert until_decided.seed_order((0, 10), 4) == (0, 10, 20, 30)
-    assert until_decided.seed_order(tuple(range(0, 100, 10)), 12)[-3:] == (90, 100, 110)
-    assert until_decided.seed_order((0, 10, 20), 2) == (0, 10)
+    assert sequential_design.seed_order((0, 10), 4) == (0, 10, 20, 30)
+    assert sequential_design.seed_order(tuple(range(0, 100, 10)), 12)[-3:] == (90, 100, 110)
+    assert sequential_design.seed_order((0, 10, 20), 2) == (0, 10)
 
 
 def test_methods_are_labelled_as_the_report_labels_them_and_the_control_is_resolved() -> None:
-    tasks = until_decided.methods_of(HOPPER)
+    tasks = sequential_design.methods_of(HOPPER)
     assert [m.label for m in tasks["Hopper-v4"]] == ["SAC (TAC q=1)", "TAC q=2", "TAC q=5"]
     methods = tasks["Hopper-v4"]
-    assert until_decided.default_control(HOPPER) == "SAC (TAC q=1)"
-    assert until_decided.control_of(Design(control="q=2"), "Hopper-v4", methods) == "TAC q=2"
-    assert until_decided.control_of(Design(control="pairs"), "Hopper-v4", methods) is None
+    assert sequential_design.default_control(HOPPER) == "SAC (TAC q=1)"
+    assert sequential_design.control_of(Design(control="q=2"), "Hopper-v4", methods) == "TAC q=2"
+    assert sequential_design.control_of(Design(control="pairs"), "Hopper-v4", methods) is None
     with pytest.raises(TacbenchError, match=r"choose one of SAC .*TAC q=5, best-q or pairs"):
-        until_decided.control_of(Design(control="TD3"), "Hopper-v4", methods)
+        sequential_design.control_of(Design(control="TD3"), "Hopper-v4", methods)
     comparison = narrow(get_preset("paper-comparison"), Narrowing(tasks=("HalfCheetah",)))
-    assert until_decided.default_control(comparison) == "best-q"
-    cheetah = until_decided.methods_of(comparison)["HalfCheetah-v4"]
+    assert sequential_design.default_control(comparison) == "best-q"
+    cheetah = sequential_design.methods_of(comparison)["HalfCheetah-v4"]
     labels = [m.label for m in cheetah]
     assert labels == ["TAC q=1.5", "SAC (TAC q=1)", "DDPG", "TD3", "PPO", "TRPO", "SAC (SB3)"]
-    best = until_decided.control_of(Design(control="best-q"), "HalfCheetah-v4", cheetah)
+    best = sequential_design.control_of(Design(control="best-q"), "HalfCheetah-v4", cheetah)
     assert best == "TAC q=1.5"
-    assert until_decided.control_of(Design(control="td3"), "HalfCheetah-v4", cheetah) == "TD3"
-    upper = until_decided.control_of(Design(control="BEST-Q"), "HalfCheetah-v4", cheetah)
+    assert sequential_design.control_of(Design(control="td3"), "HalfCheetah-v4", cheetah) == "TD3"
+    upper = sequential_design.control_of(Design(control="BEST-Q"), "HalfCheetah-v4", cheetah)
     assert upper == "TAC q=1.5"  # the keywords ignore case, as the method names do
-    assert until_decided.control_of(Design(control="Pairs"), "HalfCheetah-v4", cheetah) is None
+    assert sequential_design.control_of(Design(control="Pairs"), "HalfCheetah-v4", cheetah) is None
     baselines = narrow(get_preset("paper-comparison"), Narrowing(algos=("td3", "ppo")))
-    assert until_decided.default_control(baselines) == "pairs"  # no TAC to compare them with
+    assert sequential_design.default_control(baselines) == "pairs"  # no TAC to compare them with
     with pytest.raises(TacbenchError, match="--control q=x: HalfCheetah-v4 has no such method"):
-        until_decided.control_of(Design(control="q=x"), "HalfCheetah-v4", cheetah)
+        sequential_design.control_of(Design(control="q=x"), "HalfCheetah-v4", cheetah)
 
 
 def test_bad_designs_are_refused_with_what_to_change(tmp_path: Path) -> None:

@@ -237,9 +237,10 @@ def _until_decided(
 ) -> None:
     """``--until-decided``: the sequential sweep, or its dry run."""
     from tacbench.sweep import until_decided
+    from tacbench.sweep.sequential_design import Design
 
     fields = {"n": "interim_runs", "K": "interims", "alpha": "fwer", "control": "control"}
-    design = until_decided.Design(
+    design = Design(
         **{field: given[flag] for field, flag in fields.items() if given[flag] is not None}
     )
     if dry_run:
