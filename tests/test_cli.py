@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from pathlib import Path
 from unittest import mock
 
@@ -131,3 +133,14 @@ def test_an_empty_out_is_refused_rather_than_writing_into_the_current_folder(
     assert result.exit_code == 2
     assert "must name a folder" in result.output
     assert not any(tmp_path.iterdir())
+
+
+def test_the_command_line_loads_without_the_heavy_libraries() -> None:
+    """`tacbench --help` and every command's start stay quick: torch, rliable (with arch's
+    bootstrap, about a second), matplotlib and gymnasium load in the commands that use them."""
+    heavy = ("torch", "rliable", "arch", "matplotlib", "gymnasium")
+    code = f"import sys, tacbench.cli; print([m for m in {heavy!r} if m in sys.modules])"
+    loaded = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True
+    )
+    assert loaded.stdout.strip() == "[]"

@@ -7,13 +7,16 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Mapping
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
-import pandas as pd
 
 from tacbench.cli.options import ResultsFolder
 from tacbench.errors import TacbenchError
 from tacbench.studies import parity as parity_study
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 _RESULTS = click.Path(exists=True, file_okay=False, path_type=Path)
 _OUT = ResultsFolder("leave --out out to write no CSV")
@@ -21,6 +24,8 @@ _OUT = ResultsFolder("leave --out out to write no CSV")
 
 def _show(tables: Mapping[str, pd.DataFrame], out: Path | None) -> None:
     """Print each table; with ``out``, also write it there as ``<name>.csv``."""
+    import pandas as pd
+
     with pd.option_context("display.width", 200):
         for name, frame in tables.items():
             text = frame.to_string(index=False, float_format=lambda x: f"{x:.2f}")

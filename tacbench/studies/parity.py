@@ -27,9 +27,7 @@ import numpy as np
 import pandas as pd
 
 from tacbench import paper
-from tacbench.bootstrap import mean_difference
 from tacbench.errors import TacbenchError
-from tacbench.report.load import load_runs
 
 ENVS = ("Hopper-v4", "HalfCheetah-v4")
 SEEDS = paper.SEEDS[:5]
@@ -70,6 +68,8 @@ def load(results: Path, by_variant: bool = False) -> pd.DataFrame:
     reference profile, and sac-sb3), complete runs only. Columns: method (one of
     :data:`METHODS`; with ``by_variant``, TAC runs are named ``TAC <variant>`` instead, for an
     ablation's variants of one method), env, seed, step, return."""
+    from tacbench.report.load import load_runs  # the report package: only when runs are read
+
     runset = load_runs(results, "eval")
     runs = runset.runs
     chosen = runs[((runs["algo"] == "tac") & (runs["q"] == 1.0)) | (runs["algo"] == "sac-sb3")]
@@ -166,6 +166,8 @@ def bootstrap_difference(
 ) -> tuple[float, float, float]:
     """mean(a) - mean(b) and its 95% percentile interval from rliable's bootstrap (a and b
     resampled independently, with replacement)."""
+    from tacbench.bootstrap import mean_difference  # rliable (about 1 s): only when it is used
+
     return mean_difference(a, b, reps, seed)
 
 
