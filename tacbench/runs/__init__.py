@@ -16,7 +16,6 @@ docs/results-schema.md describes every file, column and field.
 
 from tacbench.runs.files import (
     EVAL_COLUMNS,
-    RESTORE_OR_DELETE,
     TRAIN_COLUMNS,
     CsvLog,
     RunWriter,
@@ -40,7 +39,6 @@ from tacbench.runs.provenance import VERSIONED_PACKAGES, git_commit, package_ver
 
 __all__ = [
     "EVAL_COLUMNS",
-    "RESTORE_OR_DELETE",
     "TRAIN_COLUMNS",
     "VERSIONED_PACKAGES",
     "CsvLog",

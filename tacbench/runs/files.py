@@ -89,8 +89,6 @@ def _unwritable(folder: Path, err: OSError, flag: str) -> TacbenchError:
 
 
 RESTORE_OR_FORCE = f"restore it, or {START_OVER}"
-RESTORE_OR_DELETE = "restore it, or delete the run's directory to train that run again"
-"""The advice where there is no ``--force`` (``tacbench sweep``)."""
 
 
 def read_json(path: Path, advice: str = RESTORE_OR_FORCE) -> dict[str, Any]:

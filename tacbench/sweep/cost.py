@@ -110,7 +110,7 @@ def run_seconds_per_step(directory: Path) -> float | None:
     eval_csv, config_json = directory / "eval.csv", directory / "config.json"
     if not eval_csv.exists() or not config_json.exists():
         return None
-    return _seconds_per_step(eval_csv, runs.read_json(config_json, runs.RESTORE_OR_DELETE))
+    return _seconds_per_step(eval_csv, runs.read_json(config_json))
 
 
 def _seconds_per_step(eval_csv: Path, metadata: dict[str, Any]) -> float | None:
@@ -141,8 +141,7 @@ def rates(out: Path, pairs: Iterable[tuple[str, str]]) -> dict[tuple[str, str], 
         eval_csv = config_json.parent / "eval.csv"
         if not eval_csv.exists():
             continue
-        # once: the rate's divisors and the profile
-        metadata = runs.read_json(config_json, runs.RESTORE_OR_DELETE)
+        metadata = runs.read_json(config_json)  # once: the rate's divisors and the profile
         value = _seconds_per_step(eval_csv, metadata)
         if value is not None:
             profile = metadata.get("config", {}).get("profile")

@@ -288,7 +288,7 @@ def _note_resume(directory: Path, command: str) -> None:
     """Point an interrupted run's status reason at the sweep command (the trainer names its own
     ``--resume``, which a sweep does not need)."""
     path = directory / "status.json"
-    status = runs.read_json(path, runs.RESTORE_OR_DELETE)
+    status = runs.read_json(path)
     if command and str(status.get("reason", "")).startswith("interrupted"):
         status["reason"] = f"interrupted at step {status.get('step')}; resume with: {command}"
         runs.atomic_write_json(path, status)

@@ -139,9 +139,7 @@ class LocalExecutor:
 
 def _first_step(out: Path, unit: Unit) -> int:
     status = out / unit.runs[0].key / "status.json"
-    if not status.exists():
-        return 0
-    return int(runs.read_json(status, runs.RESTORE_OR_DELETE).get("step", 0))
+    return int(runs.read_json(status).get("step", 0)) if status.exists() else 0
 
 
 def _exit_reason(code: int | None) -> str:

@@ -152,9 +152,9 @@ def read_status(out: Path, run: Run) -> Status:
     config_path = directory / "config.json"
     if not config_path.exists():
         return Status("new")
-    stored = runs.read_json(config_path, runs.RESTORE_OR_DELETE).get("config", {})
+    stored = runs.read_json(config_path).get("config", {})
     status_path = directory / "status.json"
-    status = runs.read_json(status_path, runs.RESTORE_OR_DELETE) if status_path.exists() else {}
+    status = runs.read_json(status_path) if status_path.exists() else {}
     planned = dict(run.config.to_dict())
     if planned.get("compile") == "auto":  # resolved where the run started; a resume keeps it
         planned["compile"] = stored.get("compile", "auto")

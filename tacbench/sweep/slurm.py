@@ -227,8 +227,7 @@ class SlurmExecutor:
         for entry in self._jobs.values():
             status = self.out / entry.unit.runs[0].key / "status.json"
             if status.exists():
-                recorded = runs.read_json(status, runs.RESTORE_OR_DELETE)
-                latest[entry.unit.key] = int(recorded.get("step", 0))
+                latest[entry.unit.key] = int(runs.read_json(status).get("step", 0))
         return latest
 
     def request_stop(self) -> None:

@@ -130,7 +130,7 @@ def reset_failed(directory: Path) -> None:
     path = directory / "status.json"
     if not path.exists():
         return
-    status = runs.read_json(path, runs.RESTORE_OR_DELETE)
+    status = runs.read_json(path)
     if status.get("state") == "failed":
         resumes_at = checkpoints.newest_step(directory / "checkpoint") or 0
         reason = f"retrying after: {status.get('reason', '')}"
