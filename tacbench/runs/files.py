@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import contextlib
 import csv
-import errno
 import hashlib
 import io
 import json
@@ -53,15 +52,15 @@ def atomic_write_json(path: Path, data: Mapping[str, Any]) -> None:
     write_durably(path, lambda handle: handle.write(payload))
 
 
-def ensure_writable(folder: Path, flag: str = "--out") -> None:
+def ensure_writable(folder: Path) -> None:
     """Create ``folder`` (with its parents) and check that a file can be written in it, before
-    anything is trained; else a TacbenchError that says what to do (choose another ``flag``)."""
+    anything is trained; else a TacbenchError that says what to do."""
     try:
         folder.mkdir(parents=True, exist_ok=True)
         with tempfile.TemporaryFile(dir=folder):
             pass
     except OSError as err:
-        raise _unwritable(folder, err, flag) from None
+        raise _unwritable(folder, err, "--out") from None
 
 
 def check_writable(folder: Path, flag: str = "--out") -> None:
@@ -71,9 +70,7 @@ def check_writable(folder: Path, flag: str = "--out") -> None:
     existing = Path(os.path.abspath(folder))
     while not existing.exists() and existing != existing.parent:
         existing = existing.parent
-    try:
-        if not existing.is_dir():
-            raise NotADirectoryError(errno.ENOTDIR, os.strerror(errno.ENOTDIR), str(existing))
+    try:  # TemporaryFile refuses a file as its folder (ENOTDIR), as mkdir below it would
         with tempfile.TemporaryFile(dir=existing):
             pass
     except OSError as err:
