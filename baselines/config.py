@@ -15,7 +15,7 @@ from typing import Any
 
 from baselines import hyperparams
 from tacbench.errors import TacbenchError
-from tacbench.settings import RunSettings
+from tacbench.settings import RunSettings, never_updated
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -88,12 +88,9 @@ def make_configs(
         f"{algo} hyperparameters: baselines/hyperparams/{algo}.yaml, sections "
         f"{' + '.join(sections)}" + (f"; overridden: {changed}" if changed else "")
     ]
-    starts, steps = effective.get("learning_starts"), configs[0].total_steps
-    if configs[0].off_policy and starts is not None and int(starts) >= steps:
-        notes.append(
-            f"WARNING: {algo}'s learning_starts {int(starts):,} is not below --steps {steps:,}: "
-            "every step takes a random action and the networks are never updated"
-        )
+    starts = effective.get("learning_starts")
+    if configs[0].off_policy and starts is not None:
+        notes += never_updated(f"{algo}'s learning_starts", int(starts), configs[0].total_steps)
     return configs, changed, notes
 
 

@@ -13,7 +13,7 @@ from tacbench import paper
 from tacbench.config import COMPILE_AUTO_LEARNING_STEPS, RunConfig
 from tacbench.config_checks import check_q_range
 from tacbench.errors import TacbenchError
-from tacbench.settings import settings_of
+from tacbench.settings import never_updated, settings_of
 
 
 def paper_defaults(task: str | None) -> tuple[float, float, str, str]:
@@ -78,7 +78,8 @@ def make_run_configs(
             for alpha in alphas or (paper_alpha,)
             for seed in seeds
         ]
-    rule = configs[0].density_cap
+    first = configs[0]
+    rule = first.density_cap
     if learned_q:
         if rule == "every-q" or (rule == "paper" and max(c.q_range[1] for c in configs) >= 2):
             notes.append(
@@ -93,20 +94,14 @@ def make_run_configs(
                     f"q = {q:g}: the policy density is capped at {math.exp(log_cap):.3g} "
                     f"(--density-cap {rule}; the paper's Numerical Issue)"
                 )
-    first = configs[0]
     if learned_q and 0 < first.learning_steps <= first.pbt_every:  # no round at the last step
         notes.append(
             f"WARNING: --pbt-every {first.pbt_every:,} is not shorter than the run's "
             f"{first.learning_steps:,} learning steps: no population round happens, so each "
             "member keeps the q it starts with"
         )
-    if configs[0].learning_steps == 0:
-        notes.append(
-            f"WARNING: --learning-starts {configs[0].learning_starts:,} is not below --steps "
-            f"{configs[0].total_steps:,}: every step takes a random action and the networks are "
-            "never updated"
-        )
-    notes.append(compile_note(resolve_compile(configs[0]), overrides.get("compile", "auto")))
+    notes += never_updated("--learning-starts", first.learning_starts, first.total_steps)
+    notes.append(compile_note(resolve_compile(first), overrides.get("compile", "auto")))
     return configs, notes
 
 

@@ -156,6 +156,17 @@ def check_choices(config: object) -> None:
             check_choice(config, name)
 
 
+def never_updated(learning_starts: str, starts: int, total_steps: int) -> list[str]:
+    """A warning, for the notes a run prints, when random steps (``learning_starts``, as the
+    user set it) fill the whole run, so that its networks are never updated; else none."""
+    if starts < total_steps:
+        return []
+    return [
+        f"WARNING: {learning_starts} {starts:,} is not below --steps {total_steps:,}: every step "
+        "takes a random action and the networks are never updated"
+    ]
+
+
 @dataclass(frozen=True, kw_only=True)
 class RunSettings:
     """What every trainer's run has: its seed, length, evaluation, checkpoints, logging and
