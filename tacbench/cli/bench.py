@@ -103,7 +103,7 @@ def bench(
     from tacbench.hardware import check_matmul_precision
     from tacbench.runs.files import check_writable
 
-    if not (profile or compile_ or grid or not no_sb3 or not no_eager):
+    if no_sb3 and no_eager and not (compile_ or grid or profile):
         raise TacbenchError(
             "--no-sb3 and --no-eager leave nothing to measure; add --compile or --grid, or drop "
             "one of them."
