@@ -129,6 +129,24 @@ def random_minibatch(
     return {name: getattr(batch, name).numpy() for name in Batch._fields}
 
 
+def assert_close_per_member(
+    ours: torch.Tensor, reference: torch.Tensor, rtol: float, name: str
+) -> None:
+    """Equal, member by member (the leading dimension), up to ``rtol`` of that member's largest
+    finite magnitude in the reference (float32 rounding), and non-finite where the reference
+    overflowed (the joint ln_q's float32 overflow below q = 2, docs/tac.md, may give inf in one
+    path and nan in the other). Each member has its own scale: a q = 3 member's values reach
+    1e14, which would leave a q = 1 member's unchecked under one shared scale."""
+    finite = torch.isfinite(reference)
+    assert torch.equal(torch.isfinite(ours), finite), (name, "overflows in one path only")
+    for k in range(reference.shape[0]):
+        if not finite[k].any():
+            continue
+        scale = reference[k][finite[k]].abs().max().item()
+        error = (ours[k][finite[k]] - reference[k][finite[k]]).abs().max().item()
+        assert error <= rtol * max(scale, 1e-12), (name, k, error, scale)
+
+
 def tiny_configs(
     learner: str,
     env: str = "Hopper-v4",

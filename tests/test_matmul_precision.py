@@ -14,7 +14,14 @@ from tacbench.errors import TacbenchError
 from tacbench.tac.maths import METRICS, Coefficients, coefficients
 from tacbench.tac.networks import linear
 from tacbench.tac.update import gradients
-from tests.helpers import random_batch, run_cli, tac_agent, tiny_configs, train
+from tests.helpers import (
+    assert_close_per_member,
+    random_batch,
+    run_cli,
+    tac_agent,
+    tiny_configs,
+    train,
+)
 
 pytestmark = pytest.mark.unit
 
@@ -72,9 +79,10 @@ def test_bf16_products_round_their_inputs_and_return_float32() -> None:
 def test_the_bf16_update_is_the_float32_one_within_bfloat16_rounding(
     hidden: tuple[int, ...],
 ) -> None:
-    """The same members on the same minibatch: every metric within 1% of float32's, every
-    member's gradient of every tensor pointing the same way (cosine above 0.99), and not
-    identical (the products did run in bfloat16)."""
+    """The same members on the same minibatch: every member's every metric within 2% of its
+    float32 value (the largest difference here, 1.3%, is a std of 0.001 whose log-std came
+    through bfloat16 products), every member's gradient of every tensor pointing the same way
+    (cosine above 0.99), and not identical (the products did run in bfloat16)."""
     float32 = tac_agent(OBS, ACT, SEEDS, hidden_sizes=hidden)
     bf16 = tac_agent(OBS, ACT, SEEDS, hidden_sizes=hidden, matmul_precision="bf16")
     batch, eps = random_batch(len(SEEDS), 64, OBS, ACT, seed=0, terminal=0.2)
@@ -83,8 +91,7 @@ def test_the_bf16_update_is_the_float32_one_within_bfloat16_rounding(
     metrics, grads = gradients(bf16, batch, eps, c)
     assert not torch.equal(metrics, expected)
     for i, name in enumerate(METRICS):
-        scale = expected[:, i].abs().max().item()
-        assert (metrics[:, i] - expected[:, i]).abs().max().item() <= 1e-2 * scale, name
+        assert_close_per_member(metrics[:, i], expected[:, i], 2e-2, name)
     for name, grad in expected_grads.items():
         cosine = torch.nn.functional.cosine_similarity(
             grads[name].flatten(1), grad.flatten(1), dim=1
@@ -101,9 +108,10 @@ def test_the_compiled_bf16_update_equals_the_eager_bf16_one() -> None:
     batch, eps = random_batch(len(SEEDS), 64, OBS, ACT, seed=1, terminal=0.2)
     expected, expected_grads = gradients(eager, batch, eps, _coefficients())
     metrics, grads = gradients(compiled, batch, eps, _coefficients())
-    assert (metrics - expected).abs().max() <= 1e-5 * expected.abs().max()
+    for i, name in enumerate(METRICS):
+        assert_close_per_member(metrics[:, i], expected[:, i], 1e-5, name)
     for name, grad in expected_grads.items():
-        assert (grads[name] - grad).abs().max() <= 1e-5 * grad.abs().max(), name
+        assert_close_per_member(grads[name], grad, 1e-5, name)
 
 
 @pytest.mark.skipif(not NATIVE_BF16, reason="this CPU has no native bfloat16 instructions")
