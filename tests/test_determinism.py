@@ -13,6 +13,7 @@ import torch
 
 from tacbench.envs import make_env
 from tacbench.seeding import run_streams
+from tacbench.tac.agent import TacAgent
 from tests.helpers import (
     LEARNERS,
     assert_same_results,
@@ -74,7 +75,17 @@ def test_a_runs_random_streams_are_independent_children_of_its_seed(tmp_path: Pa
     assert (again.numpy.generate_state(2) == streams.numpy.generate_state(2)).all()
     assert streams.env_seed != run_streams(8).env_seed
     assert len({streams.torch_seed, streams.env_seed, 7}) == 3
-    (outcome,) = train(tmp_path, tiny_configs("tac", seeds=[7], total_steps=500, eval_every=0))
+    (config,) = tiny_configs("tac", seeds=[7], total_steps=500, eval_every=0)
+    (outcome,) = train(tmp_path, [config])
+    # learning starts after 500 steps: the checkpoint holds the initial weights, drawn from the
+    # torch child's seed, not from 7
+    saved = checkpoint_state(outcome.directory)["agent"]["params"]
+    from_child = TacAgent(11, 3, config, [streams.torch_seed], torch.device("cpu"))
+    for name, value in from_child.member_state(0)["params"].items():
+        assert torch.equal(saved[name], value), name
+    from_seed = TacAgent(11, 3, config, [7], torch.device("cpu")).member_state(0)["params"]
+    weights = [name for name in from_seed if ".weights." in name]  # the biases start at zero
+    assert not any(torch.equal(saved[name], from_seed[name]) for name in weights)
     with np.load(
         outcome.directory / "checkpoint" / "replay" / "000000000000-000000000500.npz"
     ) as r:
