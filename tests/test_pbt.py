@@ -107,6 +107,21 @@ def test_a_round_copies_q_clears_the_copys_scores_and_is_seeded() -> None:
     assert rounds[0] == rounds[1]
     assert population.due(20_000) and not population.due(15_000)
     assert not population.due(config.learning_starts)
+    # seeded: sixteen rounds' perturbations (each 0.8 or 1.2 of the copied q) repeat exactly
+    # with the same seeds, and not with others (1 chance in 65,536)
+    assert _perturbations([0, 1, 2, 3], config) == _perturbations([0, 1, 2, 3], config)
+    assert _perturbations([0, 1, 2, 3], config) != _perturbations([4, 5, 6, 7], config)
+
+
+def _perturbations(seeds: list[int], config: RunConfig) -> list[float]:
+    """The q that member 0, always last, gets in each of sixteen rounds."""
+    population = Population(seeds, [1.0, 1.0, 1.0, 1.0], config)
+    qs = []
+    for _ in range(16):
+        for k, episode_return in enumerate([10.0, 40.0, 30.0, 20.0]):
+            population.episode_ended(k, episode_return)
+        qs.append(population.round([True] * 4, RANGE)[0].q_after)
+    return qs
 
 
 @pytest.mark.unit
