@@ -244,14 +244,20 @@ def test_kill_9_after_a_checkpoints_files_but_before_its_manifest(
 def test_kill_9_at_random_moments_then_resume(
     tmp_path: Path, uninterrupted: Callable[[str], Path]
 ) -> None:
-    """Four kills at seeded random moments (start-up, warm-up, learning, a checkpoint write:
-    each write pauses 0.1 s, so a good share of the time is spent inside one)."""
+    """Four kills at seeded random moments: one in start-up, then three once the run is under
+    way (its status written: warm-up, learning, a checkpoint write, where each write pauses
+    0.1 s, so a good share of the time is spent inside one), each resumed from what the kill
+    before left. Timed from the run's own status, not the process start, so that a slow start
+    on a loaded machine cannot turn every kill into a start-up one."""
     moments = random.Random(2026)
+    status = tmp_path / TINY_TAC_RUN / "status.json"
     for attempt in range(4):
-        extra = ("--resume",) if attempt else ()
-        proc = _start(tmp_path, *extra, pause=0.1)
+        before = status.stat().st_mtime_ns if status.exists() else None
+        proc = _start(tmp_path, *(("--resume",) if attempt else ()), pause=0.1)
+        if attempt:
+            _wait_for(proc, lambda was=before: status.exists() and status.stat().st_mtime_ns != was)
         try:
-            proc.communicate(timeout=moments.uniform(1.0, 6.0))
+            proc.communicate(timeout=moments.uniform(0.2, 1.0 if attempt == 0 else 2.5))
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.communicate()
