@@ -76,3 +76,45 @@ def test_stop_signals_can_count_instead_of_interrupting() -> None:
         os.kill(os.getpid(), signal.SIGINT)
         os.kill(os.getpid(), signal.SIGINT)
     assert received == {"count": 2, "signal": signal.SIGINT}
+
+
+def test_a_folder_without_config_json_is_kept_unless_it_holds_only_a_cut_write(
+    tmp_path: Path,
+) -> None:
+    """A run writes config.json first: a folder without it that holds other files is not
+    deleted to start afresh (they may be a run whose config.json was lost, or the user's);
+    an empty folder, or one with only a crash's temporary file, starts afresh."""
+    (config,) = _configs(0)
+    directory = runs.run_directory(tmp_path, config.algo, config.env, config.variant, 0)
+    directory.mkdir(parents=True)
+    (directory / "status.json").write_text('{"state": "running", "step": 2275}')
+    (directory / "notes.txt").write_text("mine")
+    for resume in (False, True):
+        with pytest.raises(TacbenchError, match=r"notes.txt, status.json but no config.json"):
+            plan_runs([config], tmp_path, resume=resume, force=False)
+    assert (directory / "notes.txt").read_text() == "mine"
+    _, active = plan_runs([config], tmp_path, resume=False, force=True)  # --force: as asked
+    assert active == [(config, directory)] and not directory.exists()
+    directory.mkdir()
+    (directory / "config.json.tmp").write_text("{")  # a crash inside the first write
+    _, active = plan_runs([config], tmp_path, resume=True, force=False)
+    assert active == [(config, directory)] and not directory.exists()
+
+
+@pytest.mark.parametrize("kind", ["file", "link"])
+def test_a_file_or_link_where_the_run_directory_goes_is_refused_and_kept(
+    tmp_path: Path, kind: str
+) -> None:
+    (config,) = _configs(0)
+    directory = runs.run_directory(tmp_path, config.algo, config.env, config.variant, 0)
+    directory.parent.mkdir(parents=True)
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    if kind == "file":
+        directory.write_text("mine")
+    else:
+        directory.symlink_to(elsewhere)
+    for force in (False, True):
+        with pytest.raises(TacbenchError, match=f"is a {kind}, where this run's directory goes"):
+            plan_runs([config], tmp_path, resume=False, force=force)
+    assert directory.is_symlink() if kind == "link" else directory.read_text() == "mine"

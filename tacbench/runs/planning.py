@@ -55,11 +55,13 @@ def plan_run(
     """Decide how a new command treats ``directory``; refuse (TacbenchError) when it must not
     touch it. Fields in ``neutral`` may differ between the stored config and the new one."""
     _resume_or_force(resume, force)
+    _check_a_folder(directory)
     config_path = directory / "config.json"
-    if force or not config_path.exists():
-        return DirectoryPlan(
-            "start", "--force: starting over" if force and directory.exists() else ""
-        )
+    if force:
+        return DirectoryPlan("start", "--force: starting over" if directory.exists() else "")
+    if not config_path.exists():
+        _check_nothing_but_scratch(directory)
+        return DirectoryPlan("start")
     stored = read_json(config_path).get("config")
     if not isinstance(stored, dict):
         raise TacbenchError(f"{config_path} holds no run config; {RESTORE_OR_FORCE}.")
@@ -103,6 +105,33 @@ def _resume_or_force(resume: bool, force: bool) -> None:
     if resume and force:
         raise TacbenchError(
             "--resume continues a run and --force deletes it to start over: pass one of them."
+        )
+
+
+def _check_a_folder(directory: Path) -> None:
+    """Refuse a run directory's path that holds a file or a link: starting afresh would delete
+    what is there (or fail half-way), and no run lives in it."""
+    if directory.is_symlink() or (directory.exists() and not directory.is_dir()):
+        what = "a link" if directory.is_symlink() else "a file"
+        raise TacbenchError(
+            f"{directory} is {what}, where this run's directory goes; nothing was changed. Move "
+            "it away, or write the runs somewhere else with --out."
+        )
+
+
+def _check_nothing_but_scratch(directory: Path) -> None:
+    """Refuse a directory without config.json that holds anything but the temporary file of a
+    write a crash cut short (``*.tmp``): a run writes config.json before anything else, so what
+    is there is not a run's, or its config.json was lost, and starting afresh would delete it."""
+    if not directory.is_dir():
+        return
+    found = sorted(p.name for p in directory.iterdir() if not p.name.endswith(".tmp"))
+    if found:
+        listed = ", ".join(found[:3]) + (", ..." if len(found) > 3 else "")
+        raise TacbenchError(
+            f"{directory} holds {listed} but no config.json, so it is not a run this command "
+            f"can resume or replace; nothing was changed. Restore its config.json, or "
+            f"{START_OVER}."
         )
 
 
