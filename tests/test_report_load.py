@@ -208,3 +208,27 @@ def test_step_reached_uses_the_later_of_status_and_data(tmp_path: Path) -> None:
     runs = load_runs(tmp_path).runs
     assert runs["step_reached"].iat[0] == 300
     assert math.isclose(float(np.asarray(runs["total_steps"])[0]), 1000.0)
+
+
+def test_a_complete_run_whose_evaluations_stop_short_of_its_end_is_skipped(
+    tmp_path: Path,
+) -> None:
+    """A complete run's eval.csv cut at a line boundary (rows lost) would give an early final
+    return as its final: it is skipped with the reason, as a damaged file is; so is a run whose
+    config.json gives no step count. Evaluations ending within one interval of the end are
+    whole (a budget that is not a multiple of the evaluation interval)."""
+    _tac(tmp_path, seed=0, status_step=350, total_steps=350)  # every 100, the last at 300
+    _tac(tmp_path, seed=1, status_step=1000, total_steps=1000)  # 300 of 1000: rows lost
+    _tac(tmp_path, seed=2, steps=[100], returns=[1.0], status_step=1000, total_steps=1000)
+    _tac(tmp_path, seed=3, state="interrupted", status_step=1000, total_steps=1000)  # partial
+    config = _tac(tmp_path, seed=4) / "config.json"
+    config.write_text(json.dumps({**json.loads(config.read_text()), "total_steps": "lots"}))
+    runset = load_runs(tmp_path)
+    assert runset.runs["seed"].tolist() == [0, 3]
+    reasons = {s.path.split("/")[-1]: s.reason for s in runset.skipped}
+    assert reasons["seed1"] == (
+        "eval.csv ends at step 300, though the run completed 1,000 steps and evaluates every "
+        "100 at most: its last rows were lost; restore the file"
+    )
+    assert reasons["seed2"].startswith("eval.csv ends at step 100, though the run completed 1,000")
+    assert reasons["seed4"] == "config.json: 'total_steps' is 'lots', not a step count"

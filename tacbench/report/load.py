@@ -153,6 +153,8 @@ def _identity(config: dict[str, Any]) -> dict[str, Any]:
     elif config["algo"] == "tac" and not q > 0:
         raise _Unreadable("config.json: a TAC run needs a number q > 0")
     total = config.get("total_steps")
+    if total is not None and (isinstance(total, bool) or not isinstance(total, int) or total < 1):
+        raise _Unreadable(f"config.json: 'total_steps' is {total!r}, not a step count")
     versions = config.get("versions")
     return {
         "algo": config["algo"],
@@ -162,7 +164,7 @@ def _identity(config: dict[str, Any]) -> dict[str, Any]:
         "alpha": alpha,
         "seed": seed,
         "population": population,
-        "total_steps": float(total) if isinstance(total, int) and total > 0 else math.nan,
+        "total_steps": math.nan if total is None else float(total),
         "command": str(config.get("command", "")),
         "git_commit": str(config.get("git_commit", "")),
         "host": str(config.get("host", "")),
@@ -276,12 +278,28 @@ def _read_run(run_dir: Path, metric: Metric) -> tuple[dict[str, Any], tuple[np.n
         at = "" if math.isnan(status_step) else f" at step {int(status_step)}"
         raise _Unreadable(f"run failed{at}: {reason or 'no reason given'}", identity)
     series, note = _series(run_dir, metric, state)
+    if state == "complete" and metric == "eval":
+        _check_rows_reach_the_end(series[0], status_step, METRIC_SOURCES[metric][0])
     reached = float(np.nanmax([status_step, series[0][-1]]))
     total = identity["total_steps"]
     partial = state != "complete" or (not math.isnan(total) and reached < total)
     row = {**identity, "state": state, "step_reached": reached, "partial": partial}
     row["rows"], row["note"] = len(series[0]), note
     return row, series
+
+
+def _check_rows_reach_the_end(steps: np.ndarray, end: float, filename: str) -> None:
+    """A complete run evaluates to its end: evaluations that stop more than one interval (the
+    widest gap between them, or the first one's step when there is one) before the ``end`` its
+    status.json records were lost (a file cut short), and its final return would be an early
+    one. (Training episodes are not checked: the last one may run on past any gap before it.)"""
+    interval = float(np.diff(steps).max()) if len(steps) > 1 else float(steps[0])
+    if not math.isnan(end) and end - steps[-1] > interval:
+        raise _Unreadable(
+            f"{filename} ends at step {steps[-1]:,.0f}, though the run completed {end:,.0f} "
+            f"steps and evaluates every {interval:,.0f} at most: its last rows were lost; "
+            "restore the file"
+        )
 
 
 def final_return(run_dir: Path, last: int) -> float:
