@@ -9,6 +9,7 @@ import shutil
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -331,6 +332,46 @@ def test_a_reference_file_missing_from_its_manifest_is_a_clear_error(
     assert result.exit_code == 2 and "Traceback" not in result.output
     assert "the theory references lack" in result.output and "a.csv" in result.output
     assert "tacbench regress --update --tier theory" in result.output
+
+
+@pytest.mark.parametrize(
+    ("tier", "change", "named"),
+    [
+        ("theory", {"files": []}, "'files'"),
+        ("theory", {"files": None}, "'files'"),
+        ("exact", {"runs": []}, "'runs'"),
+        ("exact", {"runs": [{"args": []}]}, "'runs'"),
+        ("stat", {"groups": []}, "'groups'"),
+        ("stat", {"alpha": "0.05", "last": 0}, "'alpha', 'last'"),
+    ],
+)
+def test_a_damaged_manifest_is_refused_before_anything_is_compared(
+    tmp_path: Path, tier: str, change: dict[str, Any], named: str
+) -> None:
+    """An emptied or damaged manifest list would make a check pass having compared nothing
+    (or end in a traceback): it is refused, naming what is wrong."""
+    source = REFERENCE / tier
+    if tier == "exact":
+        source = source / mf.recorded_cpu_classes(REFERENCE)[0]
+    manifest = json.loads((source / mf.MANIFEST).read_text())
+    folder = mf.tier_directory(tmp_path, tier, "x86_64-test")
+    folder.mkdir(parents=True)
+    (folder / mf.MANIFEST).write_text(json.dumps({**manifest, **change}))
+    with pytest.raises(TacbenchError, match=f"is damaged: {named} missing, empty or of the wrong"):
+        mf.read_manifest(tmp_path, tier, "x86_64-test")
+
+
+def test_a_reference_file_that_is_not_text_is_a_clear_error(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    reference = tmp_path / "ref"
+    _fake_theory(monkeypatch, {"a.csv": CSV})
+    update = ["regress", "--update", "--tier", "theory", "--against", str(reference)]
+    assert CliRunner().invoke(cli, update).exit_code == 0
+    (reference / "theory" / "a.csv").write_bytes(b"\xff\xfe step")
+    result = CliRunner().invoke(cli, ["regress", "--tier", "theory", "--against", str(reference)])
+    assert result.exit_code == 2 and "Traceback" not in result.output
+    assert "a.csv cannot be read as text" in result.output
 
 
 def test_format_result_lists_rows_notes_and_verdict() -> None:

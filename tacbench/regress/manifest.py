@@ -103,6 +103,34 @@ def recorded_cpu_classes(reference: Path) -> list[str]:
     return sorted(p.parent.name for p in root.glob(f"*/{MANIFEST}")) if root.is_dir() else []
 
 
+# what each tier's manifest must hold: its lists (of entries with a name, or of file names)
+# never empty, so that a check can never pass having compared nothing; alpha a level in (0, 1)
+CONTENTS: dict[str, dict[str, str]] = {
+    "exact": {"runs": "named entries", "files": "names", "environment": "mapping"},
+    "theory": {"files": "names", "environment": "mapping"},
+    "stat": {
+        "groups": "named entries",
+        "alpha": "number",
+        "last": "count",
+        "environment": "mapping",
+    },
+}
+
+
+def _holds(value: Any, kind: str) -> bool:
+    if kind == "mapping":
+        return isinstance(value, dict)
+    if kind == "number":
+        return isinstance(value, int | float) and not isinstance(value, bool) and 0 < value < 1
+    if kind == "count":
+        return isinstance(value, int) and not isinstance(value, bool) and value > 0
+    if not isinstance(value, list) or not value:
+        return False
+    if kind == "names":
+        return all(isinstance(item, str) and item for item in value)
+    return all(isinstance(item, dict) and isinstance(item.get("name"), str) for item in value)
+
+
 def read_manifest(reference: Path, tier: str, cpu: str | None = None) -> dict[str, Any]:
     """The manifest of ``tier`` under ``reference`` (the exact tier's for CPU class ``cpu``,
     this machine's by default); a TacbenchError says how to create it."""
@@ -120,12 +148,19 @@ def read_manifest(reference: Path, tier: str, cpu: str | None = None) -> dict[st
             f"{path} is not a format-{FORMAT} {tier} manifest; regenerate it with: "
             f"{regenerate_command(tier, reference)}"
         )
+    damaged = [key for key, kind in CONTENTS[tier].items() if not _holds(manifest.get(key), kind)]
+    if damaged:
+        raise TacbenchError(
+            f"{path} is damaged: {', '.join(map(repr, damaged))} missing, empty or of the wrong "
+            f"kind, so nothing could be compared; restore it from git, or regenerate it with: "
+            f"{regenerate_command(tier, reference)}"
+        )
     return manifest
 
 
 def require_files(paths: Sequence[Path], tier: str, reference: Path) -> None:
     """A TacbenchError, before anything is trained, when reference files that ``tier``'s
-    manifest lists are missing."""
+    manifest lists are missing or cannot be read as text."""
     missing = [str(path) for path in paths if not path.is_file()]
     if missing:
         shown = ", ".join(missing[:3]) + (
@@ -135,6 +170,14 @@ def require_files(paths: Sequence[Path], tier: str, reference: Path) -> None:
             f"the {tier} references lack {shown}, which their manifest lists; restore them from "
             f"git, or regenerate them with: {regenerate_command(tier, reference)}"
         )
+    for path in paths:
+        try:
+            path.read_bytes().decode()
+        except (OSError, UnicodeDecodeError) as err:
+            raise TacbenchError(
+                f"the {tier} reference {path} cannot be read as text ({err}); restore it from "
+                f"git, or regenerate it with: {regenerate_command(tier, reference)}"
+            ) from None
 
 
 def select(entries: list[dict[str, Any]], names: Sequence[str], reference: Path) -> list[Any]:
