@@ -139,7 +139,7 @@ class _Run:
             self.step, self.wall_offset = 0, 0.0
         else:
             step = int(state["step"])
-            plan = self.writer.check_resume(step)
+            plan = self.writer.check_resume(step, config.to_dict())
             checkpoints.discard_after(folder, step)  # only once the CSVs can continue
             notes += plan.notes
             if notes:

@@ -384,8 +384,9 @@ class RunConfig(RunSettings):
 
 
 def result_neutral_fields() -> tuple[str, ...]:
-    """The config fields that cannot change any number a run writes: a resumed run may differ
-    in these (the other fields must be equal)."""
+    """The config fields in which a resumed run may differ (the other fields must be equal):
+    they change no number a run writes, or only the rounding (the hardware,
+    :data:`tacbench.settings.REROUNDING_FIELDS`)."""
     return neutral_fields(RunConfig, RunSettings)
 
 

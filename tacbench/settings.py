@@ -32,8 +32,9 @@ class SettingInfo:
     ``variant``: how a non-default value enters the run directory's variant name: a prefix to
     which the value is appended (``"ls"`` -> ``-ls100000``), or for a choice a word per value
     (``{"joint": "joint"}`` -> ``-joint``); None: never (the field cannot change what is
-    learned, or has its own path component). ``neutral``: the field cannot change any number a
-    run writes, so a resumed run may differ in it. ``cli``: offered by ``tacbench run`` (and
+    learned, or has its own path component). ``neutral``: a resumed run may differ in it: it
+    changes no number a run writes, or (:data:`REROUNDING_FIELDS`, the hardware) only their
+    rounding, which the resume then notes. ``cli``: offered by ``tacbench run`` (and
     ``sweep``, unless ``sweep`` is False). ``profile``: the default, None, stands for the value
     that the config's profile sets. ``shown_default``: how a computed default (None) is
     computed, for ``--help``.
@@ -122,8 +123,13 @@ def flag_of(cls: type, name: str) -> str:
     return declared.flag if declared else "--" + name.replace("_", "-")
 
 
+# the neutral settings that change the rounding of what a run writes (the hardware it runs on):
+# a run may resume on other hardware, and the resume notes the change in status.json
+REROUNDING_FIELDS = ("device", "threads")
+
+
 def neutral_fields(*classes: type) -> tuple[str, ...]:
-    """The fields of ``classes`` that cannot change a number a run writes."""
+    """The fields of ``classes`` in which a resumed run may differ (``neutral``)."""
     return tuple(
         dict.fromkeys(n for cls in classes for n, s in settings_of(cls).items() if s.info.neutral)
     )

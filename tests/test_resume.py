@@ -184,3 +184,21 @@ def test_a_resumed_run_keeps_the_compile_it_started_with(
     [outcome] = train(tmp_path, configs, resume=True)
     assert (outcome.state, outcome.step) == ("complete", 1200)
     assert json.loads(config_json.read_text())["config"]["compile"] == "off"
+
+
+@pytest.mark.parametrize("learner", ["tac", "td3"])
+def test_a_run_resumed_on_other_hardware_says_so_and_config_json_keeps_the_first(
+    tmp_path: Path, learner: str
+) -> None:
+    """Threads (and the device) may differ on resume, so that a run can move to other
+    hardware, but the numbers from there round as on it: the resume says so in its notes and
+    status.json, once however many members share the process, and config.json keeps the
+    value the run started with."""
+    seeds = [0, 10] if learner == "tac" else [0]
+    train(tmp_path, tiny_configs(learner, seeds=seeds), stop=lambda step: step >= 1100)
+    [outcome, *_] = train(tmp_path, tiny_configs(learner, seeds=seeds, threads=2), resume=True)
+    assert (outcome.state, outcome.step) == ("complete", 1500)
+    reason = json.loads((outcome.directory / "status.json").read_text())["reason"]
+    assert reason.count("threads 1 -> 2 (config.json keeps 1; from here the numbers round") == 1
+    config = json.loads((outcome.directory / "config.json").read_text())["config"]
+    assert config["threads"] == 1

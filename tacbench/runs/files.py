@@ -28,6 +28,7 @@ from typing import IO, TYPE_CHECKING, Any, Literal
 from tacbench.errors import TacbenchError
 from tacbench.runs.checkpoints import DISK_ERRNOS, recorded_logs, write_durably
 from tacbench.runs.resume_checks import START_OVER, LogDigest, ResumePlan, check_log
+from tacbench.settings import REROUNDING_FIELDS
 
 if TYPE_CHECKING:
     from tacbench.interrupts import SecondSignal
@@ -154,6 +155,19 @@ class CsvLog:
         self._handle.close()
 
 
+def rounding_changes(stored: Mapping[str, Any], config: Mapping[str, Any]) -> list[str]:
+    """A note for each field of :data:`REROUNDING_FIELDS` (where the networks run, and on how
+    many threads) in which a resumed run's ``config`` differs from the ``stored`` one of its
+    config.json: it may, so that a run can resume on other hardware, but its numbers from there
+    on round as on that hardware, and config.json keeps the first value."""
+    return [
+        f"{name} {stored.get(name)!r} -> {config.get(name)!r} (config.json keeps "
+        f"{stored.get(name)!r}; from here the numbers round as with {config.get(name)!r})"
+        for name in REROUNDING_FIELDS
+        if name in config and stored.get(name) != config[name]
+    ]
+
+
 class RunWriter:
     """Writes one run directory: config.json, status.json, the three CSVs and, with
     ``tensorboard``, TensorBoard event files of the same rows under ``<run>/tensorboard/``."""
@@ -191,13 +205,17 @@ class RunWriter:
             **{name: tuple(columns) for name, columns in self.extra.items()},
         }
 
-    def check_resume(self, step: int) -> ResumePlan:
+    def check_resume(self, step: int, config: Mapping[str, Any]) -> ResumePlan:
         """Check every CSV against the (intact) checkpoint generation at ``step``, whose
         manifest records what each held (an older generation records nothing: then the rows up
         to ``step`` are kept), and say what a resume keeps, writing nothing: a TacbenchError if
-        a CSV cannot continue (:func:`tacbench.runs.resume_checks.check_log`)."""
+        a CSV cannot continue (:func:`tacbench.runs.resume_checks.check_log`). Its notes also
+        name the hardware settings in which ``config`` (the resumed run's settings) differs from
+        config.json's (:func:`rounding_changes`)."""
         recorded = recorded_logs(self.directory / "checkpoint", step)
         plan = ResumePlan(step)
+        stored = read_json(self.directory / "config.json").get("config")
+        plan.notes += rounding_changes(stored if isinstance(stored, dict) else {}, config)
         for name, columns in self._csvs().items():
             file = f"{name}.csv"
             digest = None if recorded is None else recorded.get(file)

@@ -105,15 +105,17 @@ class GroupTrainer:
         use (:func:`checkpoints.choose`: a damaged one is passed over, and said so)."""
         folders = [d / "checkpoint" for d in directories]
         step, self.resume_notes = checkpoints.choose(folders)
-        plans = (
+        pairs = zip(self.writers, self.configs, strict=True)
+        plans = (  # every member's CSVs are checked before anything is written
             [None] * len(folders)
             if step is None
-            else [writer.check_resume(step) for writer in self.writers]
-        )  # every member's CSVs are checked before anything is written
+            else [w.check_resume(step, c.to_dict()) for w, c in pairs]
+        )
         if step is not None:
             for folder in folders:
                 checkpoints.discard_after(folder, step)
-        self.resume_notes += [note for plan in plans if plan for note in plan.notes]
+        # each note once: the members share their hardware settings
+        self.resume_notes += dict.fromkeys(note for plan in plans if plan for note in plan.notes)
         members = [{"q": c.q, "alpha": c.alpha, "seed": c.seed} for c in self.configs]
         for writer, config, plan in zip(self.writers, self.configs, plans, strict=True):
             if self.resume_notes:
