@@ -144,3 +144,23 @@ def test_the_command_line_loads_without_the_heavy_libraries() -> None:
         [sys.executable, "-c", code], capture_output=True, text=True, check=True
     )
     assert loaded.stdout.strip() == "[]"
+
+
+def test_resume_names_each_run_that_has_nothing_to_resume(tmp_path: Path) -> None:
+    """--resume with a mistyped setting or --out would train from step 0 in silence: the runs
+    without a directory to resume are named before training starts."""
+    kept = tmp_path / "runs" / "tac" / "Hopper-v4" / "q1.5-a0.2" / "seed0"
+    kept.mkdir(parents=True)
+    (kept / "config.json").write_text("{}")
+    args = ["--env", "Hopper-v4", "--q", "1.5", "--alpha", "0.2", "--seed", "0", "--seed", "10"]
+    with mock.patch("tacbench.trainers.trainer_for") as trainer_for:
+        trainer_for.return_value.train.return_value = []
+        result = CliRunner().invoke(run, [*args, "--out", str(tmp_path), "--resume"])
+        assert result.exit_code == 0, result.output
+        fresh = [line for line in result.output.splitlines() if "nothing to resume" in line]
+        assert fresh == [
+            f"seed 10: nothing to resume at {kept.parent / 'seed10'} (no run there); starting "
+            "afresh (check --out and the settings if you meant another run)"
+        ]
+        result = CliRunner().invoke(run, [*args, "--out", str(tmp_path)])
+        assert "nothing to resume" not in result.output  # without --resume, nothing to say

@@ -7,12 +7,13 @@ algorithm, the repeatable seeds, q and alpha with their per-task defaults, where
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import click
 
-from tacbench import paper, trainers
+from tacbench import paper, runs, trainers
 from tacbench.cli.common import command_line, report_outcomes
 from tacbench.cli.options import NumberOrAuto, ResultsFolder, cli_settings, setting_options
 from tacbench.config import RunConfig
@@ -170,7 +171,22 @@ def run(
         )
     for note in notes:
         click.echo(note)
+    if resume:
+        _say_what_starts_afresh(configs, out)
     outcomes = trainers.trainer_for(algo).train(
         configs, out, resume=resume, force=force, quiet=quiet, command=command_line(ctx)
     )
     report_outcomes(ctx, outcomes)
+
+
+def _say_what_starts_afresh(configs: Sequence[Any], out: Path) -> None:
+    """Under --resume, name each run that has nothing to resume (no config.json in its
+    directory): it starts from step 0, which a mistyped setting (another variant) or --out
+    would otherwise do silently."""
+    for config in configs:
+        directory = runs.run_directory(out, config.algo, config.env, config.variant, config.seed)
+        if not (directory / "config.json").exists():
+            click.echo(
+                f"seed {config.seed}: nothing to resume at {directory} (no run there); starting "
+                "afresh (check --out and the settings if you meant another run)"
+            )
