@@ -81,3 +81,11 @@ def test_two_processes_on_one_run_one_refused_the_other_as_a_lone_run(tmp_path: 
     assert lone.returncode == 0, lone.stdout + lone.stderr
     run = next((tmp_path / "both").glob("runs/tac/*/*/seed0"))
     assert_same_results(run, next((tmp_path / "lone").glob("runs/tac/*/*/seed0")))
+
+
+def test_a_file_where_a_folder_of_the_run_path_goes_is_a_clear_error(tmp_path: Path) -> None:
+    (tmp_path / "runs").write_text("mine")
+    (config,) = tiny_configs("tac")
+    with pytest.raises(TacbenchError, match=r"Not a directory\): a file may stand where a folder"):
+        train(tmp_path, [config])
+    assert (tmp_path / "runs").read_text() == "mine"

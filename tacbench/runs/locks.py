@@ -31,8 +31,14 @@ def lock_path(directory: Path) -> Path:
 @contextmanager
 def _hold(directory: Path, hint: str) -> Iterator[None]:
     path = lock_path(directory)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    descriptor = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        descriptor = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError as err:
+        raise TacbenchError(
+            f"cannot create {path} ({err.strerror}): a file may stand where a folder of "
+            f"{directory} goes; nothing was changed. Move it away, or write somewhere else."
+        ) from None
     try:
         try:
             fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
