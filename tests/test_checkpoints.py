@@ -63,6 +63,29 @@ def test_problems_name_the_damaged_file(tmp_path: Path) -> None:
     ]
 
 
+@pytest.mark.parametrize(
+    ("manifest", "error"),
+    [
+        ("null", "TypeError"),
+        ('{"files": []}', "AttributeError"),
+        ('{"files": {"state-100.bin": {"size": "big"}}}', "ValueError"),
+        ('{"files": {}, "logs": {"eval.csv": {"rows": 3}}}', "KeyError"),
+    ],
+)
+def test_a_manifest_that_parses_but_is_damaged_is_unreadable(
+    tmp_path: Path, manifest: str, error: str
+) -> None:
+    """Not only a torn file: a manifest of the wrong shape is a damaged generation, which a
+    resume passes over (it ended in a traceback)."""
+    _generation(tmp_path, 100)
+    _generation(tmp_path, 200)
+    (tmp_path / "manifest-000000000200.json").write_text(manifest)
+    assert checkpoints.problems(tmp_path, 200) == [
+        f"manifest-000000000200.json: unreadable ({error})"
+    ]
+    assert checkpoints.usable_steps(tmp_path)[0] == [100]
+
+
 def test_a_group_resumes_from_the_newest_step_all_its_members_have(tmp_path: Path) -> None:
     a, b, c = tmp_path / "a", tmp_path / "b", tmp_path / "c"
     for folder in (a, b):

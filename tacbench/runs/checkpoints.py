@@ -140,19 +140,22 @@ def commit(
 def problems(folder: Path, step: int) -> list[str]:
     """What is wrong with the generation at ``step`` (empty: every file is as recorded)."""
     path = folder / MANIFEST.format(step=step)
-    try:
-        files = json.loads(path.read_text())["files"]
-    except (OSError, ValueError, KeyError) as err:
+    try:  # a manifest that parses but is not the object a commit writes is as unreadable
+        manifest = json.loads(path.read_text())
+        files = {name: (int(r["size"]), str(r["sha256"])) for name, r in manifest["files"].items()}
+        for recorded in (manifest.get("logs") or {}).values():
+            LogDigest.from_dict(recorded)
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as err:
         return [f"{path.name}: unreadable ({type(err).__name__})"]
     found = []
-    for name, recorded in files.items():
+    for name, (size, sha256) in files.items():
         file = folder / name
         if not file.is_file():
             found.append(f"{name}: missing")
             continue
-        if file.stat().st_size != recorded["size"]:
-            found.append(f"{name}: {file.stat().st_size} bytes, {recorded['size']} recorded")
-        elif digest(file)["sha256"] != recorded["sha256"]:
+        if file.stat().st_size != size:
+            found.append(f"{name}: {file.stat().st_size} bytes, {size} recorded")
+        elif digest(file)["sha256"] != sha256:
             found.append(f"{name}: its checksum does not match the manifest's")
     return found
 
