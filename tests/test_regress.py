@@ -318,6 +318,9 @@ def test_regress_cli_usage_errors_exit_two(tmp_path: Path) -> None:
         cli, ["regress", "--update", "--tier", "theory", "--against", below_a_file]
     )
     assert result.exit_code == 2 and "choose one you can write with --against" in result.output
+    work = ["--work", str(tmp_path / "afile" / "sub"), "--against", str(REFERENCE)]
+    result = runner.invoke(cli, ["regress", "--tier", "theory", *work])
+    assert result.exit_code == 2 and "choose one you can write with --work" in result.output
 
 
 def test_a_reference_file_missing_from_its_manifest_is_a_clear_error(

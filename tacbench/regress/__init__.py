@@ -49,6 +49,7 @@ def _scratch(work: Path | None) -> Iterator[Path]:
         return
     if work.exists() and (not work.is_dir() or any(work.iterdir())):
         raise TacbenchError(f"--work {work} is not an empty folder; give a new or empty one.")
+    runs.check_writable(work, "--work")
     work.mkdir(parents=True, exist_ok=True)
     yield work
 
