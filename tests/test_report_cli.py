@@ -100,11 +100,18 @@ def test_train_metric_and_pdf_figures(results: Path, tmp_path: Path) -> None:
 
 
 def test_svg_figures_are_embedded_as_svg(results: Path, tmp_path: Path) -> None:
+    """And an earlier report's files that this one does not write (its figures in another
+    format) are named in a caution, not deleted (a file of the user's is left alone too)."""
     out = tmp_path / "report"
+    out.mkdir()
+    (out / "comparison.png").write_bytes(b"an earlier report's")
+    (out / "notes.txt").write_text("mine")
     code, output = _invoke(
         "--results", str(results), "--out", str(out), "--reps", "100", "--format", "svg"
     )
     assert code == 0, output
+    assert f"caution: {out} also holds comparison.png, which this report did not write" in output
+    assert "notes.txt" not in output and (out / "comparison.png").exists()
     assert (out / "comparison.svg").read_text().lstrip().startswith("<?xml")
     assert (out / "index.html").read_text().count("data:image/svg+xml;base64,") == len(FIGURES)
 

@@ -66,6 +66,7 @@ def report(
     """Figures, tables and rliable statistics from the run directories under --results."""
     from tacbench.report import ReportOptions, analyse, write_report  # pandas etc. only here
     from tacbench.report.mixing import cautions
+    from tacbench.report.write import leftovers
     from tacbench.runs.files import check_writable
 
     check_writable(out)  # before the analysis, which can take minutes
@@ -80,10 +81,18 @@ def report(
         grid_points=grid_points,
     )
     analysed = analyse(options)
-    write_report(analysed)
+    written = write_report(analysed)
     runs, skipped = analysed.runset.runs, analysed.runset.skipped
     for caution in cautions(runs):
         click.echo(f"caution: {caution}", err=True)
+    older = leftovers(out, written)
+    if older:
+        click.echo(
+            f"caution: {out} also holds {', '.join(older[:5])}{', ...' if len(older) > 5 else ''}"
+            ", which this report did not write (an earlier one's?); delete them, or use an "
+            "empty --out",
+            err=True,
+        )
     click.echo(
         f"{len(runs)} runs loaded ({int(runs['partial'].sum())} partial), {len(skipped)} skipped"
         f"{' (see skipped.csv)' if skipped else ''}; wrote {out / 'index.html'} and "

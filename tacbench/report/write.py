@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import io
+from collections.abc import Sequence
 from pathlib import Path
 
 import pandas as pd
@@ -89,3 +90,18 @@ def write_report(report: Report) -> list[Path]:
         path.write_text(text, encoding="utf-8")
         written.append(path)
     return written
+
+
+REPORT_SUFFIXES = (".csv", ".md", ".html", ".png", ".svg", ".pdf")  # what a report writes
+
+
+def leftovers(out: Path, written: Sequence[Path]) -> list[str]:
+    """The files in ``out`` of the kinds a report writes that this one did not write: an
+    earlier report's (figures in another format, a table these runs have no rows for), which
+    would read as this report's. Left in place: they may be the user's."""
+    names = {path.name for path in written}
+    return sorted(
+        p.name
+        for p in out.iterdir()
+        if p.is_file() and p.suffix in REPORT_SUFFIXES and p.name not in names
+    )
