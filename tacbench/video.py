@@ -26,10 +26,11 @@ import numpy.typing as npt
 from tacbench import envs
 from tacbench.errors import TacbenchError
 from tacbench.runs import checkpoints, read_json
-from tacbench.trainers import trainer_for
+from tacbench.trainers import ALGOS, trainer_for
 
 GL_BACKENDS = ("egl", "osmesa")  # MuJoCo's offscreen backends, GPU-capable first
 FORMATS = (".mp4", ".gif")
+MP4_BLOCK = 8  # an MP4's frame sides are multiples of this (imageio would rescale the frames)
 # what a Debian or Ubuntu machine installs for each backend
 GL_PACKAGES = {"egl": "libegl1", "osmesa": "libosmesa6"}
 _PROBE = (
@@ -111,10 +112,26 @@ def load_policy(run: Path) -> LoadedPolicy:
         raise TacbenchError(f"{run} has no intact checkpoint to render ({found}).")
     if not steps:
         raise TacbenchError(f"{run} has no checkpoint yet: a policy is saved at each checkpoint.")
+    if metadata["algo"] not in ALGOS:
+        raise TacbenchError(
+            f"{run / 'config.json'} names the algorithm {metadata['algo']!r}, not one of "
+            f"{', '.join(ALGOS)}; {_RESTORE}."
+        )
+    info = envs.env_info(str(metadata["env"]))
     step = steps[0]
     state = torch.load(folder / f"state-{step:012d}.pt", weights_only=True)
     config_data = dict(metadata["config"])
-    act = trainer_for(metadata["algo"]).policy(config_data, folder, state)
+    try:  # a checkpoint of another task (or algorithm) fails here, not half-way into a video
+        act = trainer_for(metadata["algo"]).policy(config_data, folder, state)
+        action = np.shape(act(np.zeros(info.obs_dim, dtype=np.float32)))
+        if action != (info.act_dim,):
+            raise ValueError(f"actions of shape {action}, not ({info.act_dim},)")
+    except (RuntimeError, ValueError, TypeError, KeyError) as err:
+        raise TacbenchError(
+            f"the checkpoint at step {step} of {run} does not act on {info.env_id} as "
+            f"config.json says ({type(err).__name__}: {str(err).splitlines()[0]}); it holds "
+            f"another run's policy: {_RESTORE}."
+        ) from None
     return LoadedPolicy(metadata["algo"], metadata["env"], int(metadata["seed"]), step, act)
 
 
@@ -161,7 +178,7 @@ def write_video(frames: Iterable[Frame], out: Path, fps: int) -> int:
         return len(kept)
     import imageio.v2 as imageio
 
-    writer: Any = imageio.get_writer(out, format="FFMPEG", fps=fps, macro_block_size=8)
+    writer: Any = imageio.get_writer(out, format="FFMPEG", fps=fps, macro_block_size=MP4_BLOCK)
     try:
         for frame in frames:
             writer.append_data(frame)

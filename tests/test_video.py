@@ -4,6 +4,7 @@ error. Needs an OpenGL backend for MuJoCo (EGL or OSMesa; .ci/run installs one).
 
 from __future__ import annotations
 
+import json
 import tracemalloc
 from pathlib import Path
 
@@ -76,6 +77,12 @@ def test_the_command_writes_a_playable_video(
     assert f"({len(frames)} frames" in result.output
     assert frames.std() > 0  # a picture, not a blank
     assert [p.name for p in tmp_path.iterdir() if "partial" in p.name] == []
+    if suffix == ".gif":  # a GIF keeps its frames: one that would not fit is refused
+        from tacbench import memory
+
+        monkeypatch.setattr(memory, "machine_memory", lambda: 10**6)
+        result = CliRunner().invoke(cli, [*args, "--episodes", "2", "--out", str(out) + ".gif"])
+        assert result.exit_code == 2 and "this GIF would need about" in result.output
 
 
 def test_bad_requests_are_clear_errors(tmp_path: Path) -> None:
@@ -137,3 +144,38 @@ def test_a_video_streams_its_frames_so_five_episodes_peak_like_one(
     one, five = peak(1), peak(5)
     frame = 96 * 72 * 3  # bytes; five episodes held whole would be 155 frames, 3.2 MB
     assert five < one + 20 * frame, (one, five)
+
+
+def test_sizes_a_video_cannot_take_are_refused_before_anything_renders(tmp_path: Path) -> None:
+    out = str(tmp_path / "x.mp4")
+    for flags, says in (
+        (["--width", "20000"], "20000 is not in the range 16<=x<=4096"),
+        (["--episodes", "1000000000"], "is not in the range 1<=x<=1000"),
+        (
+            ["--width", "65"],
+            "--width 65: an MP4's frame sides are multiples of 8 (H.264's blocks); use 64 or 72",
+        ),
+    ):
+        result = CliRunner().invoke(cli, ["video", str(tmp_path), "--out", out, *flags])
+        assert result.exit_code == 2 and says in result.output, result.output
+    assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("learner", ["tac", "td3"])
+def test_a_checkpoint_that_does_not_fit_its_runs_task_is_a_clear_error(
+    tmp_path: Path, learner: str
+) -> None:
+    """Another run's checkpoint (here: config.json says Swimmer, the checkpoint is Hopper's),
+    or an algorithm no trainer has, fails when the policy is loaded, with what to do, not as a
+    traceback half-way into the video."""
+    (outcome,) = train(tmp_path, tiny_configs(learner, total_steps=500, eval_every=0))
+    config = outcome.directory / "config.json"
+    data = json.loads(config.read_text())
+    config.write_text(json.dumps({**data, "env": "Swimmer-v4"}))
+    with pytest.raises(TacbenchError, match=r"does not act on Swimmer-v4 as config\.json says"):
+        video.load_policy(outcome.directory)
+    config.write_text(json.dumps({**data, "algo": "foo"}))
+    with pytest.raises(TacbenchError, match="names the algorithm 'foo', not one of tac, "):
+        video.load_policy(outcome.directory)
+    config.write_text(json.dumps(data))
+    assert video.load_policy(outcome.directory).step == 500
