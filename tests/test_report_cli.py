@@ -128,6 +128,8 @@ def test_user_errors_exit_with_status_two(tmp_path: Path) -> None:
     assert code == 2 and "no run directories under" in output and "Traceback" not in output
     code, output = _invoke("--results", str(tmp_path / "nope"))
     assert code == 2 and "does not exist" in output
+    code, output = _invoke("--results", "", "--out", str(tmp_path / "r"))  # not this folder
+    assert code == 2 and "must name a folder (got an empty string)" in output
     write_run(tmp_path, algo="td3", env="Ant-v4", variant="d", seed=0, steps=[1], returns=[1.0])
     code, output = _invoke("--results", str(tmp_path), "--out", str(tmp_path / "r"), "--reps", "5")
     assert code == 2 and "--reps must be at least 100" in output

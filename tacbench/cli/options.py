@@ -21,8 +21,8 @@ F = TypeVar("F", bound=Callable[..., Any])
 
 
 class ResultsFolder(click.Path):
-    """A folder to write results to: not a file, and not an empty string (which would write
-    into the current folder)."""
+    """A results folder to write to or read from: not a file, and not an empty string (which
+    would write into, or read everything under, the current folder)."""
 
     def __init__(self, hint: str = "the default is results/") -> None:
         super().__init__(file_okay=False, path_type=Path)

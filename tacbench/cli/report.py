@@ -12,7 +12,7 @@ from tacbench.cli.options import ResultsFolder
 @click.command()
 @click.option(
     "--results",
-    type=click.Path(file_okay=False, path_type=Path),
+    type=ResultsFolder("the default is results/"),
     default=Path("results"),
     show_default=True,
     help="Folder holding runs/<algo>/<env>/<variant>/seed<k>/ (or the run folders themselves).",
