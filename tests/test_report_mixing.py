@@ -29,21 +29,34 @@ def test_a_tac_setting_is_its_variant_without_q_and_alpha(variant: str, setting:
     assert tac_setting(variant) == setting
 
 
-def _runs(rows: list[tuple[str, str, str, float]]) -> pd.DataFrame:
-    return pd.DataFrame(rows, columns=["algo", "env", "variant", "total_steps"])
+def _runs(rows: list[tuple[str, str, str, float]], logged: int = 20) -> pd.DataFrame:
+    frame = pd.DataFrame(rows, columns=["algo", "env", "variant", "total_steps"])
+    return frame.assign(rows=logged)
 
 
 def test_several_settings_or_budgets_on_a_task_are_cautioned() -> None:
     alike = _runs([("tac", "H", "q1-a0.2", 1e5), ("tac", "H", "q2-a0.05", 1e5)])
-    assert cautions(alike) == []  # q and alpha are what a report compares
+    assert cautions(alike, 10) == []  # q and alpha are what a report compares
     settings = _runs([("tac", "H", "q1-a0.2-bs32", 1e5), ("tac", "H", "q2-a0.2", 1e5)])
-    [caution] = cautions(settings)
+    [caution] = cautions(settings, 10)
     assert caution.startswith("H: TAC runs of 2 settings (the defaults, `bs32`)")
     budgets = _runs([("tac", "H", "q1-a0.2", 1e3), ("td3", "H", "default", 1e5)])
-    [caution] = cautions(budgets)
+    [caution] = cautions(budgets, 10)
     assert caution.startswith("H: runs planned for 2 budgets (1,000, 100,000 steps)")
     unknown = _runs([("tac", "H", "q1-a0.2", math.nan), ("td3", "H", "default", 1e5)])
-    assert cautions(unknown) == []
+    assert cautions(unknown, 10) == []
+
+
+def test_a_last_beyond_the_runs_logged_returns_is_cautioned() -> None:
+    """--last longer than a run's rows makes its final return the mean of all of them, the
+    first evaluations included: said once, with how many runs and the fewest rows."""
+    runs = _runs([("tac", "H", "q1-a0.2", 1e5), ("td3", "H", "default", 1e5)], logged=20)
+    assert cautions(runs, 20) == []
+    runs.loc[1, "rows"] = 4
+    assert cautions(runs, 1_000_000) == [
+        "2 of 2 runs logged fewer returns than --last 1,000,000 (the fewest: 4): their final "
+        "return is the mean of all of them, early ones included."
+    ]
 
 
 def test_the_report_prints_and_shows_its_cautions(tmp_path: Path) -> None:

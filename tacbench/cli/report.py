@@ -83,7 +83,7 @@ def report(
     analysed = analyse(options)
     written = write_report(analysed)
     runs, skipped = analysed.runset.runs, analysed.runset.skipped
-    for caution in cautions(runs):
+    for caution in cautions(runs, last):
         click.echo(f"caution: {caution}", err=True)
     older = leftovers(out, written)
     if older:

@@ -20,9 +20,10 @@ def tac_setting(variant: str) -> str:
     return variant[match.end() :].lstrip("-") if match else variant
 
 
-def cautions(runs: pd.DataFrame) -> list[str]:
+def cautions(runs: pd.DataFrame, last: int) -> list[str]:
     """One sentence per task whose TAC runs have several settings, and per task whose runs
-    were planned for several budgets."""
+    were planned for several budgets; and one when runs logged fewer returns than the ``last``
+    that their final return averages."""
     found = []
     tac = runs[runs["algo"] == "tac"]
     for env, group in tac.groupby("env"):
@@ -42,4 +43,11 @@ def cautions(runs: pd.DataFrame) -> list[str]:
                 f"({', '.join(f'{b:,}' for b in budgets)} steps); final returns after different "
                 "lengths of training are compared as if alike."
             )
+    short = runs[runs["rows"] < last]
+    if len(short):
+        found.append(
+            f"{len(short)} of {len(runs)} runs logged fewer returns than --last {last:,} (the "
+            f"fewest: {int(short['rows'].min()):,}): their final return is the mean of all of "
+            "them, early ones included."
+        )
     return found

@@ -177,7 +177,7 @@ def _overview(report: Report) -> list[str]:
         items.append(f"{int(runs['partial'].sum())} partial runs included (see Runs).")
     if report.runset.skipped:
         items.append(f"{len(report.runset.skipped)} run directories skipped (see Runs).")
-    items += [f"Caution: {caution}" for caution in cautions(runs)]
+    items += [f"Caution: {caution}" for caution in cautions(runs, o.last)]
     return items
 
 
