@@ -53,3 +53,11 @@ def test_figures_command_rejects_a_file_as_out(tmp_path: Path) -> None:
     assert result.exit_code == 2
     assert "is a file" in result.output
     assert "Traceback" not in result.output
+
+
+def test_a_folder_where_a_figure_goes_is_refused_before_any_is_written(tmp_path: Path) -> None:
+    (tmp_path / "q_max_bounds.png").mkdir()
+    result = CliRunner().invoke(cli, ["figures", "--out", str(tmp_path)])
+    assert result.exit_code == 2 and "Traceback" not in result.output
+    assert "holds q_max_bounds.png as a folder, where a figure's file goes" in result.output
+    assert [p.name for p in tmp_path.iterdir()] == ["q_max_bounds.png"]

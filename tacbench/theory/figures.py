@@ -302,6 +302,13 @@ def write_figures(out_dir: str | Path) -> list[Path]:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as err:
         raise TacbenchError(f"cannot create output directory {out}: {err.strerror}.") from None
+    paths = [out / f"{name}.{kind}" for name, _, _ in _FIGURES for kind in ("csv", "png")]
+    blocked = [path.name for path in paths if path.exists() and not path.is_file()]
+    if blocked:  # found before any figure is written, not after some
+        raise TacbenchError(
+            f"{out} holds {', '.join(blocked)} as a folder, where a figure's file goes; nothing "
+            "was written. Move it away, or pick another --out."
+        )
     written = []
     with matplotlib.style.context([_STYLE, _RC]):
         for name, make_table, plot in _FIGURES:
