@@ -106,6 +106,18 @@ def test_another_config_in_a_run_directory_stops_the_plan(tmp_path: Path) -> Non
     assert _plan(other).runs[0].status == plan.Status("partial", 0)
 
 
+def test_a_run_directory_with_files_but_no_config_stops_the_plan(tmp_path: Path) -> None:
+    """Its worker would refuse it half-way through the sweep (starting it afresh would delete
+    the files): the plan stops first, saying so; an empty one is a new run."""
+    run = plan.build_runs(SMOKE)[0]
+    directory = tmp_path / run.key
+    directory.mkdir(parents=True)
+    assert _plan(tmp_path).runs[0].status == plan.Status("new")
+    (directory / "eval.csv").write_text("step\n")
+    with pytest.raises(TacbenchError, match=r"holds eval\.csv but no config\.json"):
+        _plan(tmp_path)
+
+
 def test_compile_auto_matches_what_a_run_recorded_when_it_started(tmp_path: Path) -> None:
     run = next(r for r in plan.build_runs(SMOKE) if r.config.algo == "tac")
     assert run.config.compile == "auto"  # each worker resolves it for its own machine

@@ -29,6 +29,7 @@ from tacbench.runs.files import (
 from tacbench.runs.planning import (
     DirectoryPlan,
     Outcome,
+    check_nothing_to_lose,
     differing_fields,
     plan_run,
     plan_runs,
@@ -47,6 +48,7 @@ __all__ = [
     "RunWriter",
     "State",
     "atomic_write_json",
+    "check_nothing_to_lose",
     "check_writable",
     "differing_fields",
     "ensure_writable",

@@ -60,7 +60,7 @@ def plan_run(
     if force:
         return DirectoryPlan("start", "--force: starting over" if directory.exists() else "")
     if not config_path.exists():
-        _check_nothing_but_scratch(directory)
+        check_nothing_to_lose(directory)
         return DirectoryPlan("start")
     stored = read_json(config_path).get("config")
     if not isinstance(stored, dict):
@@ -119,10 +119,12 @@ def _check_a_folder(directory: Path) -> None:
         )
 
 
-def _check_nothing_but_scratch(directory: Path) -> None:
-    """Refuse a directory without config.json that holds anything but the temporary file of a
-    write a crash cut short (``*.tmp``): a run writes config.json before anything else, so what
-    is there is not a run's, or its config.json was lost, and starting afresh would delete it."""
+def check_nothing_to_lose(directory: Path) -> None:
+    """Refuse (TacbenchError) a run directory without config.json where starting afresh would
+    delete something: a file or link in its place, or anything in it but the temporary file of
+    a write a crash cut short (``*.tmp``). A run writes config.json before anything else, so
+    what is there is not a run's, or its config.json was lost."""
+    _check_a_folder(directory)
     if not directory.is_dir():
         return
     found = sorted(p.name for p in directory.iterdir() if not p.name.endswith(".tmp"))

@@ -4,7 +4,8 @@ it, and the units (one process or Ray task each) that do it.
 A run's state comes from its directory under ``--out`` (docs/results-schema.md):
 no ``config.json``: *new*; ``status.json`` ``complete``: *complete*; ``failed``: *failed*;
 otherwise *partial* (``running``: interrupted or crashed, resumable from its checkpoint). A
-directory holding another config stops the sweep before anything runs.
+directory holding another config, or files but no ``config.json``, stops the sweep before
+anything runs.
 """
 
 from __future__ import annotations
@@ -151,6 +152,7 @@ def read_status(out: Path, run: Run) -> Status:
     directory = out / run.key
     config_path = directory / "config.json"
     if not config_path.exists():
+        runs.check_nothing_to_lose(directory)  # else its worker would refuse it, mid-sweep
         return Status("new")
     stored = runs.read_json(config_path).get("config", {})
     status_path = directory / "status.json"
