@@ -202,3 +202,18 @@ def test_a_run_resumed_on_other_hardware_says_so_and_config_json_keeps_the_first
     assert reason.count("threads 1 -> 2 (config.json keeps 1; from here the numbers round") == 1
     config = json.loads((outcome.directory / "config.json").read_text())["config"]
     assert config["threads"] == 1
+
+
+def test_a_resume_from_before_the_step_status_json_records_says_so(tmp_path: Path) -> None:
+    """The newest generation's manifest deleted: the resume falls back to the one before, as it
+    must, and says that the steps after it are trained again (it used to say nothing)."""
+    configs = tiny_configs("tac")
+    [stopped] = train(tmp_path, configs, stop=lambda step: step >= 1100)
+    assert json.loads((stopped.directory / "status.json").read_text())["step"] == 1100
+    (stopped.directory / "checkpoint" / "manifest-000000001100.json").unlink()
+    [outcome] = train(tmp_path, configs, resume=True)
+    assert (outcome.state, outcome.step) == ("complete", 1500)
+    reason = json.loads((outcome.directory / "status.json").read_text())["reason"]
+    assert "status.json records step 1,100, but the newest intact checkpoint is at step 1,000" in (
+        reason
+    )

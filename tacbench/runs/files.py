@@ -211,11 +211,19 @@ class RunWriter:
         to ``step`` are kept), and say what a resume keeps, writing nothing: a TacbenchError if
         a CSV cannot continue (:func:`tacbench.runs.resume_checks.check_log`). Its notes also
         name the hardware settings in which ``config`` (the resumed run's settings) differs from
-        config.json's (:func:`rounding_changes`)."""
+        config.json's (:func:`rounding_changes`), and progress that status.json records beyond
+        ``step`` (a newer generation whose manifest was lost)."""
         recorded = recorded_logs(self.directory / "checkpoint", step)
         plan = ResumePlan(step)
         stored = read_json(self.directory / "config.json").get("config")
         plan.notes += rounding_changes(stored if isinstance(stored, dict) else {}, config)
+        status = self.directory / "status.json"
+        reached = read_json(status).get("step") if status.exists() else None
+        if isinstance(reached, int) and reached > step:  # a newer generation is lost
+            plan.notes.append(
+                f"status.json records step {reached:,}, but the newest intact checkpoint is at "
+                f"step {step:,}: the steps after it are trained again"
+            )
         for name, columns in self._csvs().items():
             file = f"{name}.csv"
             digest = None if recorded is None else recorded.get(file)
