@@ -86,6 +86,6 @@ def test_two_processes_on_one_run_one_refused_the_other_as_a_lone_run(tmp_path: 
 def test_a_file_where_a_folder_of_the_run_path_goes_is_a_clear_error(tmp_path: Path) -> None:
     (tmp_path / "runs").write_text("mine")
     (config,) = tiny_configs("tac")
-    with pytest.raises(TacbenchError, match=r"Not a directory\): a file may stand where a folder"):
+    with pytest.raises(TacbenchError, match="lock: a file stands where a folder of "):
         train(tmp_path, [config])
     assert (tmp_path / "runs").read_text() == "mine"

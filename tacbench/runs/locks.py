@@ -34,10 +34,10 @@ def _hold(directory: Path, hint: str) -> Iterator[None]:
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         descriptor = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
-    except OSError as err:
+    except (NotADirectoryError, FileExistsError):  # others (a read-only disk) say what they are
         raise TacbenchError(
-            f"cannot create {path} ({err.strerror}): a file may stand where a folder of "
-            f"{directory} goes; nothing was changed. Move it away, or write somewhere else."
+            f"cannot create {path}: a file stands where a folder of {directory} goes; nothing "
+            "was changed. Move it away, or write somewhere else."
         ) from None
     try:
         try:
