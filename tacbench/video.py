@@ -166,9 +166,9 @@ def write_video(frames: Iterable[Frame], out: Path, fps: int) -> int:
     """An MP4 (H.264 through imageio's ffmpeg pipe; each frame is sent to the encoder as it
     comes, so memory does not grow with the video's length) or a looping GIF (Pillow writes a
     GIF at the end, so its frames are kept, as 256-colour images: a third of their RGB size),
-    by ``out``'s suffix. Returns the number of frames."""
+    by ``out``'s suffix (in any case). Returns the number of frames."""
     count = 0
-    if out.suffix == ".gif":
+    if out.suffix.lower() == ".gif":
         from PIL import Image
 
         kept = [Image.fromarray(frame).quantize(colors=256) for frame in frames]

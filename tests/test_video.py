@@ -61,7 +61,7 @@ def test_the_rendered_policy_is_the_one_the_run_evaluated(
     assert frames[0].shape == (24, 32, 3)
 
 
-@pytest.mark.parametrize("suffix", [".mp4", ".gif"])
+@pytest.mark.parametrize("suffix", [".mp4", ".gif", ".MP4"])  # any case
 def test_the_command_writes_a_playable_video(
     tmp_path: Path, backend: str, monkeypatch: pytest.MonkeyPatch, suffix: str
 ) -> None:

@@ -54,9 +54,10 @@ def video(
     from tacbench import video as rendering  # torch, SB3 and imageio only when this runs
     from tacbench.runs.files import check_writable
 
-    if out.suffix not in rendering.FORMATS:
+    kind = out.suffix.lower()  # hopper.MP4 as hopper.mp4
+    if kind not in rendering.FORMATS:
         raise TacbenchError(f"--out must end in {' or '.join(rendering.FORMATS)}, not {out.name!r}")
-    if out.suffix == ".mp4":
+    if kind == ".mp4":
         for flag, size in (("--width", width), ("--height", height)):
             if size % rendering.MP4_BLOCK:
                 low = size - size % rendering.MP4_BLOCK
@@ -67,7 +68,7 @@ def video(
     check_writable(out.parent)
     backend = rendering.choose_gl_backend()
     policy = rendering.load_policy(run_dir)
-    if out.suffix == ".gif":  # Pillow writes a GIF at the end: its frames are all kept
+    if kind == ".gif":  # Pillow writes a GIF at the end: its frames are all kept
         steps = max_steps or envs.env_info(policy.env).max_episode_steps
         memory.check_fits(
             {"the GIF's frames": episodes * (steps + 1) * width * height},
