@@ -155,7 +155,11 @@ def test_bench_profile_splits_an_update_into_products_and_the_rest(
         first = rows[f"product {k}x100x3 @ {k}x3x16"]
         assert first["calls"] >= 1 and first["gflops"] > 0
         assert rows["Adam"]["calls"] == 1
-        # the rows add up to the profiled update
+        # the named rows' times fit inside the profiled update (the rest, the update's time that
+        # no row names, is the difference, so it must not be negative), and all rows add up to it
+        *named, rest = profile["rows"]
+        assert rest["what"].startswith("the rest") and rest["us"] >= 0
+        assert all(r["us"] > 0 if r["calls"] else r["us"] == 0 for r in named)
         total = sum(r["us"] for r in profile["rows"])
         assert total == pytest.approx(profile["profiled_update_us"], rel=1e-6)
         assert profile["peak_gflops"] > 0
