@@ -78,9 +78,10 @@ def test_mean_and_iqm_intervals_cover_the_true_values_at_about_95_percent() -> N
         for name in hits:
             _, low, high = estimates[name]
             hits[name] += low <= 0.0 <= high
-    # the percentile bootstrap under-covers slightly with 10 runs per task; 300 trials -> sd 1.3 %
+    # the percentile bootstrap under-covers slightly with 10 runs per task (0.92-0.94 here);
+    # 300 trials -> sd 1.3 %. The band leaves out 99 % intervals (0.96-0.97 on these trials)
     for name, count in hits.items():
-        assert 0.89 <= count / trials <= 0.99, name
+        assert 0.90 <= count / trials <= 0.96, name
 
 
 def test_improvement_intervals_cover_the_true_probability() -> None:
@@ -93,7 +94,8 @@ def test_improvement_intervals_cover_the_true_probability() -> None:
         ys = [rng.normal(0.0, 1.0, size=10) for _ in range(2)]
         _, low, high = probability_of_improvement(xs, ys, 500, seed=trial)
         hits += low <= true_p <= high
-    assert 0.88 <= hits / trials <= 0.995
+    # 0.915 here; 99 % intervals cover 0.98 of these trials, 90 % ones fewer than 0.88
+    assert 0.88 <= hits / trials <= 0.96
 
 
 def test_performance_profile_values_and_bands() -> None:
