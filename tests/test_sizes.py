@@ -64,6 +64,11 @@ def test_the_estimate_counts_parameters_and_activations() -> None:
         (11 * 300 + 300 + 300 * 6 + 6) + 2 * (14 * 300 + 300 + 301) + (11 * 300 + 300 + 301)
     )
     assert needs["networks"] == 2 * parameters * memory.PARAMETER_COPIES * 4
+    # per member: the batch's widths (hidden, observation, action) through the four networks
+    per_member = 100 * (300 + 11 + 3) * 4 * memory.ACTIVATION_COPIES
+    assert needs["an update's activations"] == 2 * per_member * 4
+    without_v = memory.actor_critic_bytes(11, 3, (300,), 100, value_network=False)
+    assert without_v["an update's activations"] == per_member * 3 // 4 * 4
 
 
 def test_too_many_bootstrap_replications_are_refused(tmp_path: Path) -> None:
