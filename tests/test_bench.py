@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import pytest
 from click.testing import CliRunner
@@ -117,13 +118,21 @@ def test_bench_command_refuses_bad_options(tmp_path: Path) -> None:
     assert "SB3 SAC" not in result.output
 
 
-def test_hidden_sizes_reach_tac_and_sb3_and_bad_widths_are_refused() -> None:
-    from tacbench.bench import _network_overrides, _tac_configs
+def test_hidden_sizes_reach_tac_and_sb3_and_bad_widths_are_refused(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    import stable_baselines3
+
+    from tacbench.bench import _network_overrides, _sb3_sac, _tac_configs
 
     options = BenchOptions(env="Pendulum-v1", members=2, hidden_sizes=(16, 8))
     assert _network_overrides(options) == {"hidden_sizes": (16, 8)}
     configs = _tac_configs(options, Contestant("TAC", 2, tac=True))
     assert [c.hidden_sizes for c in configs] == [(16, 8), (16, 8)]
+    built: dict[str, Any] = {}  # what SB3's SAC is built with, without training it
+    monkeypatch.setattr(stable_baselines3, "SAC", lambda *args, **kwargs: built.update(kwargs))
+    with _sb3_sac(options):
+        assert built["policy_kwargs"] == {"net_arch": [16, 8]}
     assert _network_overrides(BenchOptions()) == {}  # the paper's networks
     with pytest.raises(TacbenchError, match="--hidden-sizes 400,300"):
         BenchOptions(hidden_sizes=(300, 0))
