@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 import pytest
 import torch
@@ -132,3 +133,42 @@ def test_loss_logger_averages_train_values_between_rows() -> None:
     logger.record("train/critic_loss", float("inf"))
     logger.record("train/n_updates", float("nan"))  # only losses count as divergence
     assert logger.non_finite == ["critic_loss"]
+
+
+class _Rewards(gym.Env[np.ndarray, np.ndarray]):
+    """An episode of the given rewards, one per step."""
+
+    observation_space = gym.spaces.Box(-1.0, 1.0, (1,), np.float32)
+    action_space = gym.spaces.Box(-1.0, 1.0, (1,), np.float32)
+
+    def __init__(self, rewards: list[float]) -> None:
+        self.rewards, self.t = rewards, 0
+
+    def reset(self, *, seed: int | None = None, options: Any = None) -> tuple[np.ndarray, dict]:
+        self.t = 0
+        return np.zeros(1, np.float32), {}
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
+        self.t += 1
+        return (
+            np.zeros(1, np.float32),
+            self.rewards[self.t - 1],
+            self.t == len(self.rewards),
+            False,
+            {},
+        )
+
+
+def test_the_recorder_sums_the_raw_rewards_in_float64() -> None:
+    """Exactly Python's float64 sum of the env's own rewards: values that float32 would round
+    (0.1, 1 + 1e-7, 1e-9), and a sum past 2**24, where float32 accumulation loses a 1."""
+    rewards = [0.1, 1.0000001, 1e-9, 2.3, 0.3, 2.0**24, 1.0]
+    recorder = algos.EpisodeRecorder(_Rewards(rewards))
+    recorder.reset()
+    for _ in rewards:
+        *_, info = recorder.step(np.zeros(1, np.float32))
+    assert info["episode"] == {"r": sum(rewards), "l": len(rewards)}
+    float32_sum = np.float32(0.0)
+    for reward in rewards:
+        float32_sum += np.float32(reward)
+    assert info["episode"]["r"] != float(float32_sum)
