@@ -43,9 +43,15 @@ def exit_status() -> int:
 
 
 def resume_command(command: str) -> str:
-    """``command`` with ``--resume`` (the library call's equivalent when there is none)."""
+    """``command`` with ``--resume`` (the library call's equivalent when there is none); a
+    sweep's command as it is: a sweep resumes by being run again, and has no ``--resume``."""
     command = command or "train(..., resume=True)"
-    return command if "--resume" in command.split() else f"{command} --resume"
+    words = command.split()
+    return (
+        command
+        if "--resume" in words or words[:2] == ["tacbench", "sweep"]
+        else (f"{command} --resume")
+    )
 
 
 @contextmanager

@@ -40,6 +40,23 @@ def test_user_error_exits_with_status_two_and_no_traceback() -> None:
     assert "Traceback" not in result.output
 
 
+def test_a_ctrl_c_no_command_handles_exits_130_without_a_traceback() -> None:
+    """Click's own answer is "Aborted!" and exit status 1, which the sweep keeps for a run
+    given up on."""
+
+    @click.group(cls=Group)
+    def group() -> None:
+        pass
+
+    @group.command()
+    def starting() -> None:
+        raise KeyboardInterrupt
+
+    result = CliRunner().invoke(group, ["starting"])
+    assert result.exit_code == 130
+    assert result.output == "interrupted by Ctrl-C\n"
+
+
 def test_other_exceptions_are_not_swallowed() -> None:
     @click.group(cls=Group)
     def group() -> None:

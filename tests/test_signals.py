@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from tacbench.interrupts import exit_status, stop_signals
+from tacbench.interrupts import exit_status, resume_command, stop_signals
 from tests.helpers import checkpoint_state, interrupt_cli, run_cli
 
 pytestmark = pytest.mark.smoke
@@ -74,3 +74,15 @@ def test_the_exit_status_is_128_plus_the_first_signal() -> None:
     with stop_signals():
         pass
     assert exit_status() == 130  # no signal: a stop asked for otherwise
+
+
+@pytest.mark.unit
+def test_the_resume_command_adds_resume_to_a_run_and_leaves_a_sweep_as_it_is() -> None:
+    """A sweep resumes by being run again: it has no --resume (the advice in a sweep's runs'
+    status.json after a second Ctrl-C named one, which click refused)."""
+    run = "tacbench run --env Hopper-v4 --q 1.5"
+    assert resume_command(run) == f"{run} --resume"
+    assert resume_command(f"{run} --resume") == f"{run} --resume"
+    sweep = "tacbench sweep --preset smoke --out results"
+    assert resume_command(sweep) == sweep
+    assert resume_command("") == "train(..., resume=True) --resume"

@@ -384,3 +384,52 @@ def test_the_summary_says_what_continues_a_sweep(
     )
     assert ("to continue, run the same command again: c" in text) == (advice == "to continue")
     assert ("a larger --max-retries to try again" in text) == (advice == "given up")
+
+
+class _DiedOfCtrlC:
+    """An executor whose one unit dies of a Ctrl-C while starting up; the same Ctrl-C reaches
+    the driver while it waits."""
+
+    def __init__(self, received: dict[str, int]) -> None:
+        self.received, self.units, self.stops = received, [], 0
+
+    def capacity(self) -> int:
+        return 1
+
+    def running(self) -> int:
+        return len(self.units)
+
+    def submit(self, unit: plan.Unit, node: str | None = None) -> None:
+        self.units.append(unit)
+
+    def wait(self, timeout: float) -> list[Any]:
+        from tacbench.sweep.executors import Finished
+
+        self.received["count"] = 1  # the Ctrl-C
+        died = [Finished(u, None, "worker process killed by SIGINT") for u in self.units]
+        self.units = []
+        return died
+
+    def steps(self) -> dict[str, int]:
+        return {}
+
+    def request_stop(self) -> None:
+        self.stops += 1
+
+    def close(self, force: bool = False) -> None:
+        pass
+
+
+def test_a_unit_killed_by_the_ctrl_c_that_stops_the_sweep_is_not_a_failure(
+    tmp_path: Path,
+) -> None:
+    """A worker starting up dies of the Ctrl-C before it can ignore it: the sweep stops, and
+    the unit's runs are left to resume, not counted as failed (enough such stops gave them up)."""
+    options = driver.Options(workers=1)
+    work, history = driver.load_plan(SMOKE, tmp_path, options, save=False)
+    received: dict[str, int] = {}
+    executor = _DiedOfCtrlC(received)
+    sweep = driver._Driver(work, history, executor, options, stream=None)
+    assert sweep.run(received) is True  # stopped early
+    assert executor.stops == 1
+    assert all(not history.failures(p.run.key) for p in work.runs)

@@ -22,7 +22,8 @@ class UserError(click.ClickException):
 
 
 class Group(click.Group):
-    """A click group that turns :class:`TacbenchError` into a clean message and exit status 2."""
+    """A click group that turns :class:`TacbenchError` into a clean message and exit status 2,
+    and a Ctrl-C that no command handles (while one starts, say) into exit status 130."""
 
     def invoke(self, ctx: click.Context) -> Any:
         try:
@@ -37,6 +38,9 @@ class Group(click.Group):
                 err=True,
             )
             ctx.exit(stopped.exit_status)
+        except KeyboardInterrupt:  # a Ctrl-C outside the commands' own handling of signals
+            click.echo("interrupted by Ctrl-C", err=True)
+            ctx.exit(exit_status())
 
 
 def command_line(ctx: click.Context) -> str:

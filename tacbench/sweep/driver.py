@@ -220,10 +220,7 @@ class _Driver:
         """Train until the queue is empty or a stop is requested; True if stopped early."""
         try:
             while (self.queue and not self.stopping) or self.executor.running():
-                if received and not self.stopping:
-                    self.stopping = True
-                    self.progress.message("stopping: every running run checkpoints and returns")
-                    self.executor.request_stop()
+                self._stop_if(received)
                 if received.get("count", 0) > 1:
                     self.forced = True
                     break
@@ -234,6 +231,9 @@ class _Driver:
                     self.unit_runs[unit.key] = [r.key for r in unit.runs]
                     self.executor.submit(unit, self.history.node(unit.runs[0].key))
                 for finished in self.executor.wait(timeout=1.0):
+                    # a Ctrl-C reaches the workers too: one that died of it while starting up
+                    # (before it ignores it) is stopped, not failed
+                    self._stop_if(received)
                     self._handle(finished)
                 for key, step in self.executor.steps().items():
                     for run_key in self.unit_runs.get(key, ()):
@@ -243,6 +243,13 @@ class _Driver:
             self.executor.close(force=self.forced)
             self.progress.close()
         return self.stopping or bool(self.queue)
+
+    def _stop_if(self, received: dict[str, int]) -> None:
+        """Begin stopping once a stop signal has been received."""
+        if received and not self.stopping:
+            self.stopping = True
+            self.progress.message("stopping: every running run checkpoints and returns")
+            self.executor.request_stop()
 
     def _handle(self, finished: executors.Finished) -> None:
         """Read each run's status after its unit ended; record failures, queue retries."""
@@ -267,9 +274,7 @@ class _Driver:
                 self.progress.message(f"complete: {run.key}")
                 continue
             if status.state != "failed" and (not error or self.stopping):
-                if status.state == "partial":  # interrupted: resumes with the next sweep
-                    _note_resume(out / run.key, self.options.command)
-                continue
+                continue  # interrupted (or never started): resumes with the next sweep
             reason = status.reason if status.state == "failed" else error
             self.history.add_failure(run.key, status.step, reason, result.host if result else "")
             n = len(self.history.failures(run.key))
@@ -282,13 +287,3 @@ class _Driver:
         if again:
             self.queue.append(plan.Unit(tuple(again)))
         self.queue.extend(plan.Unit((run,), retry=(run.key,)) for run in retry)
-
-
-def _note_resume(directory: Path, command: str) -> None:
-    """Point an interrupted run's status reason at the sweep command (the trainer names its own
-    ``--resume``, which a sweep does not need)."""
-    path = directory / "status.json"
-    status = runs.read_json(path)
-    if command and str(status.get("reason", "")).startswith("interrupted"):
-        status["reason"] = f"interrupted at step {status.get('step')}; resume with: {command}"
-        runs.atomic_write_json(path, status)
