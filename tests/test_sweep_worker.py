@@ -4,6 +4,7 @@ directory held by another writer, for one: training the others alone would chang
 
 from __future__ import annotations
 
+import signal
 from pathlib import Path
 from typing import Any
 
@@ -12,6 +13,7 @@ import pytest
 from tacbench import trainers
 from tacbench.config import RunConfig
 from tacbench.errors import TacbenchError
+from tacbench.interrupts import SecondSignal
 from tacbench.runs import Outcome
 from tacbench.runs.checkpoints import NoCommonCheckpoint
 from tacbench.sweep import worker
@@ -66,3 +68,21 @@ def test_a_group_refused_for_another_reason_is_not_split(
     trainer, outcome = _train(tmp_path, monkeypatch, held)
     assert trainer.calls == [[0, 10]]
     assert outcome is held
+
+
+def test_a_second_signal_in_a_worker_ends_its_unit_quietly(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Two Ctrl-Cs: the trainer stops at once (SecondSignal, a KeyboardInterrupt); the worker
+    says so (in its unit's log, where its output goes) instead of dying with a traceback on the
+    terminal, and reports no error, so that the runs are not counted as failed."""
+
+    class _Stopped:
+        def train(self, configs: list[Any], out: Path, **_: Any) -> list[Outcome]:
+            raise SecondSignal(signal.SIGINT)
+
+    monkeypatch.setattr(trainers, "trainer_for", lambda algo: _Stopped())
+    unit = Unit((Run(RunConfig(env="Hopper-v4", q=1.0, alpha=0.2, seed=0, total_steps=10)),))
+    result = worker.execute(worker.Job(unit, tmp_path, tmp_path / "log"), lambda step: False)
+    assert (result.error, result.outcomes) == ("", ())
+    assert capsys.readouterr().err == "stopped at once by a second SIGINT\n"

@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from tacbench import runs, trainers
+from tacbench.interrupts import SecondSignal
 from tacbench.runs import checkpoints
 from tacbench.runs.checkpoints import FULL_ERRNOS, DiskError, NoCommonCheckpoint
 from tacbench.sweep.plan import Unit
@@ -90,6 +91,9 @@ def execute(job: Job, report: Report, every_s: float = 1.0) -> JobResult:
         for key in job.unit.retry:
             reset_failed(job.root / key)
         outcomes = _train(job, StopHook(report, every_s))
+    except SecondSignal as stopped:  # the sweep is stopping at once; said here, in the log
+        print(f"stopped at once by a second {stopped}", file=sys.stderr, flush=True)
+        return JobResult(host=host)
     except Exception as err:
         traceback.print_exc()
         message = str(err).strip().splitlines()
