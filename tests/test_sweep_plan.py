@@ -433,3 +433,18 @@ def test_a_unit_killed_by_the_ctrl_c_that_stops_the_sweep_is_not_a_failure(
     assert sweep.run(received) is True  # stopped early
     assert executor.stops == 1
     assert all(not history.failures(p.run.key) for p in work.runs)
+
+
+@pytest.mark.parametrize(
+    "damaged",
+    ["{", '{"runs": []}', '{"runs": null}', '{"runs": {"k": {"failures": [{"bad": 1}]}}}'],
+)
+def test_a_damaged_failure_history_stops_the_sweep_before_anything_runs(
+    tmp_path: Path, damaged: str
+) -> None:
+    """state.json torn, or of the wrong shape (which crashed the summary after every run had
+    trained): refused at once, saying that deleting it loses the history, not to --force."""
+    (tmp_path / "sweep").mkdir()
+    (tmp_path / "sweep" / "state.json").write_text(damaged)
+    with pytest.raises(TacbenchError, match=r"delete it \(the sweep's failure history is then"):
+        _plan(tmp_path)

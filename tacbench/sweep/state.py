@@ -52,8 +52,11 @@ class SweepState:
 
     def __init__(self, out: Path) -> None:
         self.path = sweep_dir(out) / "state.json"
-        data = runs.read_json(self.path) if self.path.exists() else {}
+        advice = "restore it, or delete it (the sweep's failure history is then lost)"
+        data = runs.read_json(self.path, advice) if self.path.exists() else {}
         self.runs: dict[str, dict[str, Any]] = data.get("runs", {})
+        if not _well_formed(self.runs):
+            raise TacbenchError(f"{self.path} is not a sweep's failure history; {advice}.")
 
     def failures(self, key: str) -> list[Failure]:
         """Every recorded failure of the run ``key``, oldest first."""
@@ -94,6 +97,18 @@ class SweepState:
         """Write state.json."""
         self.path.parent.mkdir(parents=True, exist_ok=True)
         runs.atomic_write_json(self.path, {"runs": self.runs})
+
+
+def _well_formed(entries: Any) -> bool:
+    """Whether ``entries`` is state.json's ``runs``: by run key, failures like :class:`Failure`
+    and, optionally, a node."""
+    fields = set(Failure.__dataclass_fields__)
+    return isinstance(entries, dict) and all(
+        isinstance(entry, dict)
+        and isinstance(entry.get("failures", []), list)
+        and all(isinstance(f, dict) and set(f) == fields for f in entry.get("failures", []))
+        for entry in entries.values()
+    )
 
 
 class Lock:
