@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import shutil
 import socket
 import subprocess
 import sys
@@ -33,6 +34,9 @@ def _fake_run(out: Path, run: plan.Run, status: dict[str, Any] | None, **config:
     runs.atomic_write_json(directory / "config.json", {"config": data, "members": [0]})
     if status is not None:
         runs.atomic_write_json(directory / "status.json", status)
+        if status["state"] == "running" and status["step"]:  # its checkpoint, as a run leaves
+            (directory / "checkpoint").mkdir()
+            (directory / "checkpoint" / f"manifest-{status['step']:012d}.json").write_text("{}")
     return directory
 
 
@@ -104,6 +108,21 @@ def test_another_config_in_a_run_directory_stops_the_plan(tmp_path: Path) -> Non
     other = tmp_path / "other"
     _fake_run(other, run, {"state": "running", "step": 0}, threads=4, checkpoint_every=7)
     assert _plan(other).runs[0].status == plan.Status("partial", 0)
+
+
+def test_progress_no_checkpoint_holds_stops_the_plan(tmp_path: Path) -> None:
+    """A partial run whose checkpoint was deleted (or whose status.json was, under rows
+    already written) fails every attempt of its unit, which gave its healthy members up too:
+    the plan stops first, saying what to do."""
+    run = plan.build_runs(SMOKE)[0]
+    directory = _fake_run(tmp_path, run, {"state": "running", "step": 500})
+    shutil.rmtree(directory / "checkpoint")
+    with pytest.raises(TacbenchError, match=r"status\.json records step 500, but .* holds no"):
+        _plan(tmp_path)
+    (directory / "status.json").unlink()
+    (directory / "eval.csv").write_text("step,wall_s,return_mean\n500,1.0,3.0\n")
+    with pytest.raises(TacbenchError, match=r"has rows in eval\.csv but no status\.json"):
+        _plan(tmp_path)
 
 
 def test_a_run_directory_with_files_but_no_config_stops_the_plan(tmp_path: Path) -> None:

@@ -29,11 +29,13 @@ from tacbench.runs.files import (
 from tacbench.runs.planning import (
     DirectoryPlan,
     Outcome,
+    check_checkpoint,
     check_nothing_to_lose,
     differing_fields,
     plan_run,
     plan_runs,
     planned_runs,
+    read_status,
     run_directory,
 )
 from tacbench.runs.provenance import VERSIONED_PACKAGES, git_commit, package_versions, run_metadata
@@ -48,6 +50,7 @@ __all__ = [
     "RunWriter",
     "State",
     "atomic_write_json",
+    "check_checkpoint",
     "check_nothing_to_lose",
     "check_writable",
     "differing_fields",
@@ -59,6 +62,7 @@ __all__ = [
     "plan_runs",
     "planned_runs",
     "read_json",
+    "read_status",
     "run_directory",
     "run_metadata",
 ]

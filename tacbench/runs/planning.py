@@ -71,6 +71,31 @@ def plan_run(
             f"{directory} holds a run with another config ({'; '.join(differences)}). "
             "Pass --force to replace it, or --out to write somewhere else."
         )
+    status = read_status(directory)
+    step = status["step"]
+    if status.get("state") == "complete":
+        return DirectoryPlan("skip", f"already complete ({step} steps); --force retrains it")
+    if status.get("state") == "failed":
+        reason = str(status.get("reason", ""))
+        crashed = reason.startswith(CRASHED)
+        if crashed and resume:
+            check_checkpoint(directory, step)
+            return DirectoryPlan("resume", "resuming a crashed run from its last checkpoint")
+        again = "--resume continues it, --force retrains it" if crashed else "--force retrains it"
+        return DirectoryPlan("skip", f"failed at step {step}: {reason}; {again}")
+    if not resume:
+        raise TacbenchError(
+            f"{directory} holds an unfinished run (step {step}). Add --resume to continue it, "
+            "or --force to start over."
+        )
+    check_checkpoint(directory, step)
+    return DirectoryPlan("resume", "resuming from its last checkpoint")
+
+
+def read_status(directory: Path) -> dict[str, Any]:
+    """The status.json of a run directory that has a config.json, its step checked; a run
+    without one that has written no rows yet is ``running`` at step 0. TacbenchError, saying
+    what to do, for a damaged status.json, or one missing under rows already written."""
     status_path = directory / "status.json"
     if not status_path.exists():
         _check_no_rows(directory)
@@ -82,23 +107,7 @@ def plan_run(
         raise TacbenchError(
             f"{status_path} records the step {step!r}, not a step count; {RESTORE_OR_FORCE}."
         )
-    if status.get("state") == "complete":
-        return DirectoryPlan("skip", f"already complete ({step} steps); --force retrains it")
-    if status.get("state") == "failed":
-        reason = str(status.get("reason", ""))
-        crashed = reason.startswith(CRASHED)
-        if crashed and resume:
-            _check_checkpoint(directory, step)
-            return DirectoryPlan("resume", "resuming a crashed run from its last checkpoint")
-        again = "--resume continues it, --force retrains it" if crashed else "--force retrains it"
-        return DirectoryPlan("skip", f"failed at step {step}: {reason}; {again}")
-    if not resume:
-        raise TacbenchError(
-            f"{directory} holds an unfinished run (step {step}). Add --resume to continue it, "
-            "or --force to start over."
-        )
-    _check_checkpoint(directory, step)
-    return DirectoryPlan("resume", "resuming from its last checkpoint")
+    return {**status, "step": step}
 
 
 def _resume_or_force(resume: bool, force: bool) -> None:
@@ -137,7 +146,7 @@ def check_nothing_to_lose(directory: Path) -> None:
         )
 
 
-def _check_checkpoint(directory: Path, step: int) -> None:
+def check_checkpoint(directory: Path, step: int) -> None:
     """Refuse to resume a run whose status.json records progress (``step``) that no checkpoint
     holds: it would start over from step 0 under the rows already written."""
     checkpoint = directory / "checkpoint"

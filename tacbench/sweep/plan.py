@@ -155,8 +155,7 @@ def read_status(out: Path, run: Run) -> Status:
         runs.check_nothing_to_lose(directory)  # else its worker would refuse it, mid-sweep
         return Status("new")
     stored = runs.read_json(config_path).get("config", {})
-    status_path = directory / "status.json"
-    status = runs.read_json(status_path) if status_path.exists() else {}
+    status = runs.read_status(directory)  # a damaged one stops the sweep before anything runs
     planned = dict(run.config.to_dict())
     if planned.get("compile") == "auto":  # resolved where the run started; a resume keeps it
         planned["compile"] = stored.get("compile", "auto")
@@ -166,9 +165,10 @@ def read_status(out: Path, run: Run) -> Status:
             f"{directory} holds a run with another config ({'; '.join(differences)}). "
             "Use another --out, or delete that directory to retrain it with this sweep's config."
         )
-    state, step = status.get("state", "running"), int(status.get("step", 0))
+    state, step = status.get("state", "running"), status["step"]
     if state in ("complete", "failed"):
         return Status(state, step, str(status.get("reason", "")))
+    runs.check_checkpoint(directory, step)  # progress no checkpoint holds fails every attempt
     return Status("partial", step)
 
 
