@@ -467,3 +467,14 @@ def test_a_damaged_failure_history_stops_the_sweep_before_anything_runs(
     (tmp_path / "sweep" / "state.json").write_text(damaged)
     with pytest.raises(TacbenchError, match=r"delete it \(the sweep's failure history is then"):
         _plan(tmp_path)
+
+
+def test_a_file_where_the_sweeps_logs_go_stops_it_before_anything_trains(tmp_path: Path) -> None:
+    """Every unit writes its log there: a file in its place failed each unit in turn until
+    every run was given up on."""
+    (tmp_path / "sweep").mkdir()
+    (tmp_path / "sweep" / "logs").write_text("mine")
+    with pytest.raises(TacbenchError, match="a file stands in its place; nothing was trained"):
+        driver.run_sweep(SMOKE, tmp_path, driver.Options(workers=1))
+    assert (tmp_path / "sweep" / "logs").read_text() == "mine"
+    assert not (tmp_path / "runs").exists()

@@ -124,6 +124,7 @@ def run_sweep(
     if options.shares_local_gpu:
         _require_cuda()
     with disk_errors("the sweep's files"), state.Lock(out):
+        state.make_log_folder(out)
         work, history = load_plan(preset, out, options)
         workers = options.worker_count()
         priced = summary.price(work, workers)

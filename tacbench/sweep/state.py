@@ -37,6 +37,19 @@ def log_path(out: Path, unit_key: str) -> Path:
     return sweep_dir(out) / "logs" / (unit_key.removeprefix("runs/").replace("/", "__") + ".log")
 
 
+def make_log_folder(out: Path) -> None:
+    """Create ``<out>/sweep/logs`` before any unit starts; a TacbenchError if it cannot be (a file
+    in its place), which would otherwise fail every unit, and give up every run, one by one."""
+    logs = sweep_dir(out) / "logs"
+    try:
+        logs.mkdir(parents=True, exist_ok=True)
+    except (FileExistsError, NotADirectoryError):
+        raise TacbenchError(
+            f"cannot create the sweep's log folder {logs}: a file stands in its place; nothing "
+            "was trained. Move it away, then rerun the same command."
+        ) from None
+
+
 @dataclass(frozen=True)
 class Failure:
     """One failed attempt of a run: when, where, at which step and why."""
