@@ -80,7 +80,8 @@ def test_counts_and_steps_left_match_a_hand_count(smoke_out: tuple[Path, list[pl
     assert retry == [plan.Unit((all_runs[4],), retry=(all_runs[4].key,))]
     text = summary.describe_plan(work, workers=2, group="none")
     assert "8 runs: 1 complete, 1 partial, 1 failed (1 to retry, 0 given up" in text
-    assert "5 not started" in text and "environment steps left: 5,800 of 8,000" in text
+    assert "5 not started" in text
+    assert "environment steps left: 5,800 of 8,000 (1,000 per run)" in text
 
 
 def test_a_run_failed_more_than_max_retries_is_given_up(
@@ -331,7 +332,7 @@ def test_cli_sweep_dry_run_and_option_errors(tmp_path: Path) -> None:
     )
     assert dry.exit_code == 0, dry.output
     assert "540 runs: 0 complete, 0 partial, 0 failed" in dry.output
-    assert "environment steps left: 540,000,000 of 540,000,000" in dry.output
+    assert "environment steps left: 540,000,000 of 540,000,000 (1,000,000 per run)" in dry.output
     assert "with 4 workers (--workers) about" in dry.output
     assert not (tmp_path / "sweep").exists()  # a dry run writes nothing
     for args, message in [

@@ -92,6 +92,7 @@ def describe_plan(plan: SweepPlan, workers: int, group: str, workers_from: str =
     c = counts(plan)
     total = sum(p.run.total_steps for p in plan.runs)
     left = plan.steps_left()
+    budgets = " or ".join(f"{b:,}" for b in sorted({p.run.total_steps for p in plan.runs}))
     lines = [
         f"preset {plan.preset.name}: {plan.preset.description}",
         f"{c['runs']} runs: {c['complete']} complete, {c['partial']} partial, {c['failed']} "
@@ -100,7 +101,7 @@ def describe_plan(plan: SweepPlan, workers: int, group: str, workers_from: str =
         f"{len(plan.units)} units to train (one process or Ray task each; --group {group}: "
         f"{GROUPING[group]})",
         *_units(plan),
-        f"environment steps left: {left:,} of {total:,}",
+        f"environment steps left: {left:,} of {total:,} ({budgets} per run)",
         "",
         f"{'algo':<8} {'env':<15} {'runs':>5} {'done':>5} {'part':>5} {'fail':>5} {'new':>5} "
         f"{'steps left':>14} {'ms/step':>8}  throughput",
