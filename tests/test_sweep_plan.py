@@ -479,3 +479,19 @@ def test_a_file_where_the_sweeps_logs_go_stops_it_before_anything_trains(tmp_pat
         driver.run_sweep(SMOKE, tmp_path, driver.Options(workers=1))
     assert (tmp_path / "sweep" / "logs").read_text() == "mine"
     assert not (tmp_path / "runs").exists()
+
+
+def test_a_run_given_up_counts_as_failed_whatever_its_status_says(tmp_path: Path) -> None:
+    """A run whose workers died (kill -9, say) keeps a partial or new status.json; once given
+    up it is one of the failed runs in the counts and in the per-task table, not partial or new
+    beside "0 failed (1 given up)"."""
+    all_runs = plan.build_runs(SMOKE)
+    _fake_run(tmp_path, all_runs[1], {"state": "running", "step": 500})
+    history = state.SweepState(tmp_path)
+    for _ in range(3):
+        history.add_failure(all_runs[1].key, 500, "worker process killed by SIGKILL")
+    work = _plan(tmp_path, driver.Options(max_retries=2))
+    counts = summary.counts(work)
+    assert (counts["failed"], counts["given_up"], counts["partial"]) == (1, 1, 0)
+    text = summary.describe_plan(work, workers=2, group="none")
+    assert "0 partial, 1 failed (0 to retry, 1 given up" in text

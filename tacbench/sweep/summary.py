@@ -16,11 +16,17 @@ from tacbench.sweep import calibration, cost, state
 from tacbench.sweep.plan import PlannedRun, SweepPlan
 
 
+def shown_state(planned: PlannedRun) -> str:
+    """A run's state as the summaries count it: a run given up on is failed, whatever its
+    status.json says (a worker that died left it partial or new)."""
+    return "failed" if planned.action == "give-up" else planned.status.state
+
+
 def counts(plan: SweepPlan) -> dict[str, int]:
-    """Runs by state (complete, partial, failed, new), failed runs by what happens next, and
-    the runs that the same command would train (``to_train``: new, partial or to retry, none
-    of them given up)."""
-    by_state = Counter(p.status.state for p in plan.runs)
+    """Runs by state (complete, partial, failed, new: :func:`shown_state`), failed runs by what
+    happens next, and the runs that the same command would train (``to_train``: new, partial
+    or to retry, none of them given up)."""
+    by_state = Counter(shown_state(p) for p in plan.runs)
     return {
         "runs": len(plan.runs),
         **{name: by_state.get(name, 0) for name in ("complete", "partial", "failed", "new")},
@@ -78,7 +84,7 @@ def price(plan: SweepPlan, workers: int) -> Price:
         seconds, source = steps * rate.seconds_per_step, rate.source
         if rate.source == cost.DEFAULT_SOURCE and (algo, env) in calibrated:
             seconds, source = calibrated[(algo, env)], CALIBRATED
-        states = Counter[str](p.status.state for p in members)
+        states = Counter[str](shown_state(p) for p in members)
         priced.append(GroupPrice(algo, env, len(members), states, steps, seconds, source))
     per_step = {(g.algo, g.env): g.seconds / max(1, g.steps) for g in priced}
     return Price(
