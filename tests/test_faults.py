@@ -103,7 +103,7 @@ def test_a_sweep_records_a_run_it_cannot_write_as_failed_and_goes_on(
     args += ["--group", "none", "--max-retries", "0", "--workers", "1", "--out", str(tmp_path)]
     result = CliRunner().invoke(cli, args)
     assert result.exit_code == 1, result.output  # a run failed for good, the other completed
-    assert "2 runs: 1 complete, 0 failed (1 given up)" in result.output
+    assert "2 runs: 1 complete, 1 failed (1 given up), 0 partial, 0 not started" in result.output
     history = json.loads((tmp_path / "sweep" / "state.json").read_text())["runs"]
     (failure,) = history["runs/tac/Hopper-v4/q2-a0.2-ls500-bs32/seed0"]["failures"]
     assert "read-only file system; choose a folder you can write with --out" in failure["reason"]
