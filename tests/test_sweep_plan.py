@@ -345,6 +345,18 @@ def test_cli_sweep_dry_run_and_option_errors(tmp_path: Path) -> None:
     ]:
         result = runner.invoke(cli, ["sweep", "--preset", "smoke", "--dry-run", *args])
         assert (result.exit_code, message in result.output) == (2, True), result.output
+    (tmp_path / "afile").write_text("")
+    below_a_file = ["--out", str(tmp_path / "afile" / "sub")]  # the sweep itself would refuse
+    result = runner.invoke(cli, ["sweep", "--preset", "smoke", "--dry-run", *below_a_file])
+    assert result.exit_code == 2 and "cannot create or write the output folder" in result.output
+    cores = len(os.sched_getaffinity(0))
+    many = ["--workers", str(cores + 1), "--out", str(tmp_path / "o")]
+    result = runner.invoke(cli, ["sweep", "--preset", "smoke", "--dry-run", *many])
+    assert result.exit_code == 0
+    assert f"WARNING: --workers {cores + 1} is more than the {cores} cores" in result.output
+    one = ["--workers", "1", "--out", str(tmp_path / "o")]
+    result = runner.invoke(cli, ["sweep", "--preset", "smoke", "--dry-run", *one])
+    assert result.exit_code == 0 and "WARNING" not in result.output
 
 
 def test_the_wall_time_is_the_units_schedule_not_the_core_time_shared_out() -> None:

@@ -190,6 +190,8 @@ def sweep(ctx: click.Context, preset: str, **p: Any) -> None:
     from tacbench.sweep import driver, summary  # torch only when this command runs
 
     grid, options = _grid_and_options(ctx, preset, p)
+    if options.oversubscribed():
+        click.echo(options.oversubscribed(), err=True)
     sequential = {k: p[k] for k in ("interim_runs", "interims", "fwer", "control")}
     if p["until_decided"]:
         if p["seeds"]:
@@ -211,6 +213,9 @@ def sweep(ctx: click.Context, preset: str, **p: Any) -> None:
     if p["calibrate"] and not p["dry_run"]:
         raise click.UsageError("--calibrate prices a plan: give it with --dry-run.")
     if p["dry_run"]:
+        from tacbench.runs.files import check_writable
+
+        check_writable(p["out"])  # as the sweep itself would, though the dry run writes nothing
         work, _ = driver.load_plan(grid, p["out"], options, save=False)
         if p["calibrate"]:
             from tacbench.sweep import calibration

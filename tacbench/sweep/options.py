@@ -113,13 +113,21 @@ class Options:
         --gpus-per-run G: at most 1/G, the workers that share the GPU)."""
         if self.workers:
             return self.workers
-        if hasattr(os, "sched_getaffinity"):  # the cores this process may use (Linux)
-            cores = len(os.sched_getaffinity(0))
-        else:
-            cores = os.cpu_count() or 1
+        cores = usable_cores()
         if self.shares_local_gpu:
             return min(cores, self.gpu_workers())
         return cores
+
+    def oversubscribed(self) -> str:
+        """A warning when local workers outnumber this machine's cores (each gets one thread,
+        so they only share the cores and the estimate's per-core rates no longer hold)."""
+        cores = usable_cores()
+        if self.executor != "local" or not self.workers or self.workers <= cores:
+            return ""
+        return (
+            f"WARNING: --workers {self.workers} is more than the {cores} cores this process may "
+            "use: the workers share them, each runs slower, and the dry run's price is too low"
+        )
 
     def workers_source(self) -> str:
         """Where :meth:`worker_count` comes from, for the dry run's estimate."""
@@ -131,3 +139,10 @@ class Options:
             f"this machine's cores, not the cluster's: give --workers N for a {self.executor} "
             "estimate"
         )
+
+
+def usable_cores() -> int:
+    """The cores this process may use (its affinity, on Linux), else the machine's."""
+    if hasattr(os, "sched_getaffinity"):
+        return len(os.sched_getaffinity(0))
+    return os.cpu_count() or 1
