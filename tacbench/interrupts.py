@@ -47,11 +47,9 @@ def resume_command(command: str) -> str:
     sweep's command as it is: a sweep resumes by being run again, and has no ``--resume``."""
     command = command or "train(..., resume=True)"
     words = command.split()
-    return (
-        command
-        if "--resume" in words or words[:2] == ["tacbench", "sweep"]
-        else (f"{command} --resume")
-    )
+    if "--resume" in words or words[:2] == ["tacbench", "sweep"]:
+        return command
+    return f"{command} --resume"
 
 
 @contextmanager

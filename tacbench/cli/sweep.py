@@ -190,8 +190,8 @@ def sweep(ctx: click.Context, preset: str, **p: Any) -> None:
     from tacbench.sweep import driver, summary  # torch only when this command runs
 
     grid, options = _grid_and_options(ctx, preset, p)
-    if options.oversubscribed():
-        click.echo(options.oversubscribed(), err=True)
+    if warning := options.oversubscribed():
+        click.echo(warning, err=True)
     sequential = {k: p[k] for k in ("interim_runs", "interims", "fwer", "control")}
     if p["until_decided"]:
         if p["seeds"]:

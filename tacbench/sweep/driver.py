@@ -68,11 +68,10 @@ def load_plan(
         all_runs = [run for run in all_runs if run.key in only]
     history = state.SweepState(out)
     statuses = {run.key: plan.read_status(out, run) for run in all_runs}
-    for key, status in statuses.items():  # progress no checkpoint holds fails every attempt
-        if status.state == "partial":
-            runs.check_checkpoint(out / key, status.step)
     for key, status in statuses.items():
-        if status.state == "failed":
+        if status.state == "partial":  # progress no checkpoint holds fails every attempt
+            runs.check_checkpoint(out / key, status.step)
+        elif status.state == "failed":
             history.note_failed_status(key, status.step, status.reason)
     if save:
         history.save()
