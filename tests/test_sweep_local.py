@@ -1,5 +1,6 @@
 """``tacbench sweep`` end to end with the local executor on tiny grids: members, idempotence,
-kill -9 of a worker and of the whole sweep, Ctrl-C, and a failing run among complete ones."""
+kill -9 of a worker and of the whole sweep, Ctrl-C, a failing run among complete ones, and a
+damaged member of a unit among healthy ones."""
 
 from __future__ import annotations
 
@@ -14,9 +15,9 @@ import pandas as pd
 import pytest
 from click.testing import CliRunner
 
-from tacbench import hardware
+from tacbench import hardware, training
 from tacbench.cli import cli
-from tacbench.sweep import driver
+from tacbench.sweep import driver, plan
 from tacbench.sweep.presets import Entry, Preset
 from tests.helpers import (
     last_logged_step,
@@ -178,3 +179,32 @@ def test_a_failing_run_is_recorded_and_retried_and_the_others_complete(tmp_path:
     again = driver.run_sweep(preset, tmp_path, options)  # given up: not retried again
     assert again.exit_code == 1
     assert len(again.summary["unfinished"][0]["failures"]) == 2
+
+
+def test_a_member_with_a_damaged_csv_fails_alone_and_its_unit_trains_on(tmp_path: Path) -> None:
+    """One member's eval.csv changed before its checkpoint: that run cannot resume, but the
+    healthy member of its unit completes in the same attempt (it used to fail every attempt
+    with it and be given up), and the failure is recorded against the damaged run alone."""
+    tiny = {"total_steps": 400, "learning_starts": 100, "batch_size": 32, "eval_every": 100}
+    tiny |= {"eval_episodes": 1, "checkpoint_every": 100, "log_every": 100}
+    preset = Preset(
+        "damaged", "two members, one damaged", (Entry("tac", ("Hopper",), (0, 10), (1.0,), tiny),)
+    )
+    healthy, damaged = (r.config for r in plan.build_runs(preset))
+    stopped = training.train([healthy, damaged], tmp_path, stop=lambda step: step >= 300)
+    assert [o.state for o in stopped] == ["interrupted", "interrupted"]
+    eval_csv = stopped[1].directory / "eval.csv"
+    rows = eval_csv.read_text().splitlines(keepends=True)
+    changed = rows[0] + rows[1].replace(",", ",9", 2) + "".join(rows[2:])
+    eval_csv.write_text(changed)
+    result = driver.run_sweep(preset, tmp_path, driver.Options(workers=1, max_retries=0))
+    assert result.exit_code == 1
+    counts = result.summary["counts"]
+    assert (counts["complete"], counts["failed"], counts["given_up"]) == (1, 1, 1)
+    status = run_status(stopped[0].directory)
+    assert (status["state"], status["step"]) == ("complete", 400)
+    (failed,) = result.summary["unfinished"]
+    assert failed["run"] == str(stopped[1].directory.relative_to(tmp_path))
+    (failure,) = failed["failures"]
+    assert failure["reason"].startswith(f"DamagedRun: cannot resume: {eval_csv} differs from")
+    assert eval_csv.read_text() == changed  # nothing was changed

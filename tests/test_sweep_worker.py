@@ -1,6 +1,7 @@
 """A sweep unit's members train as one group; the worker trains them one at a time only when
-they share no checkpoint step, never when the group was refused for another reason (a run
-directory held by another writer, for one: training the others alone would change them)."""
+they share no checkpoint step, leaves out a member whose CSVs cannot continue (its error is
+that run's alone), and never splits a group refused for another reason (a run directory held
+by another writer, for one: training the others alone would change them)."""
 
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ from tacbench.errors import TacbenchError
 from tacbench.interrupts import SecondSignal
 from tacbench.runs import Outcome
 from tacbench.runs.checkpoints import NoCommonCheckpoint
+from tacbench.runs.resume_checks import DamagedRun
 from tacbench.sweep import worker
 from tacbench.sweep.plan import Run, Unit
 
@@ -23,32 +25,42 @@ pytestmark = pytest.mark.unit
 
 
 class _Refusing:
-    """A trainer that refuses any group of more than one member with ``error``."""
+    """A trainer that refuses with ``error`` any group that holds ``refused`` (a seed), or any
+    group of more than one member when ``refused`` is None."""
 
-    def __init__(self, error: TacbenchError) -> None:
-        self.error, self.calls = error, list[list[int]]()
+    def __init__(self, error: TacbenchError, refused: int | None) -> None:
+        self.error, self.refused, self.calls = error, refused, list[list[int]]()
 
     def train(self, configs: list[Any], out: Path, **_: Any) -> list[Outcome]:
-        self.calls.append([c.seed for c in configs])
-        if len(configs) > 1:
+        seeds = [c.seed for c in configs]
+        self.calls.append(seeds)
+        if self.refused in seeds or (self.refused is None and len(configs) > 1):
             raise self.error
-        return [Outcome(configs[0].seed, out, "complete", configs[0].total_steps)]
+        return [Outcome(c.seed, out, "complete", c.total_steps) for c in configs]
+
+
+def _unit(seeds: tuple[int, ...]) -> Unit:
+    return Unit(
+        tuple(
+            Run(RunConfig(env="Hopper-v4", q=1.0, alpha=0.2, seed=s, total_steps=10)) for s in seeds
+        )
+    )
 
 
 def _train(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, error: TacbenchError
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    error: TacbenchError,
+    refused: int | None = None,
+    seeds: tuple[int, ...] = (0, 10),
+    damaged: dict[str, str] | None = None,
 ) -> tuple[_Refusing, list[Outcome] | TacbenchError]:
-    trainer = _Refusing(error)
+    trainer = _Refusing(error, refused)
     monkeypatch.setattr(trainers, "trainer_for", lambda algo: trainer)
-    unit = Unit(
-        tuple(
-            Run(RunConfig(env="Hopper-v4", q=1.0, alpha=0.2, seed=s, total_steps=10))
-            for s in (0, 10)
-        )
-    )
-    job = worker.Job(unit, tmp_path, tmp_path / "log")
+    job = worker.Job(_unit(seeds), tmp_path, tmp_path / "log")
+    stop = worker.StopHook(lambda step: False, 1.0)
     try:
-        return trainer, worker._train(job, worker.StopHook(lambda step: False, 1.0))
+        return trainer, worker._train(job, stop, {} if damaged is None else damaged)
     except TacbenchError as err:
         return trainer, err
 
@@ -68,6 +80,42 @@ def test_a_group_refused_for_another_reason_is_not_split(
     trainer, outcome = _train(tmp_path, monkeypatch, held)
     assert trainer.calls == [[0, 10]]
     assert outcome is held
+
+
+def test_a_member_whose_csvs_cannot_continue_is_left_out_and_the_others_train_as_a_group(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The error is that run's alone (by run key), so that the driver records it against the
+    damaged run and not against the members that trained on."""
+    key = _unit((10,)).runs[0].key
+    error = DamagedRun("cannot resume: eval.csv differs", tmp_path / key)
+    damaged: dict[str, str] = {}
+    trainer, outcomes = _train(tmp_path, monkeypatch, error, 10, (0, 10, 20), damaged)
+    assert trainer.calls == [[0, 10, 20], [0, 20]]
+    assert isinstance(outcomes, list) and [o.seed for o in outcomes] == [0, 20]
+    assert damaged == {key: "DamagedRun: cannot resume: eval.csv differs"}
+
+
+def test_a_damaged_run_outside_the_unit_is_not_left_out(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    error = DamagedRun("cannot resume", tmp_path / "runs" / "elsewhere")
+    damaged: dict[str, str] = {}
+    trainer, outcome = _train(tmp_path, monkeypatch, error, damaged=damaged)
+    assert (trainer.calls, outcome, damaged) == ([[0, 10]], error, {})
+
+
+def test_a_unit_whose_only_member_is_damaged_reports_it_as_that_runs_error(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    unit = _unit((0,))
+    error = DamagedRun("cannot resume: train.csv is missing", tmp_path / unit.runs[0].key)
+    trainer = _Refusing(error, 0)
+    monkeypatch.setattr(trainers, "trainer_for", lambda algo: trainer)
+    result = worker.execute(worker.Job(unit, tmp_path, tmp_path / "log"), lambda step: False)
+    message = "DamagedRun: cannot resume: train.csv is missing"
+    assert (result.outcomes, result.error) == ((), message)
+    assert result.run_errors == {unit.runs[0].key: message}
 
 
 def test_a_second_signal_in_a_worker_ends_its_unit_quietly(

@@ -27,7 +27,13 @@ from typing import IO, TYPE_CHECKING, Any, Literal
 
 from tacbench.errors import TacbenchError
 from tacbench.runs.checkpoints import DISK_ERRNOS, recorded_logs, write_durably
-from tacbench.runs.resume_checks import START_OVER, LogDigest, ResumePlan, check_log
+from tacbench.runs.resume_checks import (
+    START_OVER,
+    DamagedRun,
+    LogDigest,
+    ResumePlan,
+    check_log,
+)
 from tacbench.settings import REROUNDING_FIELDS
 
 if TYPE_CHECKING:
@@ -208,11 +214,12 @@ class RunWriter:
     def check_resume(self, step: int, config: Mapping[str, Any]) -> ResumePlan:
         """Check every CSV against the (intact) checkpoint generation at ``step``, whose
         manifest records what each held (an older generation records nothing: then the rows up
-        to ``step`` are kept), and say what a resume keeps, writing nothing: a TacbenchError if
-        a CSV cannot continue (:func:`tacbench.runs.resume_checks.check_log`). Its notes also
-        name the hardware settings in which ``config`` (the resumed run's settings) differs from
-        config.json's (:func:`rounding_changes`), and progress that status.json records beyond
-        ``step`` (a newer generation whose manifest was lost)."""
+        to ``step`` are kept), and say what a resume keeps, writing nothing: a
+        :class:`~tacbench.runs.resume_checks.DamagedRun` if a CSV cannot continue
+        (:func:`~tacbench.runs.resume_checks.check_log`). Its notes also name the hardware
+        settings in which ``config`` (the resumed run's settings) differs from config.json's
+        (:func:`rounding_changes`), and progress that status.json records beyond ``step`` (a
+        newer generation whose manifest was lost)."""
         recorded = recorded_logs(self.directory / "checkpoint", step)
         plan = ResumePlan(step)
         stored = read_json(self.directory / "config.json").get("config")
@@ -228,9 +235,10 @@ class RunWriter:
             file = f"{name}.csv"
             digest = None if recorded is None else recorded.get(file)
             if recorded is not None and digest is None:
-                raise TacbenchError(
+                raise DamagedRun(
                     f"cannot resume: the checkpoint at step {step} of {self.directory} records "
-                    f"no {file}; {START_OVER}."
+                    f"no {file}; {START_OVER}.",
+                    self.directory,
                 )
             plan.kept[name], notes = check_log(self.directory / file, columns, step, digest)
             plan.notes += notes

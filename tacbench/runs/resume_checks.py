@@ -24,6 +24,15 @@ START_OVER = "rerun with --force to start the run over (tacbench sweep: delete t
 """How to start a run over, in ``tacbench run`` and in a sweep (which has no ``--force``)."""
 
 
+class DamagedRun(TacbenchError):
+    """A run whose CSVs cannot continue from its checkpoint (nothing was changed): the run in
+    ``directory`` cannot resume, while the other members of its group still can."""
+
+    def __init__(self, message: str, directory: Path) -> None:
+        super().__init__(message)
+        self.directory = directory
+
+
 @dataclass(frozen=True)
 class LogDigest:
     """What a CSV held when a checkpoint was written: its rows (header excluded), bytes and
@@ -52,15 +61,17 @@ class ResumePlan:
     notes: list[str] = field(default_factory=list)
 
 
-def _refuse(path: Path, what: str) -> TacbenchError:
-    return TacbenchError(
-        f"cannot resume: {path} {what}; nothing was changed; fix the file, or {START_OVER}."
+def _refuse(path: Path, what: str) -> DamagedRun:
+    return DamagedRun(
+        f"cannot resume: {path} {what}; nothing was changed; fix the file, or {START_OVER}.",
+        path.parent,
     )
 
 
 def _rows(path: Path, columns: Sequence[str]) -> tuple[list[bytes], list[int], bool]:
     """The complete lines of ``path`` (header first, each with its newline), the step of each
-    row, and whether a torn last line followed them; a TacbenchError on the first faulty row."""
+    row, and whether a torn last line followed them; a :class:`DamagedRun` on the first faulty
+    row."""
     if not path.is_file():
         raise _refuse(path, "is missing (the checkpoint continues from its rows)")
     data = path.read_bytes()
@@ -94,7 +105,7 @@ def check_log(
     path: Path, columns: Sequence[str], step: int, recorded: LogDigest | None
 ) -> tuple[bytes, list[str]]:
     """The bytes of ``path`` a resume from ``step`` keeps, and notes on what it repaired; a
-    TacbenchError (nothing written) when the file cannot continue. ``recorded``: what the
+    :class:`DamagedRun` (nothing written) when the file cannot continue. ``recorded``: what the
     checkpoint's manifest says the file held (None for an older generation: keep the rows up
     to ``step``)."""
     lines, steps, torn = _rows(path, columns)

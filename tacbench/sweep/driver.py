@@ -26,7 +26,7 @@ from tacbench import envs, hardware, runs
 from tacbench.errors import TacbenchError
 from tacbench.interrupts import exit_status, stop_signals
 from tacbench.runs.checkpoints import DiskError, disk_errors
-from tacbench.sweep import cost, executors, plan, slurm, state, summary
+from tacbench.sweep import cost, executors, plan, slurm, state, summary, worker
 from tacbench.sweep.options import Options
 from tacbench.sweep.presets import Preset
 from tacbench.sweep.progress import SweepProgress
@@ -276,9 +276,9 @@ class _Driver:
                 self.ended.add(run.key)
                 self.progress.message(f"complete: {run.key}")
                 continue
-            if status.state != "failed" and (not error or self.stopping):
+            reason = status.reason if status.state == "failed" else _error_of(run, error, result)
+            if status.state != "failed" and (not reason or self.stopping):
                 continue  # interrupted (or never started): resumes with the next sweep
-            reason = status.reason if status.state == "failed" else error
             self.history.add_failure(run.key, status.step, reason, result.host if result else "")
             n = len(self.history.failures(run.key))
             if n > self.options.max_retries:
@@ -290,3 +290,11 @@ class _Driver:
         if again:
             self.queue.append(plan.Unit(tuple(again)))
         self.queue.extend(plan.Unit((run,), retry=(run.key,)) for run in retry)
+
+
+def _error_of(run: plan.Run, error: str, result: worker.JobResult | None) -> str:
+    """The error that ended ``run``'s attempt: the unit's, unless it named the runs it is the
+    error of (a member left out of its group: the others trained on)."""
+    if result is None or not result.run_errors:
+        return error
+    return result.run_errors.get(run.key, "")

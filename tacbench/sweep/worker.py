@@ -31,7 +31,8 @@ from tacbench import runs, trainers
 from tacbench.interrupts import SecondSignal
 from tacbench.runs import checkpoints
 from tacbench.runs.checkpoints import FULL_ERRNOS, DiskError, NoCommonCheckpoint
-from tacbench.sweep.plan import Unit
+from tacbench.runs.resume_checks import DamagedRun
+from tacbench.sweep.plan import Run, Unit
 
 if TYPE_CHECKING:
     from tacbench.runs import Outcome
@@ -55,8 +56,9 @@ class Job:
 
 @dataclass(frozen=True)
 class JobResult:
-    """How a unit ended: the trainer's outcomes, or the error that ended it; with
-    ``return_files`` each run's small files (run key -> file name -> bytes)."""
+    """How a unit ended: the trainer's outcomes, or the error that ended it (``run_errors``:
+    the runs it is the error of, when it is not every unfinished run's); with ``return_files``
+    each run's small files (run key -> file name -> bytes)."""
 
     outcomes: tuple[Outcome, ...] = ()
     error: str = ""
@@ -65,6 +67,7 @@ class JobResult:
     node: str = ""
     host: str = ""
     disk_full: bool = False  # the error was a full disk: the driver stops the whole sweep
+    run_errors: dict[str, str] = field(default_factory=dict)  # run key -> its own error
 
 
 class StopHook:
@@ -85,46 +88,66 @@ class StopHook:
 
 def execute(job: Job, report: Report, every_s: float = 1.0) -> JobResult:
     """Train ``job``'s unit; an exception becomes ``JobResult.error`` (its traceback goes to the
-    log), so the driver can record it and retry."""
+    log), so the driver can record it and retry. A member whose CSVs cannot continue is left
+    out, the others trained, and its error is reported as that run's alone."""
     host = socket.gethostname()
+    damaged: dict[str, str] = {}
     try:
         for key in job.unit.retry:
             reset_failed(job.root / key)
-        outcomes = _train(job, StopHook(report, every_s))
+        outcomes = _train(job, StopHook(report, every_s), damaged)
     except SecondSignal as stopped:  # the sweep is stopping at once; said here, in the log
         print(f"stopped at once by a second {stopped}", file=sys.stderr, flush=True)
         return JobResult(host=host)
     except Exception as err:
         traceback.print_exc()
-        message = str(err).strip().splitlines()
         return JobResult(
-            error=f"{type(err).__name__}: {message[0] if message else ''}",
-            host=host,
-            disk_full=isinstance(err, DiskError) and err.full,
+            error=_one_line(err), host=host, disk_full=isinstance(err, DiskError) and err.full
         )
-    return JobResult(tuple(outcomes), host=host)
+    first = next(iter(damaged.values()), "")
+    return JobResult(tuple(outcomes), error=first, run_errors=damaged, host=host)
 
 
-def _train(job: Job, stop: StopHook) -> list[Outcome]:
-    configs: list[Any] = [run.config for run in job.unit.runs]
+def _one_line(err: BaseException) -> str:
+    message = str(err).strip().splitlines()
+    return f"{type(err).__name__}: {message[0] if message else ''}"
 
-    def call(members: list[Any]) -> list[Outcome]:
-        return trainers.trainer_for(members[0].algo).train(
-            members, job.root, resume=True, quiet=True, command=job.command, stop=stop
-        )
 
-    try:
-        return call(configs)
-    except NoCommonCheckpoint as err:  # one member has none, or only damaged ones
-        if len(configs) == 1:
-            raise
-        print(f"training the members one at a time: {err}", file=sys.stderr, flush=True)
-    outcomes: list[Outcome] = []
-    for config in configs:
-        outcomes += call([config])
-        if outcomes[-1].state == "interrupted":
-            break
-    return outcomes
+def _train(job: Job, stop: StopHook, damaged: dict[str, str]) -> list[Outcome]:
+    """Train ``job``'s runs as one group. A member whose CSVs cannot continue is left out
+    (its error goes to ``damaged``, by run key) and the group trained without it; members
+    that share no checkpoint step are trained one at a time."""
+
+    def call(members: list[Run]) -> list[Outcome]:
+        try:
+            return trainers.trainer_for(members[0].config.algo).train(
+                [run.config for run in members],
+                job.root,
+                resume=True,
+                quiet=True,
+                command=job.command,
+                stop=stop,
+            )
+        except DamagedRun as err:  # checked before anything is written, for every member
+            left_out = [run for run in members if job.root / run.key == err.directory]
+            if not left_out:
+                raise
+            print(f"left out of its unit: {err}", file=sys.stderr, flush=True)
+            damaged[left_out[0].key] = _one_line(err)
+            rest = [run for run in members if run not in left_out]
+            return call(rest) if rest else []
+        except NoCommonCheckpoint as err:  # one member has none, or only damaged ones
+            if len(members) == 1:
+                raise
+            print(f"training the members one at a time: {err}", file=sys.stderr, flush=True)
+        outcomes: list[Outcome] = []
+        for run in members:
+            outcomes += call([run])
+            if any(outcome.state == "interrupted" for outcome in outcomes):
+                break
+        return outcomes
+
+    return call(list(job.unit.runs))
 
 
 def reset_failed(directory: Path) -> None:
