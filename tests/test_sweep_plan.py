@@ -273,20 +273,53 @@ def test_defaults_cover_every_paper_pair() -> None:
     assert all(0 < v < 0.1 for v in cost.DEFAULT_SECONDS_PER_STEP.values())
 
 
-def test_lock_refuses_a_live_sweep_and_takes_over_a_dead_ones(tmp_path: Path) -> None:
-    with state.Lock(tmp_path), pytest.raises(TacbenchError, match="another sweep"):
-        state.Lock(tmp_path).__enter__()
-    assert not (tmp_path / "sweep" / "lock").exists()
-    dead = subprocess.run(
-        [sys.executable, "-c", "import os; print(os.getpid())"],
-        text=True,
-        capture_output=True,
-        check=True,
+def _hold_lock(out: Path, write_holder: bool) -> subprocess.Popen[str]:
+    """Another process that holds ``out``'s sweep lock until it is killed: as a sweep does
+    (``write_holder``), or having taken it without writing its holder yet."""
+    hold = (
+        "import fcntl, os, sys, time; from pathlib import Path; from tacbench.sweep import state\n"
+        "out = Path(sys.argv[1])\n"
+        "if sys.argv[2] == 'sweep':\n"
+        "    state.Lock(out).__enter__()\n"
+        "else:\n"
+        "    (out / 'sweep').mkdir(parents=True)\n"
+        "    fd = os.open(out / 'sweep' / 'lock', os.O_RDWR | os.O_CREAT)\n"
+        "    fcntl.flock(fd, fcntl.LOCK_EX)\n"
+        "print('held', flush=True)\n"
+        "time.sleep(60)\n"
     )
-    lock = {"pid": int(dead.stdout), "host": socket.gethostname(), "started": "then"}
-    (tmp_path / "sweep" / "lock").write_text(json.dumps(lock))
+    holder = "sweep" if write_holder else "torn"
+    proc = subprocess.Popen(
+        [sys.executable, "-c", hold, str(out), holder], stdout=subprocess.PIPE, text=True
+    )
+    assert proc.stdout is not None and proc.stdout.readline() == "held\n"
+    return proc
+
+
+@pytest.mark.parametrize("write_holder", [True, False])
+def test_lock_refuses_a_live_sweep_and_is_free_once_it_is_killed(
+    tmp_path: Path, write_holder: bool
+) -> None:
+    """A live holder is refused, even one caught before it has written who it is (its lock
+    file still empty: it used to be taken for a lock torn by a crash, deleted, and taken
+    again, so that two sweeps wrote to one --out); once it is killed with SIGKILL the kernel
+    has released the lock, and the next sweep takes it."""
+    holder = _hold_lock(tmp_path, write_holder)
+    try:
+        named = (
+            f"pid {holder.pid} on {socket.gethostname()}" if write_holder else "holder not recorded"
+        )
+        with pytest.raises(TacbenchError, match=f"another sweep \\({named}"):
+            state.Lock(tmp_path).__enter__()
+    finally:
+        holder.kill()
+        holder.wait()
     with state.Lock(tmp_path):
         assert json.loads((tmp_path / "sweep" / "lock").read_text())["pid"] == os.getpid()
+        with pytest.raises(TacbenchError, match=f"another sweep \\(pid {os.getpid()} "):
+            state.Lock(tmp_path).__enter__()
+    with state.Lock(tmp_path):  # released when the sweep ended
+        pass
 
 
 def test_reset_failed_and_stop_hook(tmp_path: Path) -> None:

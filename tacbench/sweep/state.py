@@ -5,7 +5,7 @@
     <out>/sweep/
       state.json     {"runs": {"<run key>": {"failures": [{"time", "host", "step", "reason"}],
                                              "node": "<Ray node id holding its checkpoint>"}}}
-      lock           {"pid", "host", "started"} while a sweep writes to <out>
+      lock           held (flock) while a sweep writes to <out>; {"pid", "host", "started"}
       summary.json   the last sweep's counts by state and its failures with their reasons
       summary.txt    the same, as printed at the end of the sweep
       logs/<unit>.log  each unit's output (progress lines, warnings, tracebacks), appended
@@ -15,6 +15,7 @@ Every JSON file is written atomically (:func:`tacbench.runs.atomic_write_json`).
 
 from __future__ import annotations
 
+import fcntl
 import json
 import os
 import socket
@@ -125,51 +126,46 @@ def _well_formed(entries: Any) -> bool:
 
 
 class Lock:
-    """``<out>/sweep/lock``: one sweep at a time per ``--out``. A lock left by a process that no
-    longer exists on this host (kill -9, power loss) is taken over."""
+    """``<out>/sweep/lock``: one sweep at a time per ``--out``, an exclusive ``flock`` held for
+    the sweep's lifetime, as a run directory's (:mod:`tacbench.runs.locks`). The kernel
+    releases it however the sweep ends (kill -9, a power cut), so no stale lock survives and
+    none is ever taken over; the file records the holder's pid, host and start, for the error
+    a second sweep gets, and is never deleted (see :mod:`tacbench.runs.locks` for why)."""
 
     def __init__(self, out: Path) -> None:
+        self.out = Path(out)
         self.path = sweep_dir(out) / "lock"
+        self._descriptor: int | None = None
 
     def __enter__(self) -> Lock:
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        me = {"pid": os.getpid(), "host": socket.gethostname(), "started": runs.now_iso()}
-        for _ in range(2):
-            try:
-                with self.path.open("x") as handle:
-                    json.dump(me, handle)
-                return self
-            except FileExistsError:
-                self._remove_if_stale()
-        raise TacbenchError(f"could not take {self.path}; is another sweep starting?")
-
-    def _remove_if_stale(self) -> None:
+        descriptor = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
         try:
-            holder = json.loads(self.path.read_text())
-        except (OSError, json.JSONDecodeError):
-            holder = {}  # a lock torn by a crash while it was written
-        pid, host = holder.get("pid"), holder.get("host")
-        if isinstance(pid, int) and host == socket.gethostname() and _alive(pid):
+            fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = _holder(os.pread(descriptor, 4096, 0))
+            os.close(descriptor)
             raise TacbenchError(
-                f"another sweep (pid {pid}, started {holder.get('started')}) is writing to "
-                f"{self.path.parent.parent}; wait for it to end, or stop it (Ctrl-C) first."
-            )
-        if isinstance(pid, int) and host not in (None, socket.gethostname()):
-            raise TacbenchError(
-                f"a sweep on host {host} (pid {pid}) holds {self.path}. If it is no longer "
-                "running, delete that file and start again."
-            )
-        self.path.unlink(missing_ok=True)
+                f"another sweep ({holder}) is writing to {self.out}; wait for it to end, or "
+                "stop it (Ctrl-C) first."
+            ) from None
+        me = {"pid": os.getpid(), "host": socket.gethostname(), "started": runs.now_iso()}
+        os.ftruncate(descriptor, 0)
+        os.pwrite(descriptor, json.dumps(me).encode(), 0)
+        self._descriptor = descriptor
+        return self
 
     def __exit__(self, *exc: object) -> None:
-        self.path.unlink(missing_ok=True)
+        if self._descriptor is not None:
+            os.close(self._descriptor)  # releases the lock
+            self._descriptor = None
 
 
-def _alive(pid: int) -> bool:
+def _holder(recorded: bytes) -> str:
+    """Who holds the lock, as its file records it (nothing yet, while the holder writes it)."""
     try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
+        holder = json.loads(recorded)
+        return f"pid {holder['pid']} on {holder['host']}, started {holder['started']}"
+    except (ValueError, TypeError, KeyError):
+        return "holder not recorded yet"
     return True
