@@ -132,23 +132,26 @@ def test_a_bad_list_of_layer_widths_is_a_usage_error(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize(
-    "command",
+    ("command", "option"),
     [
-        ["run", "--env", "Hopper-v4"],
-        ["sweep", "--preset", "smoke"],
-        ["report", "--results", "."],
-        ["figures"],
-        ["study", "adaptive", "analyse", "--results", "."],
-        ["study", "parity", "analyse", "--results", "."],
+        (["run", "--env", "Hopper-v4"], "--out"),
+        (["sweep", "--preset", "smoke"], "--out"),
+        (["sweep", "--preset", "smoke", "--executor", "ray"], "--scratch"),
+        (["report", "--results", "."], "--out"),
+        (["figures"], "--out"),
+        (["study", "adaptive", "analyse", "--results", "."], "--out"),
+        (["study", "parity", "analyse", "--results", "."], "--out"),
+        (["regress", "--tier", "theory"], "--against"),
+        (["regress", "--tier", "theory"], "--work"),
     ],
 )
-def test_an_empty_out_is_refused_rather_than_writing_into_the_current_folder(
-    command: list[str], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+def test_an_empty_folder_is_refused_rather_than_taken_for_the_current_one(
+    command: list[str], option: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     monkeypatch.chdir(tmp_path)
-    result = CliRunner().invoke(cli, [*command, "--out", ""])
+    result = CliRunner().invoke(cli, [*command, option, ""])
     assert result.exit_code == 2
-    assert "must name a folder" in result.output
+    assert f"Invalid value for '{option}': must name a folder" in result.output
     assert not any(tmp_path.iterdir())
 
 

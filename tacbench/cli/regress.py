@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 
 import click
 
+from tacbench.cli.options import ResultsFolder
 from tacbench.errors import TacbenchError
 
 if TYPE_CHECKING:
@@ -41,7 +42,7 @@ def in_process(group: click.Group) -> Runner:
 @click.command()
 @click.option(
     "--against",
-    type=click.Path(file_okay=False, path_type=Path),
+    type=ResultsFolder("the default is results/reference"),
     default=Path("results/reference"),
     show_default=True,
     help="Folder of the committed references (exact/, theory/, stat/).",
@@ -67,7 +68,7 @@ def in_process(group: click.Group) -> Runner:
 )
 @click.option(
     "--work",
-    type=click.Path(file_okay=False, path_type=Path),
+    type=ResultsFolder("leave --work out for a temporary folder"),
     default=None,
     help="Empty folder to keep the fresh runs in.  [default: a temporary folder, deleted]",
 )

@@ -111,7 +111,7 @@ def _fixed_q(value: str) -> float:
 )
 @click.option(
     "--scratch",
-    type=click.Path(file_okay=False, path_type=Path),
+    type=ResultsFolder("leave --scratch out for $TMPDIR/tacbench-sweep"),
     default=None,
     help="Ray: run directories and checkpoints on each node.  [default: $TMPDIR/tacbench-sweep]",
 )
