@@ -256,10 +256,15 @@ def replay_study(
     results: Path, n: int, K: int, alpha: float = DEFAULT_ALPHA, control_q: float = 1.0
 ) -> dict[str, SequentialResult]:
     """For each task of the study at ``results``: its runs replayed in seed order through
-    :func:`run_sequential`, each q against ``control_q``."""
+    :func:`run_sequential`, each q against ``control_q``. A TacbenchError where the folder
+    holds no complete TAC run, or a task holds more than one setting of a q, or runs without a
+    fixed q (q auto): their runs would be taken as one method's."""
     table = study_scores(results)
+    if table.empty:
+        raise TacbenchError(f"no complete TAC run under {results}: nothing to replay.")
     replays = {}
     for env, runs in table.groupby("env", sort=True):
+        _check_one_setting_per_q(str(env), runs)
         by_q = {f"q={q:g}": group["final"].tolist() for q, group in runs.groupby("q", sort=True)}
         short = sorted(q for q, scores in by_q.items() if len(scores) < n * K)
         if short:
@@ -270,6 +275,24 @@ def replay_study(
             )
         replays[str(env)] = run_sequential(by_q, n, K, alpha, control=f"q={control_q:g}")
     return replays
+
+
+def _check_one_setting_per_q(env: str, runs: pd.DataFrame) -> None:
+    """A TacbenchError naming the settings of ``env``'s runs that a replay by q cannot tell
+    apart."""
+    mixed = [
+        f"q={q:g} has {', '.join(sorted(variants))}"
+        for q, variants in runs.groupby("q", sort=True)["variant"].unique().items()
+        if len(variants) > 1
+    ]
+    unfixed = sorted(runs.loc[runs["q"].isna(), "variant"].unique())
+    if unfixed:
+        mixed.append(f"{', '.join(unfixed)} {'has' if len(unfixed) == 1 else 'have'} no fixed q")
+    if mixed:
+        raise TacbenchError(
+            f"{env}: {'; '.join(mixed)}. The replay compares one setting per q (as the "
+            "paper-q-grid study has): give it a folder with the runs of one setting per q."
+        )
 
 
 def decision_table(results: Mapping[str, SequentialResult]) -> pd.DataFrame:

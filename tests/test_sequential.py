@@ -6,7 +6,9 @@ detectable difference has the power it states."""
 from __future__ import annotations
 
 import itertools
+import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -130,4 +132,56 @@ def test_a_replay_of_a_study_short_of_runs_names_the_task_and_the_q(tmp_path: Pa
                 alpha=0.2,
             )
     with pytest.raises(TacbenchError, match="Hopper-v4: q=2 has fewer than the 5 complete runs"):
+        sq.replay_study(tmp_path, 5, 1)
+
+
+def _write_tac_runs(root: Path, variant: str, q: float, **modes: str) -> None:
+    """Five complete Hopper runs of ``variant`` (``modes``: q_mode, alpha_mode)."""
+    for seed in range(0, 50, 10):
+        settings = {"algo": "tac", "env": "Hopper-v4", "seed": seed, **modes}
+        run = write_run(
+            root,
+            algo="tac",
+            env="Hopper-v4",
+            variant=variant,
+            seed=seed,
+            steps=[1.0, 2.0],
+            returns=[1.0, float(seed)],
+            q=q,
+            alpha=0.2,
+            settings=settings,
+        )
+        if modes.get("q_mode") == "auto":  # a population member names its population
+            config = json.loads((run / "config.json").read_text())
+            config["members"] = [{"seed": seed}]
+            (run / "config.json").write_text(json.dumps(config))
+
+
+@pytest.mark.parametrize(
+    ("variants", "message"),
+    [
+        (
+            [("q1-a0.2", 1.0, {}), ("q1-aauto0.2", 1.0, {"alpha_mode": "auto"})],
+            "Hopper-v4: q=1 has q1-a0.2, q1-aauto0.2. The replay compares one setting per q",
+        ),
+        (
+            [("q1-a0.2", 1.0, {}), ("qauto-a0.2", 0.5, {"q_mode": "auto"})],
+            "Hopper-v4: qauto-a0.2 has no fixed q.",
+        ),
+    ],
+)
+def test_a_replay_refuses_runs_it_would_take_for_one_q(
+    tmp_path: Path, variants: list[tuple[str, float, dict[str, str]]], message: str
+) -> None:
+    """Two settings of one q (fixed and learned alpha) used to be replayed as one method, seed 0
+    counted twice; runs of a learned q were left out without a word."""
+    for variant, q, modes in variants:
+        _write_tac_runs(tmp_path, variant, q, **modes)
+    with pytest.raises(TacbenchError, match=re.escape(message)):
+        sq.replay_study(tmp_path, 5, 1)
+
+
+def test_a_replay_of_a_folder_without_tac_runs_is_refused(tmp_path: Path) -> None:
+    write_run(tmp_path, algo="sac", env="Hopper-v4", variant="sb3", seed=0, steps=[1], returns=[1])
+    with pytest.raises(TacbenchError, match="no complete TAC run under"):
         sq.replay_study(tmp_path, 5, 1)
