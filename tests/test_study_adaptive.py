@@ -12,6 +12,7 @@ from click.testing import CliRunner
 
 from tacbench.bootstrap import mean_difference
 from tacbench.cli import cli
+from tacbench.report.load import load_runs
 from tacbench.studies import adaptive as study
 from tests.report_fixtures import write_run
 
@@ -42,8 +43,9 @@ def _table() -> pd.DataFrame:
 
 @pytest.mark.unit
 def test_a_population_is_compared_with_the_fixed_runs_of_its_own_seeds() -> None:
-    table = study.population_table(_table()).set_index("population")
-    assert len(table) == 2
+    table, cautions = study.population_table(_table())
+    table = table.set_index("population")
+    assert len(table) == 2 and cautions == []
     first = table.loc["seeds 0,10,20,30,40,50,60,70"]
     assert first["q auto"] == pytest.approx(335.0)
     assert first["auto - q = 1"] == pytest.approx(100.0)
@@ -55,8 +57,9 @@ def test_learned_alpha_is_compared_with_the_fixed_runs_of_its_own_seeds() -> Non
     """Learned against fixed alpha on the learned runs' five seeds only (the fixed runs of the
     other eleven seeds left out), with the interval of the two groups resampled independently
     (docs/adaptive.md: a difference of means, not of pairs)."""
-    table = study.alpha_table(_table(), reps=500)
-    assert len(table) == 1  # no learned alpha at q = 2 here
+    table, cautions = study.alpha_table(_table(), reps=500)
+    assert len(table) == 1  # no learned alpha at q = 2 here: said so
+    assert cautions == ["Hopper-v4 q = 2: learned alpha left out, no finished q2-aauto0.2 run"]
     row = table.iloc[0]
     assert (row["q"], row["seeds"]) == (1.0, 5)
     assert row["auto - fixed"] == pytest.approx(10.0)  # every seed is 10 better
@@ -104,6 +107,119 @@ def test_a_folder_without_a_learned_q_population_is_a_clear_error(tmp_path: Path
         steps=[1.0],
         returns=[2.0],
     )
-    assert list(study.finals(tmp_path)["variant"]) == ["q1-a0.2"]  # a baseline is not a member
+    table, _ = study.finals(load_runs(tmp_path, "eval"))
+    assert list(table["variant"]) == ["q1-a0.2"]  # a baseline is not a member
     result = CliRunner().invoke(cli, ["study", "adaptive", "analyse", "--results", str(tmp_path)])
-    assert result.exit_code == 2 and "no population of learned-q runs (--q auto)" in result.output
+    assert (
+        result.exit_code == 2
+        and "no finished population of learned-q runs (--q auto)" in result.output
+    )
+
+
+def _population_run(
+    root: Path, seed: int, members: range, q_at_end: str | None, state: str = "complete"
+) -> Path:
+    """A Hopper --q auto member of the population ``members`` (its losses.csv ends with
+    ``q_at_end``; None: no losses.csv), of 100 steps, at step 50 unless complete."""
+    steps = [50.0, 100.0] if state == "complete" else [50.0]
+    run = write_run(
+        root,
+        algo="tac",
+        env="Hopper-v4",
+        variant="qauto-a0.2",
+        seed=seed,
+        steps=steps,
+        returns=[300.0 + seed] * len(steps),
+        q=0.5,
+        alpha=0.2,
+        total_steps=100,
+        state=state,
+        settings={"algo": "tac", "env": "Hopper-v4", "seed": seed, "q_mode": "auto"},
+    )
+    config = json.loads((run / "config.json").read_text())
+    config["members"] = [{"seed": s} for s in members]
+    (run / "config.json").write_text(json.dumps(config))
+    if q_at_end is not None:
+        (run / "losses.csv").write_text(f"step,q\n50,1.0\n100,{q_at_end}\n")
+    return run
+
+
+def _fixed_run(root: Path, variant: str, seed: int, state: str = "complete") -> None:
+    q = float(variant[1 : variant.index("-")])
+    steps = [50.0, 100.0] if state == "complete" else [50.0]
+    write_run(
+        root,
+        algo="tac",
+        env="Hopper-v4",
+        variant=variant,
+        seed=seed,
+        steps=steps,
+        returns=[200.0 + seed] * len(steps),
+        q=q,
+        alpha=0.2,
+        total_steps=100,
+        state=state,
+    )
+
+
+@pytest.mark.unit
+def test_unfinished_runs_are_left_out_and_every_gap_is_said(tmp_path: Path) -> None:
+    """An interrupted fixed run and a population with a running member used to count as
+    finished (the population's mean and the differences wrong, exit 0); a comparison short of
+    fixed runs gave empty columns, or its row was dropped, without a word."""
+    first, second = range(0, 80, 10), range(80, 160, 10)
+    for seed in first:
+        _population_run(tmp_path, seed, first, "1.4")
+        for variant in ("q1-a0.2", "q2-a0.2"):
+            _fixed_run(
+                tmp_path,
+                variant,
+                seed,
+                "interrupted" if (seed, variant) == (0, "q1-a0.2") else "complete",
+            )
+    for seed in second:
+        _population_run(tmp_path, seed, second, "1.6", "running" if seed == 150 else "complete")
+    out = tmp_path / "analysis"
+    args = ["study", "adaptive", "analyse", "--results", str(tmp_path), "--out", str(out)]
+    result = CliRunner().invoke(cli, args)
+    assert result.exit_code == 0, result.output
+    populations = pd.read_csv(out / "populations.csv")
+    assert list(populations["population"]) == ["seeds 0,10,20,30,40,50,60,70"]
+    row = populations.iloc[0]
+    assert row["q auto"] == pytest.approx(335.0) and np.isnan(row["fixed q = 1"])
+    assert row["fixed best q"] == pytest.approx(235.0)
+    assert pd.read_csv(out / "final_q.csv")["final q"].tolist() == [1.4] * 8
+    assert pd.read_csv(out / "cautions.csv")["caution"].tolist() == [
+        "left out 2 unfinished runs: tac/Hopper-v4/q1-a0.2/seed0 (interrupted at step 50), "
+        "tac/Hopper-v4/qauto-a0.2/seed150 (running at step 50)",
+        "Hopper-v4: left out the population seeds 80,90,100,110,120,130,140,150, one of its "
+        "members unfinished",
+        "Hopper-v4 seeds 0,10,20,30,40,50,60,70: no finished q1-a0.2 run of seeds 0; its "
+        "'fixed q = 1' columns are empty",
+        "Hopper-v4 q = 1: learned alpha left out, no finished q1-aauto0.2 run",
+        "Hopper-v4 q = 2: learned alpha left out, no finished q2-aauto0.2 run",
+        "HalfCheetah-v4: no finished run of the study",
+    ]
+    assert "caution: left out 2 unfinished runs" in result.output
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize(
+    ("losses", "message"),
+    [
+        (None, "FileNotFoundError"),
+        ("", "EmptyDataError"),
+        ("step,loss_pi\n100,0.5\n", "ValueError"),
+        ("step,q\n", "records no learned q in its last row"),
+    ],
+)
+def test_a_members_losses_csv_without_its_q_is_a_one_line_error(
+    tmp_path: Path, losses: str | None, message: str
+) -> None:
+    run = _population_run(tmp_path, 0, range(1), None)
+    if losses is not None:
+        (run / "losses.csv").write_text(losses)
+    result = CliRunner().invoke(cli, ["study", "adaptive", "analyse", "--results", str(tmp_path)])
+    assert result.exit_code == 2, result.output
+    assert f"{run / 'losses.csv'}" in result.output and message in result.output
+    assert "Traceback" not in result.output and "restore the run's losses.csv" in result.output

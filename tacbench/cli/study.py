@@ -23,13 +23,18 @@ _OUT = ResultsFolder("leave --out out to write no CSV")
 
 
 def _show(tables: Mapping[str, pd.DataFrame], out: Path | None) -> None:
-    """Print each table; with ``out``, also write it there as ``<name>.csv``."""
+    """Print each table (a ``cautions`` table as ``caution:`` lines on stderr); with ``out``,
+    also write it there as ``<name>.csv``."""
     import pandas as pd
 
     with pd.option_context("display.width", 200):
         for name, frame in tables.items():
+            if name == "cautions":
+                continue
             text = frame.to_string(index=False, float_format=lambda x: f"{x:.2f}")
             click.echo(f"{name}:\n{text}\n")
+    for caution in tables.get("cautions", pd.DataFrame({"caution": []}))["caution"]:
+        click.echo(f"caution: {caution}", err=True)
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
         for name, frame in tables.items():

@@ -25,7 +25,7 @@ import pandas as pd
 from tacbench import paper
 from tacbench.bootstrap import mean_difference
 from tacbench.errors import TacbenchError
-from tacbench.report.load import load_runs
+from tacbench.report.load import RunSet, load_runs
 from tacbench.report.tables import DEFAULT_LAST, run_scores
 
 ENVS = ("HalfCheetah-v4", "Hopper-v4")
@@ -59,18 +59,39 @@ def _study_runs(runs: pd.DataFrame) -> pd.DataFrame:
     return runs[(runs["algo"] == "tac") & runs["env"].isin(ENVS)]
 
 
-def finals(results: Path) -> pd.DataFrame:
-    """One row per run of the study: env, variant, q (NaN: learned), seed, population, final
-    return."""
-    runset = load_runs(results, "eval")
+def finals(runset: RunSet) -> tuple[pd.DataFrame, list[str]]:
+    """One row per finished run of the study: env, variant, q (NaN: learned), seed,
+    population, path and final return; and cautions naming what was left out: unfinished runs,
+    and a population with an unfinished member (its members copy each other: it is one unit)."""
     scores = run_scores(runset.data, DEFAULT_LAST)
     table = _study_runs(runset.runs).join(scores, on="run")
-    return table[["env", "variant", "q", "seed", "population", "final"]]
+    unfinished = table[table["partial"]]
+    cautions = []
+    if not unfinished.empty:
+        listed = ", ".join(
+            f"{r.path} ({r.state} at step {r.step_reached:,.0f})"
+            for r in unfinished[:5].itertuples()
+        )
+        more = f" and {len(unfinished) - 5} more" if len(unfinished) > 5 else ""
+        runs = "run" if len(unfinished) == 1 else "runs"
+        cautions.append(f"left out {len(unfinished)} unfinished {runs}: {listed}{more}")
+    cut = {(e, p) for e, p in zip(unfinished["env"], unfinished["population"], strict=True) if p}
+    whole = [
+        (env, population) not in cut
+        for env, population in zip(table["env"], table["population"], strict=True)
+    ]
+    cautions += [
+        f"{env}: left out the population {population}, one of its members unfinished"
+        for env, population in sorted(cut)
+    ]
+    table = table[~table["partial"] & np.array(whole, dtype=bool)]
+    return table[["env", "variant", "q", "seed", "population", "path", "final"]], cautions
 
 
-def population_table(table: pd.DataFrame) -> pd.DataFrame:
-    """Each population's mean final return against the fixed runs of its own seeds."""
-    rows = []
+def population_table(table: pd.DataFrame) -> tuple[pd.DataFrame, list[str]]:
+    """Each population's mean final return against the fixed runs of its own seeds, and
+    cautions naming the fixed runs missing for a comparison (its columns are then empty)."""
+    rows, cautions = [], []
     for (env, population), members in table[table["q"].isna()].groupby(["env", "population"]):
         seeds = set(members["seed"])
         row: dict[str, object] = {"env": env, "population": population}
@@ -81,14 +102,23 @@ def population_table(table: pd.DataFrame) -> pd.DataFrame:
             ]
             row[f"fixed {label}"] = fixed["final"].mean() if len(fixed) == len(seeds) else np.nan
             row[f"auto - {label}"] = row["q auto"] - row[f"fixed {label}"]  # type: ignore[operator]
+            if len(fixed) != len(seeds):
+                missing = ", ".join(str(s) for s in sorted(seeds - set(fixed["seed"])))
+                cautions.append(
+                    f"{env} {population}: no finished {variant} run of seeds {missing}; its "
+                    f"'fixed {label}' columns are empty"
+                )
         rows.append(row)
-    return pd.DataFrame(rows)
+    return pd.DataFrame(rows), cautions
 
 
-def alpha_table(table: pd.DataFrame, reps: int = REPS) -> pd.DataFrame:
-    """Learned minus fixed alpha at q = 1 and the best q, on the same seeds."""
-    rows = []
+def alpha_table(table: pd.DataFrame, reps: int = REPS) -> tuple[pd.DataFrame, list[str]]:
+    """Learned minus fixed alpha at q = 1 and the best q, on the same seeds; and cautions
+    naming the comparisons left out for want of runs."""
+    rows, cautions = [], []
     for env, best in BEST_Q.items():
+        if not (table["env"] == env).any():
+            continue  # analyse says so, once
         for q in (1.0, best):
             learned = table[(table["env"] == env) & (table["variant"] == f"q{q:g}-aauto0.2")]
             fixed = table[
@@ -97,6 +127,13 @@ def alpha_table(table: pd.DataFrame, reps: int = REPS) -> pd.DataFrame:
                 & table["seed"].isin(learned["seed"])
             ]
             if learned.empty or len(fixed) != len(learned):
+                missing = sorted(set(learned["seed"]) - set(fixed["seed"]))
+                lacking = (
+                    f"no finished q{q:g}-aauto0.2 run"
+                    if learned.empty
+                    else f"no finished q{q:g}-a0.2 run of seeds {', '.join(map(str, missing))}"
+                )
+                cautions.append(f"{env} q = {q:g}: learned alpha left out, {lacking}")
                 continue
             a, b = learned.sort_values("seed"), fixed.sort_values("seed")
             diff, low, high = mean_difference(a["final"], b["final"], reps, seed=0)
@@ -114,36 +151,61 @@ def alpha_table(table: pd.DataFrame, reps: int = REPS) -> pd.DataFrame:
                     "CI high": high,
                 }
             )
-    return pd.DataFrame(rows)
+    return pd.DataFrame(rows), cautions
 
 
-def final_q(results: Path) -> pd.DataFrame:
-    """Each population member's q at the end (the last losses.csv row)."""
-    runset = load_runs(results, "eval")
-    study = _study_runs(runset.runs)
-    learned = study[study["q"].isna()]
+def final_q(root: Path, table: pd.DataFrame) -> pd.DataFrame:
+    """Each finished population member's q at the end (the last row of its losses.csv, under
+    ``root``)."""
+    learned = table[table["q"].isna()]
     if learned.empty:
         raise TacbenchError(
-            f"no population of learned-q runs (--q auto) on {' or '.join(ENVS)} under {results}; "
-            "the study compares "
-            "them with fixed q on the same seeds: tacbench study adaptive commands lists its runs."
+            f"no finished population of learned-q runs (--q auto) on {' or '.join(ENVS)} under "
+            f"{root}; the study compares them with fixed q on the same seeds: tacbench study "
+            "adaptive commands lists its runs."
         )
     rows = []
     for run in learned.itertuples():
-        losses = pd.read_csv(runset.root / str(run.path) / "losses.csv", usecols=["step", "q"])
         rows.append({"env": run.env, "population": run.population, "seed": run.seed})
-        rows[-1]["final q"] = float(losses["q"].iloc[-1])
+        rows[-1]["final q"] = _last_q(root / str(run.path) / "losses.csv")
     return pd.DataFrame(rows).sort_values(["env", "population", "seed"], ignore_index=True)
 
 
+def _last_q(losses: Path) -> float:
+    """The q in the last row of a learned-q run's losses.csv; a TacbenchError if it has none."""
+    try:
+        q = pd.read_csv(losses, usecols=["q"])["q"]
+    except (OSError, ValueError) as err:  # missing, empty, no q column
+        reason = f"{type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''}"
+        raise TacbenchError(
+            f"cannot read the learned q from {losses} ({reason}); restore the run's losses.csv."
+        ) from None
+    if q.empty or not np.isfinite(q.iloc[-1]):
+        raise TacbenchError(
+            f"{losses} records no learned q in its last row; restore the run's losses.csv."
+        )
+    return float(q.iloc[-1])
+
+
 def analyse(results: Path) -> dict[str, pd.DataFrame]:
-    """Every table of the study, by name: populations, alpha, final_q, final_q_summary."""
-    table = finals(results)
-    ends = final_q(results)
+    """Every table of the study, by name: populations, alpha, final_q, final_q_summary, and
+    ``cautions`` (one ``caution`` per row) when something was left out."""
+    runset = load_runs(results, "eval")
+    table, cautions = finals(runset)
+    ends = final_q(runset.root, table)
     summary = ends.groupby(["env", "population"])["final q"].describe()
-    return {
-        "populations": population_table(table),
-        "alpha": alpha_table(table),
+    populations, missing_fixed = population_table(table)
+    alpha, missing_alpha = alpha_table(table)
+    tables = {
+        "populations": populations,
+        "alpha": alpha,
         "final_q": ends,
         "final_q_summary": summary[["min", "50%", "max"]].reset_index(),
     }
+    cautions += missing_fixed + missing_alpha
+    cautions += [
+        f"{env}: no finished run of the study" for env in ENVS if env not in set(table["env"])
+    ]
+    if cautions:
+        tables["cautions"] = pd.DataFrame({"caution": cautions})
+    return tables
