@@ -155,24 +155,74 @@ def test_runs_the_recorded_command_does_not_plan_are_not_compared(tmp_path: Path
     assert "not comparable" in result.output and "the price" not in result.output
 
 
-def test_a_sweep_with_a_failed_run_is_not_compared_with_its_price(tmp_path: Path) -> None:
+@pytest.mark.parametrize(
+    ("states", "said"),
+    [(("failed",), "1 failed"), (("interrupted", "running"), "1 interrupted, 1 running")],
+)
+def test_a_sweep_with_a_run_short_of_its_budget_is_not_compared_with_its_price(
+    tmp_path: Path, states: tuple[str, ...], said: str
+) -> None:
+    """A failed run stops before its budget; so does an interrupted one, and a sweep still
+    running has not finished: none is a test of a price that trains every run to its budget
+    (interrupted and running runs used to get a verdict)."""
     for key in SMOKE_RUNS:
         _run(tmp_path / key, SMOKE, "2026-12-05T01:00:00+00:00", "2026-12-05T01:00:05+00:00")
-    status = tmp_path / SMOKE_RUNS[0] / "status.json"
-    status.write_text(json.dumps({"state": "failed", "updated": "2026-12-05T01:00:01+00:00"}))
+    for key, state in zip(SMOKE_RUNS, states, strict=False):
+        status = tmp_path / key / "status.json"
+        status.write_text(json.dumps({"state": state, "updated": "2026-12-05T01:00:01+00:00"}))
     [took] = bills.sweeps(tmp_path)
-    assert (took.failed, took.comparable) == (1, False)
+    assert not took.comparable
+    assert ", ".join(f"{n} {state}" for state, n in took.unfinished.items()) == said
     _calibrate_smoke()
     result = CliRunner().invoke(cli, ["study", "bills", str(tmp_path)])
-    assert "4 runs, of which 1 failed" in result.output
-    assert "not comparable: a failed run stops" in result.output
+    assert f"4 runs, of which {said}\n" in result.output
+    assert "not comparable: a run that stopped before its budget" in result.output
     assert "x the price" not in result.output
+
+
+def test_a_folder_named_with_one_inside_it_counts_each_sweep_once(tmp_path: Path) -> None:
+    for key in SMOKE_RUNS:
+        _run(tmp_path / key, SMOKE, "2026-12-05T01:00:00+00:00", "2026-12-05T01:00:05+00:00")
+    result = CliRunner().invoke(cli, ["study", "bills", str(tmp_path / "runs"), str(tmp_path)])
+    assert result.exit_code == 0, result.output
+    assert result.output.count(SMOKE) == 1 and "4 runs\n" in result.output
+
+
+@pytest.mark.parametrize(
+    ("file", "record", "message"),
+    [
+        ("config.json", {"command": SMOKE}, "'created' is None, not an ISO 8601 time"),
+        ("status.json", {"state": "complete", "updated": "yesterday"}, "'updated' is 'yesterday'"),
+        ("summary.json", {"command": SMOKE, "bill": {"wall_s": 5}}, "its bill lacks one of"),
+        (
+            "summary.json",
+            {
+                "command": SMOKE,
+                "bill": dict.fromkeys(["wall_s", "cpu_class", "priced_wall_s", "workers"], 1),
+            },
+            "'finished' is None",
+        ),
+        ("summary.json", {"bill": {"wall_s": 1}}, "its bill lacks one of"),
+    ],
+)
+def test_damaged_records_are_a_one_line_error(
+    tmp_path: Path, file: str, record: dict, message: str
+) -> None:
+    for key in SMOKE_RUNS:
+        _run(tmp_path / key, SMOKE, "2026-12-05T01:00:00+00:00", "2026-12-05T01:00:05+00:00")
+    path = tmp_path / (file if file == "summary.json" else f"{SMOKE_RUNS[0]}/{file}")
+    path.write_text(json.dumps(record))
+    result = CliRunner().invoke(cli, ["study", "bills", str(tmp_path)])
+    assert result.exit_code == 2, result.output
+    assert f"{path}: " in result.output and message in result.output
+    assert "restore it from the study's copy" in result.output
+    assert "Traceback" not in result.output
 
 
 def test_the_bills_command_says_when_no_sweep_trained_the_runs(tmp_path: Path) -> None:
     _run(tmp_path / "a", "tacbench run", "2026-12-05T01:00:00+00:00", "2026-12-05T01:00:10Z")
     result = CliRunner().invoke(cli, ["study", "bills", str(tmp_path)])
-    assert result.exit_code == 1 and "was trained by a tacbench sweep" in result.output
+    assert result.exit_code == 2 and "was trained by a tacbench sweep" in result.output
 
 
 def test_a_recorded_command_this_tacbench_refuses_does_not_hide_the_other_bills(

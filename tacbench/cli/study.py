@@ -186,11 +186,13 @@ def bills(results: tuple[Path, ...], calibrate: bool) -> None:
 
     here = cpu_class()
     report = (lambda line: click.echo(line, err=True)) if calibrate else None
-    folders = dict.fromkeys(folder.resolve() for folder in results)  # each folder once
+    resolved = dict.fromkeys(folder.resolve() for folder in results)
+    folders = [f for f in resolved if not any(p in resolved for p in f.parents)]  # each run once
     found = [took for folder in folders for took in sweep_bills.sweeps(folder)]
     if not found:
-        raise click.ClickException(
-            f"no run under {', '.join(map(str, results))} was trained by a tacbench sweep."
+        raise TacbenchError(
+            f"no run under {', '.join(map(str, results))} was trained by a tacbench sweep; "
+            "name the folders of a sweep's runs (tacbench run's are not priced)."
         )
     for took in found:
         try:
@@ -215,8 +217,11 @@ def bills(results: tuple[Path, ...], calibrate: bool) -> None:
             runs += f", of which the command's plan names {priced.runs}"
             line += "not comparable: the plan differs from the runs)"
         elif not took.comparable:
-            runs += f", of which {took.failed} failed"
-            line += "not comparable: a failed run stops before the budget the price trains to)"
+            runs += ", of which " + ", ".join(
+                f"{n} {state}" for state, n in took.unfinished.items()
+            )
+            line += "not comparable: a run that stopped before its budget did not train what the "
+            line += "price trains)"
         elif not priced.calibrated:
             line += "not calibrated: give --calibrate)"
         else:

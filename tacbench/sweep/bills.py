@@ -9,8 +9,8 @@ wrote its status (status.json). A sweep's wall time is then from its first run's
 last run's status, a pause included, and its CPU class is not recorded (docs/results.md names
 it in words).
 
-A sweep with a failed run is not compared with its price: the price trains every run to its
-budget, and a run that fails (a non-finite loss) stops early.
+A sweep with a run that did not reach its budget (failed, interrupted or still running) is not
+compared with its price: the price trains every run to its budget.
 
 Repricing a command plans it into an empty folder, so that runs already trained do not price
 it, and prices that plan as the dry run does (:func:`tacbench.sweep.summary.price`), with the
@@ -21,13 +21,14 @@ from __future__ import annotations
 
 import datetime
 import tempfile
-from collections import defaultdict
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections import Counter, defaultdict
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from tacbench import runs
+from tacbench.errors import TacbenchError
 from tacbench.sweep import calibration, driver, summary
 from tacbench.sweep.options import Options
 from tacbench.sweep.presets import Preset
@@ -36,6 +37,7 @@ BILL = "bill"
 RUN_RECORDS = "run records"
 TOLERANCE = 0.25  # the price within 25 % of the wall time (the speed issue's target)
 CLOCK_SLACK = datetime.timedelta(seconds=5)  # the bill's start is the summary's end less its wall
+ADVICE = "restore it from the study's copy, or name folders without it"
 
 
 @dataclass(frozen=True)
@@ -50,12 +52,12 @@ class Took:
     source: str
     priced_at_start_s: float | None = None  # a bill's: the dry run's price when it started
     workers: int | None = None  # a bill's: the workers it ran on
-    failed: int = 0  # runs whose status is failed
+    unfinished: Mapping[str, int] = field(default_factory=dict)  # state -> runs, if not complete
 
     @property
     def comparable(self) -> bool:
-        """Whether the price is a test of its wall time: no run failed before its budget."""
-        return self.failed == 0
+        """Whether the price is a test of its wall time: every run trained to its budget."""
+        return not self.unfinished
 
     @property
     def runs(self) -> int:
@@ -69,24 +71,26 @@ def sweeps(results: Path) -> list[Took]:
     created: dict[str, list[datetime.datetime]] = defaultdict(list)
     updated: dict[str, list[datetime.datetime]] = defaultdict(list)
     keys: dict[str, set[str]] = defaultdict(set)
-    failed: dict[str, int] = defaultdict(int)
+    unfinished: dict[str, Counter[str]] = defaultdict(Counter)
     for config_path in sorted(results.rglob("config.json")):
         status_path = config_path.with_name("status.json")
         if not status_path.exists():
             continue
-        config = runs.read_json(config_path)
+        config = runs.read_json(config_path, ADVICE)
         command = config.get("command", "")
-        if not command.startswith("tacbench sweep "):
+        if not isinstance(command, str) or not command.startswith("tacbench sweep "):
             continue
-        created[command].append(datetime.datetime.fromisoformat(config["created"]))
+        created[command].append(_time(config, "created", config_path))
         keys[command].add(_key(config_path.parent))
-        status = runs.read_json(status_path)
-        updated[command].append(datetime.datetime.fromisoformat(status["updated"]))
-        failed[command] += status.get("state") == "failed"
+        status = runs.read_json(status_path, ADVICE)
+        updated[command].append(_time(status, "updated", status_path))
+        if status.get("state") != "complete":
+            unfinished[command][str(status.get("state"))] += 1
     bills = _bills(results)
     took = []
     for command in sorted(created, key=lambda c: min(created[c])):
         bill, found = bills.get(command), frozenset(keys[command])
+        left = dict(sorted(unfinished[command].items()))
         if bill is not None and _created_every_run(bill, min(created[command])):
             took.append(
                 Took(
@@ -97,13 +101,24 @@ def sweeps(results: Path) -> list[Took]:
                     BILL,
                     bill["priced_wall_s"],
                     bill["workers"],
-                    failed[command],
+                    left,
                 )
             )
         else:  # no bill, or one of a sweep that resumed runs another had started
             wall = (max(updated[command]) - min(created[command])).total_seconds()
-            took.append(Took(command, found, wall, None, RUN_RECORDS, failed=failed[command]))
+            took.append(Took(command, found, wall, None, RUN_RECORDS, unfinished=left))
     return took
+
+
+def _time(record: Mapping[str, Any], name: str, path: Path) -> datetime.datetime:
+    """The ISO 8601 time ``record[name]`` read from ``path``; a TacbenchError if it is not one."""
+    value = record.get(name)
+    try:
+        return datetime.datetime.fromisoformat(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        raise TacbenchError(
+            f"{path}: {name!r} is {value!r}, not an ISO 8601 time; {ADVICE}."
+        ) from None
 
 
 def _created_every_run(bill: dict[str, Any], first_created: datetime.datetime) -> bool:
@@ -129,9 +144,17 @@ def _bills(results: Path) -> dict[str, dict[str, Any]]:
     sweep's summary.json under a name of its own), by command."""
     found = {}
     for path in sorted(results.rglob("*summary.json")):
-        record = runs.read_json(path)
-        if isinstance(record, dict) and record.get(BILL) and not record.get("interrupted"):
-            found[record["command"]] = {**record[BILL], "finished": record["finished"]}
+        record = runs.read_json(path, ADVICE)
+        bill = record.get(BILL)
+        if not bill or record.get("interrupted"):
+            continue
+        fields = ("wall_s", "cpu_class", "priced_wall_s", "workers")
+        if not isinstance(bill, dict) or any(f not in bill for f in fields):
+            raise TacbenchError(f"{path}: its bill lacks one of {list(fields)}; {ADVICE}.")
+        if not isinstance(record.get("command"), str):
+            raise TacbenchError(f"{path} records no sweep command; {ADVICE}.")
+        _time(record, "finished", path)
+        found[record["command"]] = {**bill, "finished": record["finished"]}
     return found
 
 
