@@ -13,8 +13,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from click.testing import CliRunner
 
 from tacbench import sequential as sq
+from tacbench.cli import cli
 from tacbench.errors import TacbenchError
 from tests.report_fixtures import write_run
 
@@ -185,3 +187,11 @@ def test_a_replay_of_a_folder_without_tac_runs_is_refused(tmp_path: Path) -> Non
     write_run(tmp_path, algo="sac", env="Hopper-v4", variant="sb3", seed=0, steps=[1], returns=[1])
     with pytest.raises(TacbenchError, match="no complete TAC run under"):
         sq.replay_study(tmp_path, 5, 1)
+
+
+def test_analyse_checks_out_before_its_minutes_of_work(tmp_path: Path) -> None:
+    (tmp_path / "file").write_text("")
+    args = ["study", "sequential", "analyse", "--results", str(STUDY), "--reps", "1"]
+    result = CliRunner().invoke(cli, [*args, "--out", str(tmp_path / "file" / "sub")])
+    assert result.exit_code == 2 and "cannot create or write the output folder" in result.output
+    assert "replay:" not in result.output  # nothing was analysed

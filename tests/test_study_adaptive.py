@@ -201,6 +201,7 @@ def test_unfinished_runs_are_left_out_and_every_gap_is_said(tmp_path: Path) -> N
         "HalfCheetah-v4: no finished run of the study",
     ]
     assert "caution: left out 2 unfinished runs" in result.output
+    assert {p.name for p in out.iterdir()} == {f"{name}.csv" for name in study.TABLES}
 
 
 @pytest.mark.unit

@@ -72,8 +72,8 @@ def test_curves_and_summary() -> None:
     first = table[(table["method"] == "TAC q=1") & (table["step"] == 5000)]
     assert first["mean"].item() == pytest.approx(100 + 10 + 5) and first["seeds"].item() == 3
     assert first["std"].item() == pytest.approx(10.0)
-    summary = parity.summary(parity.final_returns(data), reps=2000)
-    assert list(summary["method"]) == [parity.TAC]  # no twin-q runs in this frame
+    summary, cautions = parity.summary(parity.final_returns(data), reps=2000)
+    assert list(summary["method"]) == [parity.TAC] and cautions == []  # no twin-q runs here
     row = summary.iloc[0]
     assert row["TAC - SB3"] == pytest.approx(100.0)
     # seeds (returns 0, 10, 20 above the method's offset) are resampled independently per method
@@ -102,7 +102,7 @@ def test_recorded_finals_join_the_runs_and_are_compared(tmp_path: Path) -> None:
     joined = parity.recorded_finals(recorded, tac_only)
     assert list(joined.columns) == list(parity.FINALS_COLUMNS)
     pd.testing.assert_frame_equal(
-        parity.summary(joined, reps=2000), parity.summary(finals, reps=2000)
+        parity.summary(joined, reps=2000)[0], parity.summary(finals, reps=2000)[0]
     )
 
 
@@ -116,6 +116,7 @@ def test_recorded_finals_join_the_runs_and_are_compared(tmp_path: Path) -> None:
         ("env,method,seed,return\nHopper-v4,SAC (SB3),0,abc\n", "row 1 is not a finite number"),
         ("env,method,seed,return\nHopper-v4,SAC (SB3),0,\n", "row 1 is not a finite number"),
         ("env,method,seed,return\nHopper-v4,SAC (SB3),0,1\nHopper-v4,SAC (SB3),0,1\n", "seed 0"),
+        ("env,method,seed,return\nHopper,SAC (SB3),0,1.0\n", "write its Gymnasium id, 'Hopper-v4'"),
     ],
 )
 def test_recorded_finals_refuse_bad_files(tmp_path: Path, rows: str, message: str) -> None:
@@ -228,3 +229,96 @@ def test_the_commands_refuse_what_tacbench_run_would_refuse() -> None:
         assert result.exit_code == 2 and "is not in the range" in result.output
     result = runner.invoke(cli, ["study", "parity", "commands", "--env", "hopper"])
     assert result.exit_code == 0 and "--env Hopper-v4" in result.output
+
+
+def _hopper(root: Path, algo: str, seed: int, total: int, state: str = "complete") -> None:
+    steps = [total / 2, float(total)] if state == "complete" else [total / 2]
+    write_run(
+        root,
+        algo=algo,
+        env="Hopper-v4",
+        variant="q1-a0.2" if algo == "tac" else "default",
+        seed=seed,
+        steps=steps,
+        returns=[100.0 + seed] * len(steps),
+        q=1.0 if algo == "tac" else None,
+        alpha=0.2 if algo == "tac" else None,
+        total_steps=total,
+        state=state,
+    )
+
+
+def test_runs_short_of_their_budget_or_of_another_budget_are_not_scored(tmp_path: Path) -> None:
+    """A run stopped early used to be scored on its last evaluations beside runs trained to
+    the budget; runs of two budgets on one task are refused (their final returns measure
+    different things)."""
+    for seed in (0, 10):
+        _hopper(tmp_path, "tac", seed, 4000)
+        _hopper(tmp_path, "sac-sb3", seed, 4000)
+    _hopper(tmp_path, "tac", 20, 4000, "interrupted")
+    finals = parity.final_returns(parity.load(tmp_path))
+    assert sorted(finals.loc[finals["method"] == parity.TAC, "seed"]) == [0, 10]
+    _hopper(tmp_path, "tac", 30, 1000)  # a shorter budget than its method's other runs
+    finals = parity.final_returns(parity.load(tmp_path))
+    assert sorted(finals.loc[finals["method"] == parity.TAC, "seed"]) == [0, 10]
+    for seed in (0, 10):
+        _hopper(tmp_path / "other", "tac", seed, 4000)
+        _hopper(tmp_path / "other", "sac-sb3", seed, 1000)
+    with pytest.raises(TacbenchError, match=r"Hopper-v4 under .* budgets of 1,000 and 4,000 "):
+        parity.load(tmp_path / "other")
+
+
+@pytest.mark.parametrize(
+    ("algo", "caution"),
+    [
+        ("sac-sb3", "Hopper-v4: no finished TAC run; it has no row"),
+        ("tac", "Hopper-v4: no finished SB3 run; its TAC - SB3 columns are empty"),
+    ],
+)
+def test_a_task_with_one_side_only_is_said(tmp_path: Path, algo: str, caution: str) -> None:
+    """One side only used to give an empty summary (one byte of CSV) or one without the
+    difference columns, with exit 0 and no word."""
+    for seed in (0, 10):
+        _hopper(tmp_path / "study", algo, seed, 4000)
+    out = tmp_path / "analysis"
+    result = _analyse(["--results", str(tmp_path / "study"), "--out", str(out), "--reps", "100"])
+    assert result.exit_code == 0, result.output
+    assert f"caution: {caution}" in result.output
+    assert list(pd.read_csv(out / "summary.csv").columns) == list(parity.SUMMARY_COLUMNS)
+    assert pd.read_csv(out / "cautions.csv")["caution"].tolist() == [caution]
+
+
+def test_out_is_checked_before_the_analysis_and_never_replaces_an_input(tmp_path: Path) -> None:
+    """--out holding the --finals file used to have it replaced by the combined table (the
+    same command then refused its own output); a file in --out's path, or a folder where a
+    table goes, failed only after the analysis, with a traceback."""
+    for seed in (0, 10):
+        _hopper(tmp_path / "study", "tac", seed, 4000)
+    out = tmp_path / "analysis"
+    out.mkdir()
+    finals = out / "finals.csv"
+    finals.write_text("env,method,seed,return,note\nHopper-v4,SAC (SB3),0,1.0,kept\n")
+    study = ["--results", str(tmp_path / "study"), "--reps", "100"]
+    result = _analyse([*study, "--finals", str(finals), "--out", str(out)])
+    assert (
+        result.exit_code == 2 and f"--out {out} would replace the input {finals}" in result.output
+    )
+    assert finals.read_text().endswith(",kept\n")
+    (out / "summary.csv").mkdir()
+    result = _analyse([*study, "--out", str(out)])
+    assert result.exit_code == 2 and f"{out / 'summary.csv'} is a folder" in result.output
+    result = _analyse([*study, "--out", str(finals / "sub")])
+    assert result.exit_code == 2 and "cannot create or write the output folder" in result.output
+    assert "Traceback" not in result.output
+
+
+def test_analyse_writes_every_table_it_names(tmp_path: Path) -> None:
+    for seed in (0, 10):
+        _hopper(tmp_path / "study", "tac", seed, 4000)
+        _hopper(tmp_path / "study", "sac-sb3", seed, 4000)
+    out = tmp_path / "analysis"
+    result = _analyse(["--results", str(tmp_path / "study"), "--out", str(out), "--reps", "100"])
+    assert result.exit_code == 0, result.output
+    files = {*(f"{name}.csv" for name in parity.TABLES), parity.FIGURE}
+    assert {p.name for p in out.iterdir()} == files
+    assert (out / "cautions.csv").read_text() == "caution\n"  # none, said by an empty table

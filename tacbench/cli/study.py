@@ -5,7 +5,7 @@
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -20,6 +20,29 @@ if TYPE_CHECKING:
 
 _RESULTS = click.Path(exists=True, file_okay=False, path_type=Path)
 _OUT = ResultsFolder("leave --out out to write no CSV")
+
+
+def _check_out(out: Path | None, files: Sequence[str], inputs: Sequence[Path] = ()) -> None:
+    """Before any work: ``out`` can be written, no folder stands where one of ``files`` goes,
+    and none of them is an input file of the analysis (``inputs``), which it would replace."""
+    if out is None:
+        return
+    from tacbench.runs import check_writable
+
+    check_writable(out)
+    given = {path.resolve(): path for path in inputs}
+    for name in files:
+        target = out / name
+        if target.is_dir():
+            raise TacbenchError(
+                f"{target} is a folder, where this writes its {name}; move it away, or choose "
+                "another --out."
+            )
+        if target.resolve() in given:
+            raise TacbenchError(
+                f"--out {out} would replace the input {given[target.resolve()]} with its own "
+                f"{name}; choose another --out."
+            )
 
 
 def _show(tables: Mapping[str, pd.DataFrame], out: Path | None) -> None:
@@ -68,6 +91,7 @@ def adaptive_analyse(results: Path, out: Path | None) -> None:
     """Print the study's tables: the populations, alpha, each member's final q."""
     from tacbench.studies import adaptive as adaptive_study
 
+    _check_out(out, [f"{name}.csv" for name in adaptive_study.TABLES])
     _show(adaptive_study.analyse(results), out)
 
 
@@ -129,6 +153,8 @@ def parity_analyse(
     finals: tuple[Path, ...],
 ) -> None:
     """Print the learning curves, the final returns and their differences to SB3."""
+    files = [*(f"{name}.csv" for name in parity_study.TABLES), parity_study.FIGURE]
+    _check_out(out, files, finals)
     tables = parity_study.analyse(
         results, by_variant=by_variant, fraction=fraction, finals=finals, reps=reps
     )
@@ -165,6 +191,7 @@ def sequential_analyse(results: Path, reps: int, out: Path | None) -> None:
     """Print the replay tables, and each design's error rate and power over REPS grids."""
     from tacbench.studies import sequential as sequential_study
 
+    _check_out(out, [f"{name}.csv" for name in sequential_study.TABLES])
     _show(sequential_study.analyse(results, reps), out)
 
 

@@ -34,6 +34,7 @@ POPULATIONS = (tuple(range(0, 80, 10)), tuple(range(80, 160, 10)))
 ALPHA_SEEDS = paper.SEEDS[:5]  # the paper-q-grid study's seeds (results/studies/)
 STEPS = 100_000
 REPS = 10_000
+TABLES = ("populations", "alpha", "final_q", "final_q_summary", "cautions")  # analyse's names
 
 
 def _seeds(seeds: Sequence[int]) -> list[str]:
@@ -188,8 +189,8 @@ def _last_q(losses: Path) -> float:
 
 
 def analyse(results: Path) -> dict[str, pd.DataFrame]:
-    """Every table of the study, by name: populations, alpha, final_q, final_q_summary, and
-    ``cautions`` (one ``caution`` per row) when something was left out."""
+    """Every table of the study, by name (:data:`TABLES`): populations, alpha, final_q,
+    final_q_summary, and ``cautions`` (one ``caution`` per row, naming what was left out)."""
     runset = load_runs(results, "eval")
     table, cautions = finals(runset)
     ends = final_q(runset.root, table)
@@ -206,6 +207,5 @@ def analyse(results: Path) -> dict[str, pd.DataFrame]:
     cautions += [
         f"{env}: no finished run of the study" for env in ENVS if env not in set(table["env"])
     ]
-    if cautions:
-        tables["cautions"] = pd.DataFrame({"caution": cautions})
+    tables["cautions"] = pd.DataFrame({"caution": cautions}, dtype=str)
     return tables

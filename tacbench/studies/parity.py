@@ -34,6 +34,8 @@ SEEDS = paper.SEEDS[:5]
 STEPS = 100_000
 FRACTION = 0.1  # final return: the evaluations in the last 10% of the steps
 REPS = 10_000
+TABLES = ("curves", "finals", "summary", "cautions")  # analyse's names, each written as CSV
+FIGURE = "curves.png"
 TAC, TAC_TWIN_Q, TAC_REFERENCE, SB3 = "TAC q=1", "TAC q=1 twin-q", "TAC q=1 reference", "SAC (SB3)"
 # the paper's TAC (target V), TAC with SAC v2's target, TAC as the authors' code ran it, SB3
 TAC_METHODS = (TAC, TAC_TWIN_Q, TAC_REFERENCE)
@@ -65,19 +67,28 @@ def commands(
 
 def load(results: Path, by_variant: bool = False) -> pd.DataFrame:
     """Evaluation returns of the study's runs (TAC at q = 1, with either critic target or in the
-    reference profile, and sac-sb3), complete runs only. Columns: method (one of
-    :data:`METHODS`; with ``by_variant``, TAC runs are named ``TAC <variant>`` instead, for an
-    ablation's variants of one method), env, seed, step, return."""
+    reference profile, and sac-sb3), runs trained to their budget only, one budget per task.
+    Columns: method (one of :data:`METHODS`; with ``by_variant``, TAC runs are named ``TAC
+    <variant>`` instead, for an ablation's variants of one method), env, seed, step, return."""
     from tacbench.report.load import load_runs  # the report package: only when runs are read
 
     runset = load_runs(results, "eval")
     runs = runset.runs
     chosen = runs[((runs["algo"] == "tac") & (runs["q"] == 1.0)) | (runs["algo"] == "sac-sb3")]
-    chosen = chosen[chosen["state"] == "complete"].copy()
+    chosen = chosen[~chosen["partial"]].copy()
     if chosen.empty:
         raise TacbenchError(
             f"no complete run of TAC at q = 1 or of sac-sb3 under {results}; tacbench study "
             "parity commands lists the study's runs."
+        )
+    budgets = chosen.groupby("env")["total_steps"].unique()
+    mixed = {env: sorted(steps) for env, steps in budgets.items() if len(steps) > 1}
+    if mixed:
+        env, steps = next(iter(mixed.items()))
+        raise TacbenchError(
+            f"the runs of {env} under {results} have budgets of "
+            f"{' and '.join(f'{s:,.0f}' for s in steps)} steps; the study compares runs of one "
+            "budget: keep the runs of one."
         )
     pairs = zip(chosen["algo"], chosen["variant"], strict=True)
     chosen["method"] = [_method(algo, variant, by_variant) for algo, variant in pairs]
@@ -133,6 +144,14 @@ def recorded_finals(path: Path, finals: pd.DataFrame) -> pd.DataFrame:
     missing = [c for c in FINALS_COLUMNS if c not in recorded.columns]
     if missing:
         raise TacbenchError(f"{path} lacks the columns {missing}; it needs {list(FINALS_COLUMNS)}.")
+    from tacbench.envs import resolve_env_id  # Gymnasium's registry: only when a file is read
+
+    for env in sorted(set(recorded["env"].astype(str))):
+        if resolve_env_id(env) != env:
+            raise TacbenchError(
+                f"{path} names the task {env!r}; write its Gymnasium id, "
+                f"{resolve_env_id(env)!r}, as the run directories do."
+            )
     unknown = sorted(set(recorded["method"]) - set(METHODS))
     if unknown:
         raise TacbenchError(f"{path}: unknown methods {unknown}; the study's are {list(METHODS)}.")
@@ -171,13 +190,24 @@ def bootstrap_difference(
     return mean_difference(a, b, reps, seed)
 
 
-def summary(finals: pd.DataFrame, reps: int = REPS) -> pd.DataFrame:
+SUMMARY_COLUMNS = (
+    *("env", "method", "TAC mean", "TAC std", "TAC seeds", "SB3 mean", "SB3 std", "SB3 seeds"),
+    *("TAC - SB3", "CI low", "CI high"),
+)
+
+
+def summary(finals: pd.DataFrame, reps: int = REPS) -> tuple[pd.DataFrame, list[str]]:
     """Per task and TAC method present: its final return and SB3's (mean, std, seeds), and
-    TAC minus SB3 with its 95% bootstrap interval."""
-    rows = []
+    TAC minus SB3 with its 95% bootstrap interval; and cautions naming each task that lacks
+    one side (its row's differences are empty, or it has no row)."""
+    rows, cautions = [], []
     others = sorted(set(finals["method"]) - set(METHODS))
     for env, group in finals.groupby("env"):
         sb3 = group.loc[group["method"] == SB3, "return"].to_numpy()
+        if not len(sb3):
+            cautions.append(f"{env}: no finished SB3 run; its TAC - SB3 columns are empty")
+        if set(group["method"]) <= {SB3}:
+            cautions.append(f"{env}: no finished TAC run; it has no row")
         for method in (*TAC_METHODS, *others):
             tac = group.loc[group["method"] == method, "return"].to_numpy()
             if not len(tac):
@@ -192,7 +222,7 @@ def summary(finals: pd.DataFrame, reps: int = REPS) -> pd.DataFrame:
                     tac, sb3, reps
                 )
             rows.append(row)
-    return pd.DataFrame(rows)
+    return pd.DataFrame(rows, columns=list(SUMMARY_COLUMNS)), cautions
 
 
 def plot(table: pd.DataFrame, path: Path) -> None:
@@ -231,19 +261,22 @@ def analyse(
     finals: Sequence[Path] = (),
     reps: int = REPS,
 ) -> dict[str, pd.DataFrame]:
-    """Every table of the study, by name: curves, finals (with the recorded ``finals`` CSVs
-    added) and summary (the differences to SB3)."""
+    """Every table of the study, by name (:data:`TABLES`): curves, finals (with the recorded
+    ``finals`` CSVs added), summary (the differences to SB3) and cautions (a task that lacks
+    one side)."""
     if not 0 < fraction <= 1:
         raise TacbenchError(f"--fraction must be in (0, 1] (got {fraction}).")
     data = load(results, by_variant)
     table, final = curves(data), final_returns(data, fraction)
     for path in finals:
         final = recorded_finals(path, final)
-    return {"curves": table, "finals": final, "summary": summary(final, reps)}
+    differences, cautions = summary(final, reps)
+    caution = pd.DataFrame({"caution": cautions}, dtype=str)
+    return {"curves": table, "finals": final, "summary": differences, "cautions": caution}
 
 
 def figure(tables: dict[str, pd.DataFrame], out: Path) -> Path:
     """The learning curves of :func:`analyse`'s tables as ``out/curves.png``."""
-    path = out / "curves.png"
+    path = out / FIGURE
     plot(tables["curves"], path)
     return path

@@ -29,6 +29,7 @@ from tacbench import sequential as sq
 STUDY = Path("results/studies/paper-q-grid-100k")
 REPLAY_DESIGNS = ((1, 5), (2, 2), (4, 1), (5, 1))  # (n, K) that five seeds allow
 REPS = 500
+TABLES = ("replay", "replay_runs", "error_and_power")  # analyse's names, each written as CSV
 SEED = 2024
 
 
