@@ -88,10 +88,32 @@ def make_configs(
         f"{algo} hyperparameters: baselines/hyperparams/{algo}.yaml, sections "
         f"{' + '.join(sections)}" + (f"; overridden: {changed}" if changed else "")
     ]
+    _check_combination(algo, effective)
+    total = configs[0].total_steps
     starts = effective.get("learning_starts")
     if configs[0].off_policy and starts is not None:
-        notes += never_updated(f"{algo}'s learning_starts", int(starts), configs[0].total_steps)
+        notes += never_updated(f"{algo}'s learning_starts", int(starts), total)
+    rollout = int(effective.get("n_steps", SB3_N_STEPS))
+    if not configs[0].off_policy and rollout > total:
+        notes.append(
+            f"WARNING: {algo}'s n_steps {rollout:,} is above --steps {total:,}: the run ends "
+            "before its first rollout is complete, and the networks are never updated"
+        )
     return configs, changed, notes
+
+
+SB3_N_STEPS = 2048  # SB3's PPO and TRPO default rollout length, where a table leaves it out
+
+
+def _check_combination(algo: str, effective: Mapping[str, Any]) -> None:
+    """Refuse hyperparameters that SB3 would refuse only once the run is built."""
+    normalised = algo == "ppo" and effective.get("normalize_advantage", True)
+    if normalised and int(effective.get("batch_size", 64)) < 2:  # SB3's PPO default: 64
+        raise TacbenchError(
+            "--hp batch_size=1: PPO normalises the advantages over each minibatch, which "
+            "needs at least 2 samples; give batch_size of 2 or more (or "
+            "normalize_advantage=false)."
+        )
 
 
 # TAC's `tacbench run` flags that a baseline understands, as the hyperparameter they set.

@@ -21,7 +21,7 @@ from stable_baselines3.common.vec_env import VecNormalize
 
 from baselines import algos, checkpoint, hyperparams
 from baselines.callbacks import Diverged, Interrupted, LossLogger, RunCallback
-from baselines.config import BaselineConfig
+from baselines.config import SB3_N_STEPS, BaselineConfig
 from tacbench import envs, memory, paper, runs
 from tacbench.errors import TacbenchError
 from tacbench.hardware import configure_process
@@ -103,10 +103,12 @@ def check_sizes(config: BaselineConfig, info: envs.EnvInfo) -> None:
     )
     obs, act = info.obs_dim * 8, info.act_dim * memory.FLOAT32
     if config.off_policy:
-        rows = int(hp.get("buffer_size", 1_000_000))
+        rows = min(int(hp.get("buffer_size", 1_000_000)), config.total_steps)  # as built
         needs["the replay buffer"] = rows * (2 * obs + act + 2 * memory.FLOAT32)
     else:
-        needs["the rollout"] = int(hp.get("n_steps", 2048)) * (obs + act + 6 * memory.FLOAT32)
+        needs["the rollout"] = int(hp.get("n_steps", SB3_N_STEPS)) * (
+            obs + act + 6 * memory.FLOAT32
+        )
     needs["an evaluation"] = memory.evaluation_bytes(config.eval_episodes)
     memory.check_fits(
         needs, "--hp net_arch, batch_size, buffer_size or n_steps, or --eval-episodes"
@@ -133,9 +135,9 @@ class _Run:
         ]
         folder = directory / "checkpoint"
         state, self.chunks, notes = checkpoint.load(folder)
-        if state is None:
-            self.writer.open(metadata(config, command), None)
+        if state is None:  # SB3 refuses some settings as it builds: before anything is written
             self.model = algos.build_model(config, self.venv)
+            self.writer.open(metadata(config, command), None)
             self.step, self.wall_offset = 0, 0.0
         else:
             step = int(state["step"])

@@ -189,8 +189,13 @@ def test_make_configs_applies_overrides_and_run_settings() -> None:
     assert any(note.startswith("WARNING: sac-sb3's learning_starts 10,000") for note in notes)
     _, _, notes = make_configs("sac-sb3", "Humanoid-v4", "Humanoid", [0], total_steps=10_001)
     assert not any(note.startswith("WARNING") for note in notes)
-    _, _, notes = make_configs("ppo", "Hopper-v4", "Hopper", [0], total_steps=300)
-    assert not any(note.startswith("WARNING") for note in notes)  # on-policy: no warm-up
+    _, _, notes = make_configs("ppo", "Hopper-v4", "Hopper", [0], total_steps=2048)
+    assert not any(note.startswith("WARNING") for note in notes)  # one rollout: one update
+    _, _, notes = make_configs("trpo", "Hopper-v4", "Hopper", [0], total_steps=2047)
+    assert "WARNING: trpo's n_steps 2,048 is above --steps 2,047" in notes[-1]
+    with pytest.raises(TacbenchError, match="PPO normalises the advantages over each minibatch"):
+        make_configs("ppo", "Hopper-v4", "Hopper", [0], ["batch_size=1"])
+    make_configs("ppo", "Hopper-v4", "Hopper", [0], ["batch_size=1", "normalize_advantage=false"])
     with pytest.raises(TacbenchError, match="must differ"):
         make_configs("ppo", "Hopper-v4", "Hopper", [0, 0])
     with pytest.raises(TacbenchError, match="total_steps must be an integer >= 1"):

@@ -13,7 +13,7 @@ import pandas as pd
 import pytest
 from click.testing import CliRunner
 
-from baselines import callbacks
+from baselines import algos, callbacks
 from tacbench.cli import cli
 from tests.helpers import checkpoint_state, tiny_configs, train
 
@@ -42,6 +42,22 @@ def test_non_finite_loss_marks_the_run_failed_and_keeps_the_checkpoint(
     assert checkpoint_state(outcome.directory)["step"] == 1000
     (again,) = train(tmp_path, configs, resume=True)
     assert again.state == "skipped" and "failed at step 1200" in again.message
+
+
+def test_a_model_sb3_refuses_to_build_leaves_no_run_behind(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """SB3 checks some settings only as it builds the model. The run directory was opened
+    first, so such a refusal left a run "running" at step 0 that the same command then refused
+    (and --resume failed again); now nothing is written before the model exists."""
+
+    def refuse(config: Any, venv: Any) -> Any:
+        raise AssertionError("`batch_size` must be greater than 1")
+
+    monkeypatch.setattr(algos, "build_model", refuse)
+    with pytest.raises(AssertionError, match="batch_size"):
+        train(tmp_path, tiny_configs("ppo"))
+    assert not [p for p in tmp_path.rglob("*") if p.is_file() and p.suffix != ".lock"]
 
 
 CLI_TINY = ["--env", "Hopper-v4", "--steps", "300", "--eval-every", "100", "--eval-episodes", "1"]

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from baselines.trainer import check_sizes
 from tacbench import envs, memory, trainers
 from tacbench.errors import TacbenchError
 from tacbench.paper import paper_task
@@ -25,7 +26,7 @@ TOO_BIG = [
     ("tac", {"buffer_size": 10**12, "total_steps": 10**12}, "the replay buffer"),
     ("tac", {"eval_episodes": 10**20}, "an evaluation"),
     ("ddpg", {"hp": ("batch_size=1000000000000",)}, "an update's activations"),
-    ("ddpg", {"hp": ("buffer_size=1000000000000",)}, "the replay buffer"),
+    ("ddpg", {"hp": ("buffer_size=1000000000000",), "total_steps": 10**12}, "the replay buffer"),
     ("ppo", {"hp": ("net_arch=[100000,100000]",)}, "networks"),
     ("td3", {"hp": (), "eval_episodes": 10**20}, "an evaluation"),
 ]
@@ -48,6 +49,15 @@ def test_a_run_too_big_for_the_machine_is_refused_before_anything_is_written(
         train(tmp_path / "out", configs)
     assert part in str(refused.value) and "smaller" in str(refused.value)
     assert not (tmp_path / "out").exists()
+
+
+def test_a_baselines_buffer_is_counted_as_built_never_above_the_runs_steps() -> None:
+    """SB3's buffer is built with at most the run's steps (as TAC's), so a huge buffer_size on
+    a short run fits: it used to be refused for memory it would never take."""
+    configs, _ = trainers.make_configs(
+        "td3", "Hopper-v4", "Hopper", (0,), TINY_RUN, hp=("buffer_size=100000000000",)
+    )
+    check_sizes(configs[0], envs.env_info("Hopper-v4"))  # no error
 
 
 def test_more_threads_than_cores_are_refused(tmp_path: Path) -> None:
