@@ -131,11 +131,13 @@ def _changed_flags(config: RunConfig, fields: Sequence[str]) -> str:
 
 
 def check_q_range(values: Sequence[float]) -> tuple[float, float]:
-    """``--q-range`` as (LOW, HIGH), or a TacbenchError unless 0 < LOW < HIGH < inf."""
+    """``--q-range`` as (LOW, HIGH), or a TacbenchError unless 0 < LOW < HIGH <=
+    :data:`MAX_TRAINING_Q` (a learned q goes anywhere in it)."""
     low_high = tuple(float(v) for v in values)
-    if len(low_high) != 2 or not 0 < low_high[0] < low_high[1] < math.inf:
+    if len(low_high) != 2 or not 0 < low_high[0] < low_high[1] <= MAX_TRAINING_Q:
         raise TacbenchError(
-            f"--q-range must be LOW,HIGH with 0 < LOW < HIGH < inf (got {low_high}); "
-            "the paper's grid is 0.5,5."
+            f"--q-range must be LOW,HIGH with 0 < LOW < HIGH <= {MAX_TRAINING_Q:g} (got "
+            f"{low_high}): above {MAX_TRAINING_Q:g} ln_q overflows float32; the paper's grid "
+            "is 0.5,5."
         )
     return low_high[0], low_high[1]

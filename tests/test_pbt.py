@@ -195,6 +195,10 @@ def test_a_population_trains_audits_and_resumes_exactly(tmp_path: Path) -> None:
         (["--q", "auto", "--q-range", "2,1", *[f"--seed={s}" for s in range(4)]], "--q-range"),
         (["--q", "auto", "--q-range", "0,5", *[f"--seed={s}" for s in range(4)]], "--q-range"),
         (["--q", "auto", "--q-range", "1,inf", *[f"--seed={s}" for s in range(4)]], "--q-range"),
+        (  # a learned q above 1,000 overflows ln_q, as a fixed one would (which is refused)
+            ["--q", "auto", "--q-range", "0.5,1e300", *[f"--seed={s}" for s in range(4)]],
+            "HIGH <= 1000 (got (0.5, 1e+300)): above 1000 ln_q overflows float32",
+        ),
         (["--q", "auto", "--q-range", "1", *[f"--seed={s}" for s in range(4)]], "--q-range"),
         (["--q", "auto", "--pbt-every", "0", *[f"--seed={s}" for s in range(4)]], "--pbt-every"),
         (["--q", "1", "--pbt-every", "500"], "add --q auto"),
