@@ -100,7 +100,8 @@ def make_run_configs(
             f"{first.learning_steps:,} learning steps: no population round happens, so each "
             "member keeps the q it starts with"
         )
-    notes += never_updated("--learning-starts", first.learning_starts, first.total_steps)
+    if first.warmup_updates != "on":  # on: updates start at each member's first episode end
+        notes += never_updated("--learning-starts", first.learning_starts, first.total_steps)
     notes.append(compile_note(resolve_compile(first), overrides.get("compile", "auto")))
     return configs, notes
 

@@ -91,9 +91,17 @@ def test_compile_auto_compiles_long_runs_where_a_compiler_is_found(
     assert forced[0].compile == "on" and "compile: on (--compile on)" in notes
 
 
-@pytest.mark.parametrize(("steps", "warned"), [(5000, True), (10_000, True), (10_001, False)])
-def test_a_run_that_never_learns_is_warned_about(steps: int, warned: bool) -> None:
-    _, notes = make_run_configs("Hopper-v4", "Hopper", [0], total_steps=steps)  # starts at 10,000
+@pytest.mark.parametrize(
+    ("steps", "settings", "warned"),
+    [
+        (5000, {}, True),
+        (10_000, {}, True),
+        (10_001, {}, False),
+        (5000, {"warmup_updates": "on"}, False),  # updates from the first episode's end
+    ],
+)
+def test_a_run_that_never_learns_is_warned_about(steps: int, settings: dict, warned: bool) -> None:
+    _, notes = make_run_configs("Hopper-v4", "Hopper", [0], total_steps=steps, **settings)
     warning = f"WARNING: --learning-starts 10,000 is not below --steps {steps:,}"
     assert any(note.startswith(warning) for note in notes) == warned, notes
 
