@@ -107,6 +107,13 @@ SB3_N_STEPS = 2048  # SB3's PPO and TRPO default rollout length, where a table l
 
 def _check_combination(algo: str, effective: Mapping[str, Any]) -> None:
     """Refuse hyperparameters that SB3 would refuse only once the run is built."""
+    learned = str(effective.get("ent_coef", "")).startswith("auto")
+    if algo == "sac-sb3" and effective.get("target_entropy", "auto") != "auto" and not learned:
+        raise TacbenchError(
+            f"target_entropy={effective['target_entropy']} (--target-entropy) is what a learned "
+            f"alpha aims at, and sac-sb3's alpha is fixed here (ent_coef={effective['ent_coef']}); "
+            "add --alpha auto, or leave the target entropy out."
+        )
     normalised = algo == "ppo" and effective.get("normalize_advantage", True)
     if normalised and int(effective.get("batch_size", 64)) < 2:  # SB3's PPO default: 64
         raise TacbenchError(
@@ -132,6 +139,10 @@ def flags_as_overrides(algo: str, given: Mapping[str, Any]) -> list[str]:
         start = given.get("alpha", "auto")
         if given.pop("alpha_mode") == "auto":
             given["alpha"] = "auto" if start == "auto" else f"auto_{float(start):g}"
+        elif start == "auto":
+            raise TacbenchError(
+                "--alpha auto learns alpha; it does not mix with --alpha-mode fixed in one command."
+            )
     items = []
     for name, value in given.items():
         key = _FLAG_KEYS.get((algo, name))

@@ -100,6 +100,16 @@ def test_cli_trains_two_seeds_then_skips_refuses_and_forces(tmp_path: Path) -> N
         (["--algo", "td3", "--alpha", "0.1"], "--alpha is a TAC option that td3 does not use"),
         (["--hp", "gamma=0.9"], "--hp sets a baseline's hyperparameters"),
         (["--algo", "sac"], "'sac' is not one of 'tac', 'ddpg', 'td3', 'sac-sb3'"),
+        (  # used to run with the target unused, in a variant of its own
+            ["--algo", "sac-sb3", "--target-entropy", "5"],
+            "target_entropy=5.0 (--target-entropy) is what a learned alpha aims at",
+        ),
+        (["--algo", "sac-sb3", "--hp", "target_entropy=-1"], "sac-sb3's alpha is fixed here"),
+        (  # used to learn alpha
+            ["--algo", "sac-sb3", "--alpha", "auto", "--alpha-mode", "fixed"],
+            "--alpha auto learns alpha; it does not mix with --alpha-mode fixed",
+        ),
+        (["--algo", "ppo", "--hp", "batch_size=1"], "PPO normalises the advantages"),
     ],
 )
 def test_cli_refuses_bad_hyperparameters_clearly(
