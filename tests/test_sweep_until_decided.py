@@ -81,6 +81,8 @@ def test_seeds_are_the_presets_then_further_ones_at_its_spacing() -> None:
     assert sequential_design.seed_order((0, 10), 4) == (0, 10, 20, 30)
     assert sequential_design.seed_order(tuple(range(0, 100, 10)), 12)[-3:] == (90, 100, 110)
     assert sequential_design.seed_order((0, 10, 20), 2) == (0, 10)
+    assert sequential_design.seed_order((5, 3), 4) == (5, 3, 15, 25)  # after the largest
+    assert len(sequential_design.seed_order((0,), 100_000)) == 100_000  # linear: at once
 
 
 def test_methods_are_labelled_as_the_report_labels_them_and_the_control_is_resolved() -> None:
@@ -118,6 +120,9 @@ def test_bad_designs_are_refused_with_what_to_change(tmp_path: Path) -> None:
         Design(n=0)
     with pytest.raises(TacbenchError, match="--fwer"):
         Design(alpha=1.5)
+    with pytest.raises(TacbenchError, match=r"x --interims 1000000 is 5,000,000 runs per method"):
+        Design(K=1_000_000)  # the dry run used to hang planning five million seeds per method
+    Design(n=10, K=100)
     never = Design(n=2, K=2, alpha=0.05)
     with pytest.raises(TacbenchError, match=r"can ever be decided.*--interim-runs 3 can"):
         run_until_decided(HOPPER, tmp_path, driver.Options(), never, train=FakeTrain())

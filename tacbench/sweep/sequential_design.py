@@ -23,6 +23,9 @@ PAIRS = "pairs"  # --control pairs: every pair of methods
 BEST_Q = "best-q"  # --control best-q: TAC at the paper's best q of each task
 
 
+MAX_RUNS_PER_METHOD = 1_000  # n x K: a hundred times the paper's ten seeds
+
+
 @dataclass(frozen=True)
 class Design:
     """The sequential design: ``n`` runs per method per interim, at most ``K`` interims,
@@ -40,6 +43,11 @@ class Design:
         if self.n < 1 or self.K < 1:
             raise TacbenchError(
                 f"--interim-runs and --interims must be at least 1 (got {self.n}, {self.K})."
+            )
+        if self.n * self.K > MAX_RUNS_PER_METHOD:
+            raise TacbenchError(
+                f"--interim-runs {self.n} x --interims {self.K} is {self.n * self.K:,} runs per "
+                f"method and task, above {MAX_RUNS_PER_METHOD:,}; the paper ran 10."
             )
         if not 0.0 < self.alpha < 1.0:
             raise TacbenchError(f"--fwer must lie between 0 and 1 (got {self.alpha!r}).")
@@ -65,8 +73,8 @@ def seed_order(seeds: Sequence[int], count: int) -> tuple[int, ...]:
     """The first ``count`` seeds: ``seeds`` in order, then ``SEED_SPACING`` apart after the
     largest."""
     order = list(seeds[:count])
-    while len(order) < count:
-        order.append(max([*seeds, *order]) + SEED_SPACING)
+    after = max(seeds, default=-SEED_SPACING)
+    order += [after + SEED_SPACING * k for k in range(1, count - len(order) + 1)]
     return tuple(order)
 
 
