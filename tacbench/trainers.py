@@ -107,6 +107,23 @@ def trainer_for(algo: str) -> Trainer:
     return trainer
 
 
+def check_sizes(configs: Sequence[AnyConfig]) -> None:
+    """Refuse, before anything is written, runs that would not fit this machine's memory or
+    cores, as their trainer does when it starts: TAC's as one group, a baseline's one by one."""
+    from tacbench import envs
+
+    info = envs.env_info(configs[0].env)
+    if configs[0].algo == "tac":
+        from tacbench import training
+
+        training.check_sizes(configs, info)  # type: ignore[arg-type]
+        return
+    from baselines import trainer
+
+    for config in configs:
+        trainer.check_sizes(config, info)  # type: ignore[arg-type]
+
+
 def tac_flags_for_baseline(algo: str, given: Mapping[str, Any]) -> list[str]:
     """The one rule for TAC's flags on a baseline's runs, in ``tacbench run`` and ``tacbench
     sweep`` alike: a flag the baseline has an equivalent for becomes that hyperparameter, as an

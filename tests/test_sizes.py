@@ -60,6 +60,20 @@ def test_a_baselines_buffer_is_counted_as_built_never_above_the_runs_steps() -> 
     check_sizes(configs[0], envs.env_info("Hopper-v4"))  # no error
 
 
+@pytest.mark.parametrize("dry_run", [True, False])
+def test_a_sweep_refuses_units_too_big_before_anything_trains(
+    tmp_path: Path, dry_run: bool
+) -> None:
+    """The dry run used to price such a sweep as fitting (its memory line counts buffers only),
+    and the sweep failed every attempt of each unit with the same refusal, then gave it up."""
+    args = ["sweep", "--preset", "smoke", "--algo", "tac", "--q", "1", "--seed", "0"]
+    args += ["--hidden-sizes", "100000,100000", "--workers", "1", "--out", str(tmp_path)]
+    result = run_cli([*args, "--dry-run"] if dry_run else args)
+    assert result.returncode == 2, result.stdout + result.stderr
+    assert "this run would need about" in result.stderr and "networks" in result.stderr
+    assert not (tmp_path / "runs").exists()
+
+
 def test_more_threads_than_cores_are_refused(tmp_path: Path) -> None:
     cores = os.cpu_count() or 1
     with pytest.raises(TacbenchError, match=f"more than this machine's {cores} cores"):

@@ -217,6 +217,7 @@ def sweep(ctx: click.Context, preset: str, **p: Any) -> None:
 
         check_writable(p["out"])  # as the sweep itself would, though the dry run writes nothing
         work, _ = driver.load_plan(grid, p["out"], options, save=False)
+        driver.check_sizes(work, options)
         if p["calibrate"]:
             from tacbench.sweep import calibration
 

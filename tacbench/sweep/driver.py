@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
 
-from tacbench import envs, hardware, runs
+from tacbench import envs, hardware, runs, trainers
 from tacbench.errors import TacbenchError
 from tacbench.interrupts import exit_status, stop_signals
 from tacbench.runs.checkpoints import DiskError, disk_errors
@@ -88,6 +88,15 @@ def load_plan(
     return built, history
 
 
+def check_sizes(work: plan.SweepPlan, options: Options) -> None:
+    """Refuse, before anything runs, a unit its trainer would refuse as too big for this
+    machine (every attempt would fail the same way); for the local executor, whose workers
+    run here (a cluster's nodes are checked where they train)."""
+    if options.executor == "local":
+        for unit in work.units:
+            trainers.check_sizes([run.config for run in unit.runs])
+
+
 def unit_size(options: Options) -> plan.UnitSize:
     """How many runs of a group one unit trains (:func:`cost.members_per_unit`): at most
     ``--members``, what fits this machine's memory with every worker busy, and few enough that
@@ -125,6 +134,7 @@ def run_sweep(
     with disk_errors("the sweep's files"), state.Lock(out):
         state.make_log_folder(out)
         work, history = load_plan(preset, out, options)
+        check_sizes(work, options)
         workers = options.worker_count()
         priced = summary.price(work, workers)
         started = time.monotonic()
