@@ -129,6 +129,19 @@ _FLAG_KEYS = {("sac-sb3", "alpha"): "ent_coef", ("sac-sb3", "target_entropy"): "
 _FLAG_KEYS.update({(algo, "learning_starts"): "learning_starts" for algo in hyperparams.OFF_POLICY})
 
 
+def flags_setting(algo: str, key: str) -> str:
+    """The ``tacbench run`` flags that set ``algo``'s hyperparameter ``key`` (``--alpha or
+    --alpha-mode`` for sac-sb3's ent_coef)."""
+    flags = [
+        f"--{name.replace('_', '-')}"
+        for (a, name), k in _FLAG_KEYS.items()
+        if (a, k) == (algo, key)
+    ]
+    if (algo, key) == ("sac-sb3", "ent_coef"):
+        flags.append("--alpha-mode")
+    return " or ".join(flags)
+
+
 def flags_as_overrides(algo: str, given: Mapping[str, Any]) -> list[str]:
     """TAC flags given on the command line (``{"alpha": 0.1}``) as ``--hp`` items for ``algo``
     (``ent_coef=0.1`` for sac-sb3); a flag the baseline has no use for is refused. For sac-sb3

@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 from baselines import ALGOS as BASELINES
 from tacbench.config import RunConfig
+from tacbench.errors import TacbenchError
 from tacbench.members import make_run_configs
 
 if TYPE_CHECKING:
@@ -52,6 +53,15 @@ def make_configs(
     from baselines import config as baseline_config  # torch and SB3 only when this runs
 
     overrides = tac_flags_for_baseline(algo, tac_settings_given or {})
+    flagged = {item.partition("=")[0]: item for item in overrides}
+    for item in hp:
+        key = item.partition("=")[0].strip()
+        if key in flagged:
+            flags = baseline_config.flags_setting(algo, key)
+            raise TacbenchError(
+                f"--hp {item} sets {key}, which a flag given with it sets too "
+                f"({flagged[key]}: {flags}); give one of the two."
+            )
     built, _, notes = baseline_config.make_configs(
         algo, env, task, seeds, [*overrides, *hp], **settings
     )
