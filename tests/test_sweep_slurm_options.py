@@ -73,6 +73,7 @@ def test_slurm_args_become_sbatch_options() -> None:
         ({"executor": "ray", "gpus_per_run": float("inf")}, "--gpus-per-run >= 0"),
         ({"executor": "slurm", "gpus_per_run": 0.3}, "Slurm allocates whole CPUs and GPUs"),
         ({"executor": "slurm", "cpus_per_run": 1.5}, "Slurm allocates whole CPUs and GPUs"),
+        ({"group": "none", "members": 4}, "--members 4 groups runs into units, which --group none"),
     ],
 )
 def test_options_that_do_not_go_together_are_refused(options: dict, message: str) -> None:

@@ -42,6 +42,11 @@ class Options:
             raise TacbenchError(f"--group must be one of {', '.join(GROUPS)}.")
         if self.members is not None and self.members < 1:
             raise TacbenchError(f"--members must be at least 1 (got {self.members}).")
+        if self.members is not None and self.members > 1 and self.group == "none":
+            raise TacbenchError(
+                f"--members {self.members} groups runs into units, which --group none does "
+                "not: one run per unit. Give --group task or seeds, or leave --members out."
+            )
         if self.max_retries < 0:
             raise TacbenchError(f"--max-retries must be 0 or more (got {self.max_retries}).")
         resources = (self.cpus_per_run, self.gpus_per_run)
