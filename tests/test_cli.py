@@ -143,6 +143,8 @@ def test_a_bad_list_of_layer_widths_is_a_usage_error(tmp_path: Path) -> None:
         (["study", "parity", "analyse", "--results", "."], "--out"),
         (["regress", "--tier", "theory"], "--against"),
         (["regress", "--tier", "theory"], "--work"),
+        (["study", "adaptive", "commands"], "--out"),  # printed commands that run refused
+        (["study", "parity", "commands"], "--out"),
     ],
 )
 def test_an_empty_folder_is_refused_rather_than_taken_for_the_current_one(

@@ -76,12 +76,18 @@ def adaptive() -> None:
 
 
 @adaptive.command(name="commands")
-@click.option("--out", default="results/adaptive", show_default=True, help="Results folder.")
-def adaptive_commands(out: str) -> None:
+@click.option(
+    "--out",
+    type=ResultsFolder("the default is results/adaptive"),
+    default="results/adaptive",
+    show_default=True,
+    help="Results folder.",
+)
+def adaptive_commands(out: Path) -> None:
     """Print the study's tacbench run commands."""
     from tacbench.studies import adaptive as adaptive_study
 
-    click.echo("\n".join(adaptive_study.commands(out)))
+    click.echo("\n".join(adaptive_study.commands(str(out))))
 
 
 @adaptive.command(name="analyse")
@@ -110,13 +116,19 @@ def parity() -> None:
     help="Repeatable.  [default: 0-40]",
 )
 @click.option("--steps", type=click.IntRange(min=1), default=parity_study.STEPS, show_default=True)
-@click.option("--out", default="results/parity", show_default=True, help="Results folder.")
-def parity_commands(envs: tuple[str, ...], seeds: tuple[int, ...], steps: int, out: str) -> None:
+@click.option(
+    "--out",
+    type=ResultsFolder("the default is results/parity"),
+    default="results/parity",
+    show_default=True,
+    help="Results folder.",
+)
+def parity_commands(envs: tuple[str, ...], seeds: tuple[int, ...], steps: int, out: Path) -> None:
     """Print the study's tacbench run commands."""
     from tacbench.envs import resolve_env_id
 
     tasks = [resolve_env_id(env) for env in envs] or parity_study.ENVS  # a bad name says so now
-    lines = parity_study.commands(tasks, seeds or parity_study.SEEDS, steps, out)
+    lines = parity_study.commands(tasks, seeds or parity_study.SEEDS, steps, str(out))
     click.echo("\n".join(lines))
 
 
