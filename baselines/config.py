@@ -152,7 +152,7 @@ def flags_as_overrides(algo: str, given: Mapping[str, Any]) -> list[str]:
         start = given.get("alpha", "auto")
         if given.pop("alpha_mode") == "auto":
             given["alpha"] = "auto" if start == "auto" else f"auto_{float(start):g}"
-        elif start == "auto":
+        elif given.get("alpha") == "auto":
             raise TacbenchError(
                 "--alpha auto learns alpha; it does not mix with --alpha-mode fixed in one command."
             )

@@ -227,6 +227,9 @@ def test_tac_flags_map_to_hyperparameters_or_are_refused() -> None:
     ]
     assert learned == [["ent_coef=auto"], ["ent_coef=auto"], ["ent_coef=auto_0.1"]]
     assert flags_as_overrides("sac-sb3", {"alpha_mode": "fixed", "alpha": 0.1}) == ["ent_coef=0.1"]
+    assert flags_as_overrides("sac-sb3", {"alpha_mode": "fixed"}) == []  # the table's alpha
+    with pytest.raises(TacbenchError, match="--alpha auto learns alpha; it does not mix with"):
+        flags_as_overrides("sac-sb3", {"alpha_mode": "fixed", "alpha": "auto"})
     with pytest.raises(TacbenchError, match="--alpha-mode is a TAC option that td3 does not use"):
         flags_as_overrides("td3", {"alpha_mode": "auto"})
     with pytest.raises(TacbenchError, match="--learning-starts is a TAC option that ppo"):
