@@ -190,17 +190,17 @@ def test_unfinished_runs_are_left_out_and_every_gap_is_said(tmp_path: Path) -> N
     assert row["fixed best q"] == pytest.approx(235.0)
     assert pd.read_csv(out / "final_q.csv")["final q"].tolist() == [1.4] * 8
     assert pd.read_csv(out / "cautions.csv")["caution"].tolist() == [
-        "left out 2 unfinished runs: tac/Hopper-v4/q1-a0.2/seed0 (interrupted at step 50), "
-        "tac/Hopper-v4/qauto-a0.2/seed150 (running at step 50)",
-        "Hopper-v4: left out the population seeds 80,90,100,110,120,130,140,150, one of its "
-        "members unfinished",
-        "Hopper-v4 seeds 0,10,20,30,40,50,60,70: no finished q1-a0.2 run of seeds 0; its "
+        "left out 2 runs short of the budget: tac/Hopper-v4/q1-a0.2/seed0 (interrupted at step "
+        "50), tac/Hopper-v4/qauto-a0.2/seed150 (running at step 50)",
+        "Hopper-v4: left out the population seeds 80,90,100,110,120,130,140,150: its member of "
+        "seed 150 did not finish or cannot be used",
+        "Hopper-v4 seeds 0,10,20,30,40,50,60,70: no finished q1-a0.2 run of seed 0; its "
         "'fixed q = 1' columns are empty",
         "Hopper-v4 q = 1: learned alpha left out, no finished q1-aauto0.2 run",
         "Hopper-v4 q = 2: learned alpha left out, no finished q2-aauto0.2 run",
         "HalfCheetah-v4: no finished run of the study",
     ]
-    assert "caution: left out 2 unfinished runs" in result.output
+    assert "caution: left out 2 runs short of the budget" in result.output
     assert {p.name for p in out.iterdir()} == {f"{name}.csv" for name in study.TABLES}
 
 
@@ -224,3 +224,29 @@ def test_a_members_losses_csv_without_its_q_is_a_one_line_error(
     assert result.exit_code == 2, result.output
     assert f"{run / 'losses.csv'}" in result.output and message in result.output
     assert "Traceback" not in result.output and "restore the run's losses.csv" in result.output
+
+
+@pytest.mark.unit
+def test_a_population_short_of_a_member_is_left_out_and_unreadable_runs_are_named(
+    tmp_path: Path,
+) -> None:
+    """A population averaged over the members it had left (one missing, one whose config.json
+    cannot be read) used to be compared as whole; a run the loader skipped went unmentioned."""
+    first, second = range(0, 80, 10), range(80, 160, 10)
+    for seed in first:
+        _population_run(tmp_path, seed, first, "1.4")
+    for seed in second:
+        if seed != 90:  # its directory is gone
+            _population_run(tmp_path, seed, second, "1.6")
+    (tmp_path / "runs/tac/Hopper-v4/qauto-a0.2/seed10/config.json").write_text("{")
+    table, cautions = study.finals(load_runs(tmp_path, "eval"))
+    assert table.empty
+    assert cautions == [
+        "left out 1 run directory that cannot be used: tac/Hopper-v4/qauto-a0.2/seed10 "
+        "(config.json unreadable: Expecting property name enclosed in double quotes: line 1 "
+        "column 2 (char 1))",
+        "Hopper-v4: left out the population seeds 0,10,20,30,40,50,60,70: its member of seed "
+        "10 did not finish or cannot be used",
+        "Hopper-v4: left out the population seeds 80,90,100,110,120,130,140,150: its member of "
+        "seed 90 did not finish or cannot be used",
+    ]

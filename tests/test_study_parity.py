@@ -322,3 +322,19 @@ def test_analyse_writes_every_table_it_names(tmp_path: Path) -> None:
     files = {*(f"{name}.csv" for name in parity.TABLES), parity.FIGURE}
     assert {p.name for p in out.iterdir()} == files
     assert (out / "cautions.csv").read_text() == "caution\n"  # none, said by an empty table
+
+
+def test_runs_left_out_are_named_in_the_cautions(tmp_path: Path) -> None:
+    """A failed run (the loader skips it) and one short of its budget used to go unmentioned."""
+    for seed in (0, 10):
+        _hopper(tmp_path / "study", "tac", seed, 4000)
+        _hopper(tmp_path / "study", "sac-sb3", seed, 4000)
+    _hopper(tmp_path / "study", "tac", 20, 4000, "interrupted")
+    _hopper(tmp_path / "study", "sac-sb3", 20, 4000, "failed")
+    tables = parity.analyse(tmp_path / "study", reps=100)
+    assert tables["cautions"]["caution"].tolist() == [
+        "left out 1 run directory that cannot be used: sac-sb3/Hopper-v4/default/seed20 (run "
+        "failed at step 2000: no reason given)",
+        "left out 1 run short of the budget: tac/Hopper-v4/q1-a0.2/seed20 (interrupted at step "
+        "2,000)",
+    ]

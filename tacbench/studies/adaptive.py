@@ -27,6 +27,7 @@ from tacbench.bootstrap import mean_difference
 from tacbench.errors import TacbenchError
 from tacbench.report.load import RunSet, load_runs
 from tacbench.report.tables import DEFAULT_LAST, run_scores
+from tacbench.studies import cautions as cautions_of
 
 ENVS = ("HalfCheetah-v4", "Hopper-v4")
 BEST_Q = {env: paper.TASK_FACTS[paper.task_name(env)].best_q for env in ENVS}
@@ -62,31 +63,32 @@ def _study_runs(runs: pd.DataFrame) -> pd.DataFrame:
 
 def finals(runset: RunSet) -> tuple[pd.DataFrame, list[str]]:
     """One row per finished run of the study: env, variant, q (NaN: learned), seed,
-    population, path and final return; and cautions naming what was left out: unfinished runs,
-    and a population with an unfinished member (its members copy each other: it is one unit)."""
+    population, path and final return; and cautions naming what was left out: run directories
+    that cannot be used, runs short of their budget, and a population short of a member (its
+    members copy each other: it is one unit)."""
     scores = run_scores(runset.data, DEFAULT_LAST)
-    table = _study_runs(runset.runs).join(scores, on="run")
-    unfinished = table[table["partial"]]
-    cautions = []
-    if not unfinished.empty:
-        listed = ", ".join(
-            f"{r.path} ({r.state} at step {r.step_reached:,.0f})"
-            for r in unfinished[:5].itertuples()
-        )
-        more = f" and {len(unfinished) - 5} more" if len(unfinished) > 5 else ""
-        runs = "run" if len(unfinished) == 1 else "runs"
-        cautions.append(f"left out {len(unfinished)} unfinished {runs}: {listed}{more}")
-    cut = {(e, p) for e, p in zip(unfinished["env"], unfinished["population"], strict=True) if p}
-    whole = [
-        (env, population) not in cut
-        for env, population in zip(table["env"], table["population"], strict=True)
-    ]
-    cautions += [
-        f"{env}: left out the population {population}, one of its members unfinished"
-        for env, population in sorted(cut)
-    ]
-    table = table[~table["partial"] & np.array(whole, dtype=bool)]
+    study = _study_runs(runset.runs)
+    cautions = cautions_of.skipped_runs(runset.skipped) + cautions_of.short_runs(study)
+    table = study[~study["partial"]].join(scores, on="run")
+    whole = pd.Series(True, index=table.index)
+    for (env, population), members in table[table["population"] != ""].groupby(
+        ["env", "population"]
+    ):
+        missing = _member_seeds(str(population)) - set(members["seed"])
+        if missing:
+            whole[members.index] = False
+            members_of = "member" if len(missing) == 1 else "members"
+            cautions.append(
+                f"{env}: left out the population {population}: its {members_of} of "
+                f"{cautions_of.seeds(missing)} did not finish or cannot be used"
+            )
+    table = table[whole]
     return table[["env", "variant", "q", "seed", "population", "path", "final"]], cautions
+
+
+def _member_seeds(population: str) -> set[int]:
+    """The seeds a population's name lists (``seeds 0,10,20``: the loader's name)."""
+    return {int(seed) for seed in population.removeprefix("seeds ").split(",")}
 
 
 def population_table(table: pd.DataFrame) -> tuple[pd.DataFrame, list[str]]:
@@ -104,9 +106,9 @@ def population_table(table: pd.DataFrame) -> tuple[pd.DataFrame, list[str]]:
             row[f"fixed {label}"] = fixed["final"].mean() if len(fixed) == len(seeds) else np.nan
             row[f"auto - {label}"] = row["q auto"] - row[f"fixed {label}"]  # type: ignore[operator]
             if len(fixed) != len(seeds):
-                missing = ", ".join(str(s) for s in sorted(seeds - set(fixed["seed"])))
+                missing = cautions_of.seeds(seeds - set(fixed["seed"]))
                 cautions.append(
-                    f"{env} {population}: no finished {variant} run of seeds {missing}; its "
+                    f"{env} {population}: no finished {variant} run of {missing}; its "
                     f"'fixed {label}' columns are empty"
                 )
         rows.append(row)
@@ -128,11 +130,11 @@ def alpha_table(table: pd.DataFrame, reps: int = REPS) -> tuple[pd.DataFrame, li
                 & table["seed"].isin(learned["seed"])
             ]
             if learned.empty or len(fixed) != len(learned):
-                missing = sorted(set(learned["seed"]) - set(fixed["seed"]))
+                missing = cautions_of.seeds(set(learned["seed"]) - set(fixed["seed"]))
                 lacking = (
                     f"no finished q{q:g}-aauto0.2 run"
                     if learned.empty
-                    else f"no finished q{q:g}-a0.2 run of seeds {', '.join(map(str, missing))}"
+                    else f"no finished q{q:g}-a0.2 run of {missing}"
                 )
                 cautions.append(f"{env} q = {q:g}: learned alpha left out, {lacking}")
                 continue

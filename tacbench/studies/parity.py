@@ -70,11 +70,18 @@ def load(results: Path, by_variant: bool = False) -> pd.DataFrame:
     reference profile, and sac-sb3), runs trained to their budget only, one budget per task.
     Columns: method (one of :data:`METHODS`; with ``by_variant``, TAC runs are named ``TAC
     <variant>`` instead, for an ablation's variants of one method), env, seed, step, return."""
+    return _load(results, by_variant)[0]
+
+
+def _load(results: Path, by_variant: bool) -> tuple[pd.DataFrame, list[str]]:
+    """:func:`load`, and cautions naming the run directories it left out."""
     from tacbench.report.load import load_runs  # the report package: only when runs are read
+    from tacbench.studies import cautions
 
     runset = load_runs(results, "eval")
     runs = runset.runs
     chosen = runs[((runs["algo"] == "tac") & (runs["q"] == 1.0)) | (runs["algo"] == "sac-sb3")]
+    left_out = cautions.skipped_runs(runset.skipped) + cautions.short_runs(chosen)
     chosen = chosen[~chosen["partial"]].copy()
     if chosen.empty:
         raise TacbenchError(
@@ -99,7 +106,7 @@ def load(results: Path, by_variant: bool = False) -> pd.DataFrame:
             f"{several[several > 1].to_dict()}; keep one per method and task."
         )
     data = runset.data.merge(chosen[["run", "method"]], on="run")
-    return data[["method", "env", "seed", "step", "return"]].reset_index(drop=True)
+    return data[["method", "env", "seed", "step", "return"]].reset_index(drop=True), left_out
 
 
 def _method(algo: str, variant: str, by_variant: bool = False) -> str:
@@ -147,10 +154,14 @@ def recorded_finals(path: Path, finals: pd.DataFrame) -> pd.DataFrame:
     from tacbench.envs import resolve_env_id  # Gymnasium's registry: only when a file is read
 
     for env in sorted(set(recorded["env"].astype(str))):
-        if resolve_env_id(env) != env:
+        try:
+            known = resolve_env_id(env)
+        except TacbenchError as err:
+            raise TacbenchError(f"{path}: {err}") from None
+        if known != env:
             raise TacbenchError(
-                f"{path} names the task {env!r}; write its Gymnasium id, "
-                f"{resolve_env_id(env)!r}, as the run directories do."
+                f"{path} names the task {env!r}; write its Gymnasium id, {known!r}, as the run "
+                "directories do."
             )
     unknown = sorted(set(recorded["method"]) - set(METHODS))
     if unknown:
@@ -266,11 +277,12 @@ def analyse(
     one side)."""
     if not 0 < fraction <= 1:
         raise TacbenchError(f"--fraction must be in (0, 1] (got {fraction}).")
-    data = load(results, by_variant)
+    data, cautions = _load(results, by_variant)
     table, final = curves(data), final_returns(data, fraction)
     for path in finals:
         final = recorded_finals(path, final)
-    differences, cautions = summary(final, reps)
+    differences, gaps = summary(final, reps)
+    cautions += gaps
     caution = pd.DataFrame({"caution": cautions}, dtype=str)
     return {"curves": table, "finals": final, "summary": differences, "cautions": caution}
 
