@@ -18,7 +18,7 @@ from tacbench.interrupts import SecondSignal
 from tacbench.runs import Outcome
 from tacbench.runs.checkpoints import NoCommonCheckpoint
 from tacbench.runs.resume_checks import DamagedRun
-from tacbench.sweep import worker
+from tacbench.sweep import driver, worker
 from tacbench.sweep.plan import Run, Unit
 
 pytestmark = pytest.mark.unit
@@ -114,8 +114,30 @@ def test_a_unit_whose_only_member_is_damaged_reports_it_as_that_runs_error(
     monkeypatch.setattr(trainers, "trainer_for", lambda algo: trainer)
     result = worker.execute(worker.Job(unit, tmp_path, tmp_path / "log"), lambda step: False)
     message = "DamagedRun: cannot resume: train.csv is missing"
-    assert (result.outcomes, result.error) == ((), message)
+    assert (result.outcomes, result.error) == ((), "")
     assert result.run_errors == {unit.runs[0].key: message}
+
+
+def test_a_damaged_members_error_stays_its_own_when_the_rest_then_fail(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Member 10 left out, members 0 and 20 then crash: each run is charged with its own
+    error (the damaged run's reason used to be lost, and the crash charged to it)."""
+    unit = _unit((0, 10, 20))
+    damaged = DamagedRun("cannot resume: eval.csv differs", tmp_path / unit.runs[1].key)
+
+    class _Crashing:
+        def train(self, configs: list[Any], out: Path, **_: Any) -> list[Outcome]:
+            if any(c.seed == 10 for c in configs):
+                raise damaged
+            raise RuntimeError("the simulator crashed")
+
+    monkeypatch.setattr(trainers, "trainer_for", lambda algo: _Crashing())
+    result = worker.execute(worker.Job(unit, tmp_path, tmp_path / "log"), lambda step: False)
+    assert result.error == "RuntimeError: the simulator crashed"
+    assert result.run_errors == {unit.runs[1].key: f"DamagedRun: {damaged}"}
+    reasons = [driver._error_of(run, result.error, result) for run in unit.runs]
+    assert reasons == [result.error, f"DamagedRun: {damaged}", result.error]
 
 
 def test_a_second_signal_in_a_worker_ends_its_unit_quietly(

@@ -303,8 +303,6 @@ class _Driver:
 
 
 def _error_of(run: plan.Run, error: str, result: worker.JobResult | None) -> str:
-    """The error that ended ``run``'s attempt: the unit's, unless it named the runs it is the
-    error of (a member left out of its group: the others trained on)."""
-    if result is None or not result.run_errors:
-        return error
-    return result.run_errors.get(run.key, "")
+    """The error that ended ``run``'s attempt: its own, if the unit left it out (it could not
+    continue: the others trained on), else the unit's."""
+    return result.run_errors.get(run.key, error) if result is not None else error

@@ -56,8 +56,8 @@ class Job:
 
 @dataclass(frozen=True)
 class JobResult:
-    """How a unit ended: the trainer's outcomes, or the error that ended it (``run_errors``:
-    the runs it is the error of, when it is not every unfinished run's); with ``return_files``
+    """How a unit ended: the trainer's outcomes, or the error that ended it, and the errors of
+    runs left out of it (``run_errors``, by run key: theirs instead); with ``return_files``
     each run's small files (run key -> file name -> bytes)."""
 
     outcomes: tuple[Outcome, ...] = ()
@@ -101,11 +101,9 @@ def execute(job: Job, report: Report, every_s: float = 1.0) -> JobResult:
         return JobResult(host=host)
     except Exception as err:
         traceback.print_exc()
-        return JobResult(
-            error=_one_line(err), host=host, disk_full=isinstance(err, DiskError) and err.full
-        )
-    first = next(iter(damaged.values()), "")
-    return JobResult(tuple(outcomes), error=first, run_errors=damaged, host=host)
+        full = isinstance(err, DiskError) and err.full
+        return JobResult(error=_one_line(err), run_errors=damaged, host=host, disk_full=full)
+    return JobResult(tuple(outcomes), run_errors=damaged, host=host)
 
 
 def _one_line(err: BaseException) -> str:
