@@ -28,29 +28,50 @@ def lock_path(directory: Path) -> Path:
     return directory.parent / f".{directory.name}.lock"
 
 
+class Held(Exception):
+    """Another process holds the lock; ``recorded`` is what its holder wrote in the file."""
+
+    def __init__(self, recorded: str) -> None:
+        super().__init__(recorded)
+        self.recorded = recorded
+
+
+def hold(path: Path, record: str) -> int:
+    """Take the exclusive ``flock`` on ``path`` (created if need be) without waiting, and write
+    ``record`` (who holds it) in the file: the open descriptor, whose closing releases the
+    lock. :class:`Held` if another process holds it."""
+    descriptor = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        try:
+            fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise Held(os.pread(descriptor, 4096, 0).decode(errors="replace").strip()) from None
+        os.ftruncate(descriptor, 0)
+        os.pwrite(descriptor, record.encode(), 0)
+    except BaseException:
+        os.close(descriptor)
+        raise
+    return descriptor
+
+
 @contextmanager
 def _hold(directory: Path, hint: str) -> Iterator[None]:
     path = lock_path(directory)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        descriptor = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        descriptor = hold(path, f"PID {os.getpid()} on {socket.gethostname()}\n")
     except (NotADirectoryError, FileExistsError):  # others (a read-only disk) say what they are
         raise TacbenchError(
             f"cannot create {path}: a file stands where a folder of {directory} goes; nothing "
             "was changed. Move it away, or write somewhere else."
         ) from None
+    except Held as held:
+        raise TacbenchError(
+            f"{directory} is being written by another tacbench process "
+            f"({held.recorded or 'holder unknown'}); wait for it to finish or stop it, then "
+            f"run this again{hint}."
+        ) from None
     try:
-        try:
-            fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            holder = os.pread(descriptor, 256, 0).decode(errors="replace").strip()
-            raise TacbenchError(
-                f"{directory} is being written by another tacbench process "
-                f"({holder or 'holder unknown'}); wait for it to finish or stop it, then "
-                f"run this again{hint}."
-            ) from None
-        os.ftruncate(descriptor, 0)
-        os.pwrite(descriptor, f"PID {os.getpid()} on {socket.gethostname()}\n".encode(), 0)
         yield
     finally:
         os.close(descriptor)  # releases the lock

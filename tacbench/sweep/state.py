@@ -15,7 +15,6 @@ Every JSON file is written atomically (:func:`tacbench.runs.atomic_write_json`).
 
 from __future__ import annotations
 
-import fcntl
 import json
 import os
 import socket
@@ -26,6 +25,7 @@ from typing import Any
 
 from tacbench import runs
 from tacbench.errors import TacbenchError
+from tacbench.runs import locks
 
 
 def sweep_dir(out: Path) -> Path:
@@ -139,20 +139,14 @@ class Lock:
 
     def __enter__(self) -> Lock:
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        descriptor = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
-        try:
-            fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            holder = _holder(os.pread(descriptor, 4096, 0))
-            os.close(descriptor)
-            raise TacbenchError(
-                f"another sweep ({holder}) is writing to {self.out}; wait for it to end, or "
-                "stop it (Ctrl-C) first."
-            ) from None
         me = {"pid": os.getpid(), "host": socket.gethostname(), "started": runs.now_iso()}
-        os.ftruncate(descriptor, 0)
-        os.pwrite(descriptor, json.dumps(me).encode(), 0)
-        self._descriptor = descriptor
+        try:
+            self._descriptor = locks.hold(self.path, json.dumps(me))
+        except locks.Held as held:
+            raise TacbenchError(
+                f"another sweep ({_holder(held.recorded)}) is writing to {self.out}; wait for "
+                "it to end, or stop it (Ctrl-C) first."
+            ) from None
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -161,11 +155,10 @@ class Lock:
             self._descriptor = None
 
 
-def _holder(recorded: bytes) -> str:
+def _holder(recorded: str) -> str:
     """Who holds the lock, as its file records it (nothing yet, while the holder writes it)."""
     try:
         holder = json.loads(recorded)
         return f"pid {holder['pid']} on {holder['host']}, started {holder['started']}"
     except (ValueError, TypeError, KeyError):
         return "holder not recorded yet"
-    return True
