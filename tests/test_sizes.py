@@ -70,7 +70,8 @@ def test_a_sweep_refuses_units_too_big_before_anything_trains(
     args += ["--hidden-sizes", "100000,100000", "--workers", "1", "--out", str(tmp_path)]
     result = run_cli([*args, "--dry-run"] if dry_run else args)
     assert result.returncode == 2, result.stdout + result.stderr
-    assert "this run would need about" in result.stderr and "networks" in result.stderr
+    unit = "runs/tac/Hopper-v4/q1-a0.2-ls500-h100000x100000-bs32/seed0"
+    assert f"the unit {unit} (1 run): this run would need about" in result.stderr
     assert not (tmp_path / "runs").exists()
 
 

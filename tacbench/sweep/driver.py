@@ -94,7 +94,11 @@ def check_sizes(work: plan.SweepPlan, options: Options) -> None:
     run here (a cluster's nodes are checked where they train)."""
     if options.executor == "local":
         for unit in work.units:
-            trainers.check_sizes([run.config for run in unit.runs])
+            try:
+                trainers.check_sizes([run.config for run in unit.runs])
+            except TacbenchError as err:
+                runs_in = f"{len(unit.runs)} run{'s' if len(unit.runs) != 1 else ''}"
+                raise TacbenchError(f"the unit {unit.key} ({runs_in}): {err}") from None
 
 
 def unit_size(options: Options) -> plan.UnitSize:
