@@ -129,17 +129,12 @@ _FLAG_KEYS = {("sac-sb3", "alpha"): "ent_coef", ("sac-sb3", "target_entropy"): "
 _FLAG_KEYS.update({(algo, "learning_starts"): "learning_starts" for algo in hyperparams.OFF_POLICY})
 
 
-def flags_setting(algo: str, key: str) -> str:
-    """The ``tacbench run`` flags that set ``algo``'s hyperparameter ``key`` (``--alpha or
-    --alpha-mode`` for sac-sb3's ent_coef)."""
-    flags = [
-        f"--{name.replace('_', '-')}"
-        for (a, name), k in _FLAG_KEYS.items()
-        if (a, k) == (algo, key)
-    ]
-    if (algo, key) == ("sac-sb3", "ent_coef"):
-        flags.append("--alpha-mode")
-    return " or ".join(flags)
+def flag_key(algo: str, name: str) -> str | None:
+    """The hyperparameter of ``algo`` that the ``tacbench run`` setting ``name`` sets
+    (``alpha_mode`` too sets sac-sb3's ent_coef); None if it sets none."""
+    if (algo, name) == ("sac-sb3", "alpha_mode"):
+        return "ent_coef"
+    return _FLAG_KEYS.get((algo, name))
 
 
 def flags_as_overrides(algo: str, given: Mapping[str, Any]) -> list[str]:

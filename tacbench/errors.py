@@ -8,3 +8,9 @@ a traceback and exits with status 2; library callers catch it like any exception
 
 class TacbenchError(Exception):
     """A mistake the user can fix; the message says how."""
+
+
+def one_line(err: BaseException) -> str:
+    """``err`` as one line for a message or a record: its type and its message's first line."""
+    lines = str(err).strip().splitlines()
+    return f"{type(err).__name__}: {lines[0] if lines else ''}"

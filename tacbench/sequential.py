@@ -261,7 +261,10 @@ def replay_study(
     fixed q (q auto): their runs would be taken as one method's."""
     table = study_scores(results)
     if table.empty:
-        raise TacbenchError(f"no complete TAC run under {results}: nothing to replay.")
+        raise TacbenchError(
+            f"no complete TAC run under {results}: nothing to replay; give --results a q-grid "
+            "study's folder (results/studies/paper-q-grid-100k, the default)."
+        )
     replays = {}
     for env, runs in table.groupby("env", sort=True):
         _check_one_setting_per_q(str(env), runs)

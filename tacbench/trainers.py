@@ -52,15 +52,19 @@ def make_configs(
         return list(configs), notes
     from baselines import config as baseline_config  # torch and SB3 only when this runs
 
-    overrides = tac_flags_for_baseline(algo, tac_settings_given or {})
-    flagged = {item.partition("=")[0]: item for item in overrides}
+    given = dict(tac_settings_given or {})
+    overrides = tac_flags_for_baseline(algo, given)
     for item in hp:
         key = item.partition("=")[0].strip()
-        if key in flagged:
-            flags = baseline_config.flags_setting(algo, key)
+        flags = [
+            f"--{name.replace('_', '-')} {value}"
+            for name, value in given.items()
+            if baseline_config.flag_key(algo, name) == key
+        ]
+        if flags:
             raise TacbenchError(
-                f"--hp {item} sets {key}, which a flag given with it sets too "
-                f"({flagged[key]}: {flags}); give one of the two."
+                f"--hp {item} sets {key}, which {' and '.join(flags)} set"
+                f"{'s' if len(flags) == 1 else ''} too; give one of the two."
             )
     built, _, notes = baseline_config.make_configs(
         algo, env, task, seeds, [*overrides, *hp], **settings

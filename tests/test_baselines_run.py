@@ -112,12 +112,12 @@ def test_cli_trains_two_seeds_then_skips_refuses_and_forces(tmp_path: Path) -> N
         (["--algo", "ppo", "--hp", "batch_size=1"], "PPO normalises the advantages"),
         (  # used to say that --hp learning_starts was given twice
             ["--algo", "td3", "--learning-starts", "100", "--hp", "learning_starts=200"],
-            "--hp learning_starts=200 sets learning_starts, which a flag given with it sets too "
-            "(learning_starts=100: --learning-starts); give one of the two.",
+            "--hp learning_starts=200 sets learning_starts, which --learning-starts 100 sets "
+            "too; give one of the two.",
         ),
         (
             ["--algo", "sac-sb3", "--alpha-mode", "auto", "--hp", "ent_coef=0.3"],
-            "(ent_coef=auto: --alpha or --alpha-mode)",
+            "--hp ent_coef=0.3 sets ent_coef, which --alpha-mode auto sets too",
         ),
     ],
 )

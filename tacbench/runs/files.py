@@ -25,7 +25,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any, Literal
 
-from tacbench.errors import TacbenchError
+from tacbench.errors import TacbenchError, one_line
 from tacbench.runs.checkpoints import DISK_ERRNOS, recorded_logs, write_durably
 from tacbench.runs.resume_checks import (
     START_OVER,
@@ -315,7 +315,7 @@ class RunWriter:
         disk = isinstance(error, OSError) and error.errno in DISK_ERRNOS
         if isinstance(error, TacbenchError) or disk:
             return
-        what = f"{type(error).__name__}: {error}".splitlines()[0]
+        what = one_line(error)
         reason = f"{CRASHED} at step {step}: {what}; --resume continues from the last checkpoint"
         with contextlib.suppress(OSError):
             self.status("failed", self._status_step, reason)

@@ -24,7 +24,7 @@ import pandas as pd
 
 from tacbench import paper
 from tacbench.bootstrap import mean_difference
-from tacbench.errors import TacbenchError
+from tacbench.errors import TacbenchError, one_line
 from tacbench.report.load import RunSet, load_runs
 from tacbench.report.tables import DEFAULT_LAST, run_scores
 from tacbench.studies import cautions as cautions_of
@@ -179,9 +179,9 @@ def _last_q(losses: Path) -> float:
     try:
         q = pd.read_csv(losses, usecols=["q"])["q"]
     except (OSError, ValueError) as err:  # missing, empty, no q column
-        reason = f"{type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''}"
         raise TacbenchError(
-            f"cannot read the learned q from {losses} ({reason}); restore the run's losses.csv."
+            f"cannot read the learned q from {losses} ({one_line(err)}); restore the run's "
+            "losses.csv."
         ) from None
     if q.empty or not np.isfinite(q.iloc[-1]):
         raise TacbenchError(

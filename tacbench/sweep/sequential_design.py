@@ -47,7 +47,8 @@ class Design:
         if self.n * self.K > MAX_RUNS_PER_METHOD:
             raise TacbenchError(
                 f"--interim-runs {self.n} x --interims {self.K} is {self.n * self.K:,} runs per "
-                f"method and task, above {MAX_RUNS_PER_METHOD:,}; the paper ran 10."
+                f"method and task, above {MAX_RUNS_PER_METHOD:,} (the paper ran 10); lower "
+                "--interim-runs or --interims."
             )
         if not 0.0 < self.alpha < 1.0:
             raise TacbenchError(f"--fwer must lie between 0 and 1 (got {self.alpha!r}).")

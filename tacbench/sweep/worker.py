@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from tacbench import runs, trainers
+from tacbench.errors import one_line
 from tacbench.interrupts import SecondSignal
 from tacbench.runs import checkpoints
 from tacbench.runs.checkpoints import FULL_ERRNOS, DiskError, NoCommonCheckpoint
@@ -102,13 +103,8 @@ def execute(job: Job, report: Report, every_s: float = 1.0) -> JobResult:
     except Exception as err:
         traceback.print_exc()
         full = isinstance(err, DiskError) and err.full
-        return JobResult(error=_one_line(err), run_errors=damaged, host=host, disk_full=full)
+        return JobResult(error=one_line(err), run_errors=damaged, host=host, disk_full=full)
     return JobResult(tuple(outcomes), run_errors=damaged, host=host)
-
-
-def _one_line(err: BaseException) -> str:
-    message = str(err).strip().splitlines()
-    return f"{type(err).__name__}: {message[0] if message else ''}"
 
 
 def _train(job: Job, stop: StopHook, damaged: dict[str, str]) -> list[Outcome]:
@@ -131,7 +127,7 @@ def _train(job: Job, stop: StopHook, damaged: dict[str, str]) -> list[Outcome]:
             if not left_out:
                 raise
             print(f"left out of its unit: {err}", file=sys.stderr, flush=True)
-            damaged[left_out[0].key] = _one_line(err)
+            damaged[left_out[0].key] = one_line(err)
             rest = [run for run in members if run not in left_out]
             return call(rest) if rest else []
         except NoCommonCheckpoint as err:  # one member has none, or only damaged ones
