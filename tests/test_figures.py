@@ -22,7 +22,8 @@ from tacbench.theory.figures import (
     qexp_qlog_entropy_table,
     write_figures,
 )
-from tacbench.theory.mdp import GRID_QS
+from tacbench.theory.mdp import GRID_ALPHA, GRID_QS, error_bounds, grid_world
+from tacbench.theory.tsallis import exp_q, log_q
 
 pytestmark = pytest.mark.unit
 
@@ -37,6 +38,10 @@ def test_qexp_qlog_entropy_table() -> None:
         return table[(table["function"] == name) & (table["q"] == q)]
 
     np.testing.assert_allclose(part("exp_q", 1.0)["value"], np.exp(part("exp_q", 1.0)["x"]))
+    for q in set(table["q"]):  # every q's own function, not q = 1's
+        for name, function in (("exp_q", exp_q), ("ln_q", log_q)):
+            rows = part(name, q)
+            np.testing.assert_array_equal(rows["value"], function(rows["x"].to_numpy(), q))
     ln2 = part("ln_q", 2.0)
     np.testing.assert_allclose(ln2["value"], ln2["x"] - 1.0)  # ln_2(x) = x - 1
     s2 = part("S_q", 2.0)
@@ -91,8 +96,12 @@ def test_error_bounds_table() -> None:
     table = error_bounds_table()
     assert list(table.columns) == ["q", "J", "lower_bound", "upper_bound"]
     assert tuple(table["q"]) == GRID_QS
-    assert (table["lower_bound"] <= table["J"]).all()
-    assert (table["J"] <= table["upper_bound"]).all()
+    rows = error_bounds(grid_world(), GRID_QS, GRID_ALPHA)  # each column its own field
+    assert table["J"].tolist() == [r.J for r in rows]
+    assert table["lower_bound"].tolist() == [r.lower_bound for r in rows]
+    assert table["upper_bound"].tolist() == [r.upper_bound for r in rows]
+    assert (table["lower_bound"] < table["J"]).all() and (table["J"] < table["upper_bound"]).all()
+    assert table["J"].is_monotonic_increasing  # less entropy, nearer the unregularised optimum
     assert table["upper_bound"].nunique() == 1
 
 

@@ -202,7 +202,14 @@ def test_a_folder_named_with_one_inside_it_counts_each_sweep_once(tmp_path: Path
             },
             "'finished' is None",
         ),
-        ("summary.json", {"bill": {"wall_s": 1}}, "its bill lacks one of"),
+        (
+            "summary.json",
+            {
+                "bill": dict.fromkeys(["wall_s", "cpu_class", "priced_wall_s", "workers"], 1),
+                "finished": "2026-12-05T01:00:00Z",
+            },
+            "records no sweep command",
+        ),
     ],
 )
 def test_damaged_records_are_a_one_line_error(
@@ -214,7 +221,7 @@ def test_damaged_records_are_a_one_line_error(
     path.write_text(json.dumps(record))
     result = CliRunner().invoke(cli, ["study", "bills", str(tmp_path)])
     assert result.exit_code == 2, result.output
-    assert f"{path}: " in result.output and message in result.output
+    assert str(path) in result.output and message in result.output
     assert "restore it from the study's copy" in result.output
     assert "Traceback" not in result.output
 
