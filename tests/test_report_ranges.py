@@ -10,6 +10,7 @@ import pandas as pd
 import pytest
 
 from tacbench.report import ReportOptions, analyse, write_report
+from tacbench.report.load import load_runs
 from tacbench.report.ranges import within_run_spread
 from tests.report_fixtures import synthetic_tree
 
@@ -34,10 +35,18 @@ def test_each_task_pools_its_runs_by_range_and_compares_the_outer_ranges(tmp_pat
         assert row["p_middle"] == 1.0 and row["p_low"] == 1.0  # every middle run is higher
         assert row["iqm_low"] <= row["iqm"] <= row["iqm_high"]
     assert hopper.loc["1 <= q < 2", "iqm"] > hopper.loc["q >= 2", "iqm"]
+    runset = load_runs(tmp_path, "eval")  # each range's spread: its runs' mean
+    spread = within_run_spread(runset.data, ReportOptions(tmp_path, tmp_path).last)
+    runs = runset.runs[(runset.runs["env"] == "Hopper-v4") & (runset.runs["algo"] == "tac")]
+    for name, qs in (("0 < q < 1", [0.5]), ("1 <= q < 2", [1.0, 1.5]), ("q >= 2", [3.0])):
+        members = runs.loc[runs["q"].isin(qs), "run"]
+        assert hopper.loc[name, "spread"] == pytest.approx(spread[members].mean())
+        assert hopper.loc[name, "spread"] > 0
     everything = table[table["env"] == "all tasks"].set_index("range")
     assert list(everything["runs"]) == [6, 12, 6]  # two tasks pooled
     assert (everything["iqm"].between(0.0, 1.0)).all()  # normalised scores
     assert everything["spread"].isna().all()
+    assert (everything.loc[["0 < q < 1", "q >= 2"], "p_middle"] == 1.0).all()
 
 
 def test_a_sweep_inside_one_range_has_no_comparison(tmp_path: Path) -> None:
