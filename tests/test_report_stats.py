@@ -84,6 +84,20 @@ def test_mean_and_iqm_intervals_cover_the_true_values_at_about_95_percent() -> N
         assert 0.90 <= count / trials <= 0.96, name
 
 
+def test_each_interval_is_its_own_statistics() -> None:
+    """The coverage test above holds for any interval centred on a symmetric estimate (both
+    true values are 0), so an IQM interval computed as the mean's would pass it: with one
+    outlying run the two must differ, the IQM's leaving the outlier out."""
+    tasks = [np.array([0.0] * 7 + [100.0]), np.array([1.0, 2.0, 3.0, 4.0])]
+    estimates = interval_estimates(tasks, 1000, seed=0)
+    iqm_value, iqm_low, iqm_high = estimates["iqm"]
+    mean_value, mean_low, mean_high = estimates["mean"]
+    assert iqm_value == pytest.approx(trim_mean(np.concatenate(tasks), 0.25))
+    assert mean_value == pytest.approx((100.0 / 8 + 2.5) / 2)
+    assert iqm_high < mean_value and iqm_low <= iqm_value <= iqm_high
+    assert mean_low <= mean_value <= mean_high and mean_high > 5.0
+
+
 def test_improvement_intervals_cover_the_true_probability() -> None:
     rng = np.random.default_rng(7)
     true_p = norm.cdf(0.8 / np.sqrt(2))  # P(X > Y) for X ~ N(0.8, 1), Y ~ N(0, 1)
@@ -192,9 +206,11 @@ def test_adding_a_method_or_a_task_leaves_every_other_interval_as_it_was() -> No
         few.loc[few["env"] != ALL_TASKS, columns].reset_index(drop=True),
         per_task[columns].reset_index(drop=True),
     )
-    before = per_task_estimates(_finals(cells), 300, seed)
-    after = per_task_estimates(_finals(more), 300, seed).iloc[: len(before)]
-    pd.testing.assert_frame_equal(before, after)
+    first = {key: more[key] for key in more if key not in cells} | cells  # new cells first
+    before = per_task_estimates(_finals(cells), 300, seed).set_index(["env", "method"])
+    after = per_task_estimates(_finals(first), 300, seed).set_index(["env", "method"])
+    assert after.index[0] == ("A", "PPO")  # so the old cells moved, and kept their intervals
+    pd.testing.assert_frame_equal(before, after.loc[before.index])
 
 
 def test_the_same_comparison_gets_the_same_interval_under_any_label() -> None:
