@@ -29,7 +29,7 @@ from typing import Any
 
 import torch
 
-from tacbench import envs, paper, training
+from tacbench import envs, memory, paper, training
 from tacbench.config import RunConfig
 from tacbench.errors import TacbenchError
 from tacbench.hardware import configure_process, cpu_class, cpu_name
@@ -142,6 +142,16 @@ def contestants(options: BenchOptions) -> list[Contestant]:
     return rows
 
 
+def check_sizes(options: BenchOptions) -> None:
+    """Refuse, before anything is built, what ``tacbench run`` refuses: more threads than
+    cores, and the largest TAC group of the bench (or of ``--profile``) too big for this
+    machine's memory (:func:`tacbench.training.check_sizes`)."""
+    memory.check_threads(options.threads)
+    largest = max((c.members for c in contestants(options) if c.tac), default=options.members)
+    group = _tac_configs(options, Contestant("TAC", largest, tac=True))
+    training.check_sizes(group, envs.env_info(options.env))
+
+
 def _tac_configs(options: BenchOptions, contestant: Contestant) -> list[RunConfig]:
     n_seeds = contestant.members // max(1, len(contestant.qs))
     configs, _ = make_run_configs(
@@ -172,6 +182,7 @@ def _sb3_sac(options: BenchOptions) -> Iterator[Advance]:
     import warnings
 
     from stable_baselines3 import SAC
+    from stable_baselines3.common.logger import Logger
 
     q_alpha = make_run_configs(
         options.env, paper.paper_task(options.env), [0], **_network_overrides(options)
@@ -196,6 +207,8 @@ def _sb3_sac(options: BenchOptions) -> Iterator[Advance]:
             device=options.device,
             verbose=0,
         )
+
+    model.set_logger(Logger(folder=None, output_formats=[]))  # not a /tmp folder per learn()
 
     def advance(n: int) -> int:
         model.learn(n, reset_num_timesteps=False, progress_bar=False)
@@ -317,11 +330,14 @@ def summary(results: list[BenchResult], options: BenchOptions, before: dict[str,
     return f"{head}\n\n{table(results)}" + (f"\n\n{phases}" if phases else "")
 
 
-def results_json(results: list[BenchResult], options: BenchOptions) -> dict[str, Any]:
-    """Everything measured, for the record."""
+def results_json(
+    results: list[BenchResult], options: BenchOptions, before: dict[str, Any]
+) -> dict[str, Any]:
+    """Everything measured, for the record: the options (with the networks trained), and the
+    machine at the start (``before``, from :func:`machine`) and at the end."""
     return {
-        "options": asdict(options),
-        "machine": machine(),
+        "options": {**asdict(options), "networks": list(options.networks)},
+        "machine": {"at start": before, "at end": machine()},
         "results": [
             {
                 **asdict(r.contestant),

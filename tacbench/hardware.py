@@ -103,25 +103,28 @@ def bf16_instructions(cpuinfo: str | None = None) -> list[str]:
     return [flag for flag in BF16_FLAGS if flag in announced]
 
 
-def check_matmul_precision(precision: str, device: str) -> None:
-    """Refuse ``--matmul-precision bf16`` on a device without native bfloat16 products, where it
-    would be emulated: slower than float32 and no cheaper for it."""
+def check_matmul_precision(
+    precision: str,
+    device: str,
+    flag: str = "--matmul-precision bf16",
+    instead: str = "use --matmul-precision float32",
+) -> None:
+    """Refuse ``--matmul-precision bf16`` (``flag``: the option that asked for it, and
+    ``instead``: what to do) on a device without native bfloat16 products, where it would be
+    emulated: slower than float32 and no cheaper for it."""
     if precision != "bf16":
         return
     import torch
 
     if device == "cuda":
         if not torch.cuda.is_bf16_supported(including_emulation=False):
-            raise TacbenchError(
-                "--matmul-precision bf16: this GPU has no native bfloat16 products; use "
-                "--matmul-precision float32."
-            )
+            raise TacbenchError(f"{flag}: this GPU has no native bfloat16 products; {instead}.")
         return
     if not bf16_instructions():
         raise TacbenchError(
-            f"--matmul-precision bf16: this CPU ({cpu_name()}) has no native bfloat16 "
-            f"instructions (none of {', '.join(BF16_FLAGS)} in /proc/cpuinfo), so its bfloat16 "
-            "products would be emulated, slower than float32; use --matmul-precision float32."
+            f"{flag}: this CPU ({cpu_name()}) has no native bfloat16 instructions (none of "
+            f"{', '.join(BF16_FLAGS)} in /proc/cpuinfo), so its bfloat16 products would be "
+            f"emulated, slower than float32; {instead}."
         )
 
 

@@ -4,6 +4,7 @@ end-to-end run through the CLI (a few steps of Pendulum; no timing is asserted).
 from __future__ import annotations
 
 import json
+import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -21,6 +22,7 @@ from tacbench.bench import (
 from tacbench.cli import cli
 from tacbench.errors import TacbenchError
 from tacbench.hardware import bf16_instructions
+from tacbench.update_profile import ELEMENTWISE
 
 pytestmark = pytest.mark.unit
 
@@ -69,11 +71,17 @@ def test_bench_options_are_checked(options: dict[str, int], message: str) -> Non
         BenchOptions(**options)  # type: ignore[arg-type]
 
 
-def test_bench_command_runs_every_contestant_and_writes_json(tmp_path: Path) -> None:
-    out = tmp_path / "bench.json"
+def test_bench_command_runs_every_contestant_and_writes_json(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    scratch = tmp_path / "tmp"  # the temporary folder: SB3 used to leave a folder per learn()
+    scratch.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(scratch))
+    out = tmp_path / "new" / "bench.json"  # its folder is made
     args = ["bench", "--env", "Pendulum-v1", "--members", "2", "--steps", "4", "--rounds", "2"]
     result = CliRunner().invoke(cli, [*args, "--learning-starts", "3", "--json", str(out)])
     assert result.exit_code == 0, result.output
+    assert not list(scratch.glob("SB3-*"))
     assert "| SB3 SAC | 1 |" in result.output and "| TAC | 2 |" in result.output
     record = json.loads(out.read_text())
     assert [(r["name"], r["members"]) for r in record["results"]] == [
@@ -82,7 +90,8 @@ def test_bench_command_runs_every_contestant_and_writes_json(tmp_path: Path) -> 
         ("TAC", 2),
     ]
     assert all(r["steps"] == [2, 2] and len(r["seconds"]) == 2 for r in record["results"])
-    assert record["machine"]["cores"] >= 1
+    assert record["machine"]["at start"]["cores"] == record["machine"]["at end"]["cores"] >= 1
+    assert record["options"]["networks"] == [300]  # the paper's, which hidden_sizes None means
     # TAC's rows split their time into the training loop's phases; SB3's has none
     sb3, *tacs = record["results"]
     assert sb3["phase_seconds"] == {}
@@ -118,6 +127,29 @@ def test_bench_command_refuses_bad_options(tmp_path: Path) -> None:
     assert "SB3 SAC" not in result.output
 
 
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (  # --profile measured one update on one thread whatever these said
+            ["--profile", "--grid", "--threads", "2", "--rounds", "3"],
+            "--profile measures one update on one thread, not the race: leave out --rounds, "
+            "--grid, --threads.",
+        ),
+        (["--no-compile-profile"], "--no-compile-profile applies with --profile only"),
+        (["--bf16", "--no-eager"], "--no-eager without --compile leaves no TAC row"),
+        (["--threads", "1000"], "--threads 1000 is more than this machine's"),
+        (["--hidden-sizes", "100000,100000"], "this run would need about"),
+        (["--members", "100000", "--hidden-sizes", "3000"], "this run would need about"),
+        (["--json", ""], "--json must name a file (got '.')"),
+    ],
+)
+def test_bench_refuses_what_it_would_ignore_or_could_not_run(args: list[str], message: str) -> None:
+    """Each used to be ignored, or to fail with a traceback once measuring had begun."""
+    result = CliRunner().invoke(cli, ["bench", "--env", "Pendulum-v1", *args])
+    assert result.exit_code == 2, result.output
+    assert message in result.output and "Traceback" not in result.output
+
+
 def test_hidden_sizes_reach_tac_and_sb3_and_bad_widths_are_refused(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
@@ -130,7 +162,15 @@ def test_hidden_sizes_reach_tac_and_sb3_and_bad_widths_are_refused(
     configs = _tac_configs(options, Contestant("TAC", 2, tac=True))
     assert [c.hidden_sizes for c in configs] == [(16, 8), (16, 8)]
     built: dict[str, Any] = {}  # what SB3's SAC is built with, without training it
-    monkeypatch.setattr(stable_baselines3, "SAC", lambda *args, **kwargs: built.update(kwargs))
+
+    class _Built:
+        def __init__(self, *args: Any, **kwargs: Any) -> None:
+            built.update(kwargs)
+
+        def set_logger(self, logger: Any) -> None:
+            built["logger"] = logger
+
+    monkeypatch.setattr(stable_baselines3, "SAC", _Built)
     with _sb3_sac(options):
         assert built["policy_kwargs"] == {"net_arch": [16, 8]}
     assert _network_overrides(BenchOptions()) == {}  # the paper's networks
@@ -164,10 +204,12 @@ def test_bench_profile_splits_an_update_into_products_and_the_rest(
         first = rows[f"product {k}x100x3 @ {k}x3x16"]
         assert first["calls"] >= 1 and first["gflops"] > 0
         assert rows["Adam"]["calls"] == 1
+        assert ELEMENTWISE not in rows  # eager: its elementwise ops are in the rest, said so
         # the named rows' times fit inside the profiled update (the rest, the update's time that
         # no row names, is the difference, so it must not be negative), and all rows add up to it
         *named, rest = profile["rows"]
-        assert rest["what"].startswith("the rest") and rest["us"] >= 0
+        assert rest["what"] == "the rest (elementwise ops, Python, dispatch)"
+        assert rest["us"] >= 0
         assert all(r["us"] > 0 if r["calls"] else r["us"] == 0 for r in named)
         total = sum(r["us"] for r in profile["rows"])
         assert total == pytest.approx(profile["profiled_update_us"], rel=1e-6)

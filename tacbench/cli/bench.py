@@ -73,9 +73,11 @@ if TYPE_CHECKING:
     "json_path",
     type=click.Path(dir_okay=False, path_type=Path),
     default=None,
-    help="Also write every measurement to this JSON file.",
+    help="Also write every measurement to this JSON file (its folder is made if need be).",
 )
+@click.pass_context
 def bench(
+    ctx: click.Context,
     env: str,
     members: int,
     steps: int,
@@ -96,18 +98,13 @@ def bench(
     """TAC (uncompiled and, with --compile, compiled; one and --members members) against
     stable-baselines3's SAC with the paper's settings, side by side in this process: steps/s,
     ratios and where each TAC step's time goes (docs/performance.md)."""
-    import json
 
     from tacbench import bench as measure  # torch and SB3 only when this command runs
     from tacbench import envs, training
     from tacbench.hardware import check_matmul_precision
     from tacbench.runs.files import check_writable
 
-    if no_sb3 and no_eager and not (compile_ or grid or profile):
-        raise TacbenchError(
-            "--no-sb3 and --no-eager leave nothing to measure; add --compile or --grid, or drop "
-            "one of them."
-        )
+    _check_combination(ctx)
     env_id = envs.resolve_env_id(env)
     envs.env_info(env_id)
     options = measure.BenchOptions(
@@ -125,8 +122,13 @@ def bench(
         hidden_sizes=hidden_sizes,
         bf16=bf16,
     )
-    check_matmul_precision("bf16" if bf16 else "float32", options.device)
+    check_matmul_precision(
+        "bf16" if bf16 else "float32", options.device, "--bf16", "leave --bf16 out"
+    )
+    measure.check_sizes(options)
     if json_path is not None:  # before minutes of measuring, not after
+        if not json_path.name or json_path.is_dir():
+            raise TacbenchError(f"--json must name a file (got {str(json_path)!r}).")
         check_writable(json_path.parent, "--json")
     if profile:
         _profile(options, not no_compile_profile, json_path)
@@ -135,13 +137,57 @@ def bench(
     results = measure.run_bench(options, report=lambda line: click.echo(line, err=True))
     click.echo(measure.summary(results, options, before))
     if json_path is not None:
-        json_path.write_text(json.dumps(measure.results_json(results, options), indent=1) + "\n")
-        click.echo(f"wrote {json_path}")
+        _write_json(json_path, measure.results_json(results, options, before))
+
+
+# what --profile measures: one update on one thread, so the race's options do not apply to it
+_RACE_ONLY = frozenset(
+    ("steps", "rounds", "learning_starts", "compile_", "grid", "no_sb3", "no_eager", "threads")
+)
+
+
+def _check_combination(ctx: click.Context) -> None:
+    """Refuse options that would be ignored: the race's with --profile, --no-compile-profile
+    without it, and rows that leave nothing (or no bf16 row) to measure."""
+    p = ctx.params
+    given = {
+        option.name: option.opts[0]
+        for option in ctx.command.params
+        if option.name
+        and ctx.get_parameter_source(option.name) == click.core.ParameterSource.COMMANDLINE
+    }
+    if p["profile"]:
+        ignored = [flag for name, flag in given.items() if name in _RACE_ONLY]
+        if ignored:
+            raise TacbenchError(
+                f"--profile measures one update on one thread, not the race: leave out "
+                f"{', '.join(ignored)}."
+            )
+        return
+    if p["no_compile_profile"]:
+        raise TacbenchError("--no-compile-profile applies with --profile only; add --profile.")
+    if p["no_sb3"] and p["no_eager"] and not (p["compile_"] or p["grid"]):
+        raise TacbenchError(
+            "--no-sb3 and --no-eager leave nothing to measure; add --compile or --grid, or drop "
+            "one of them."
+        )
+    if p["bf16"] and p["no_eager"] and not p["compile_"]:
+        raise TacbenchError(
+            "--bf16 repeats each TAC row with bfloat16 products, and --no-eager without "
+            "--compile leaves no TAC row; add --compile or drop --no-eager."
+        )
+
+
+def _write_json(path: Path, record: dict[str, object]) -> None:
+    import json
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(record, indent=1) + "\n")
+    click.echo(f"wrote {path}")
 
 
 def _profile(options: BenchOptions, compile_: bool, json_path: Path | None) -> None:
     """``--profile``: the update's profile at 1 and ``options.members`` members."""
-    import json
 
     from tacbench import bench as measure
     from tacbench.update_profile import profile_table, profile_update
@@ -155,6 +201,4 @@ def _profile(options: BenchOptions, compile_: bool, json_path: Path | None) -> N
         results.append(result)
         click.echo(profile_table(result) + "\n")
     if json_path is not None:
-        record = {"machine": measure.machine(), "profiles": results}
-        json_path.write_text(json.dumps(record, indent=1) + "\n")
-        click.echo(f"wrote {json_path}")
+        _write_json(json_path, {"machine": measure.machine(), "profiles": results})
