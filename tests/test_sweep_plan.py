@@ -120,6 +120,12 @@ def test_progress_no_checkpoint_holds_stops_the_plan(tmp_path: Path) -> None:
     shutil.rmtree(directory / "checkpoint")
     with pytest.raises(TacbenchError, match=r"status\.json records step 500, but .* holds no"):
         _plan(tmp_path)
+    # Ray without a shared filesystem keeps checkpoints on its nodes: --out holds none (an
+    # interrupted Ray sweep could never be resumed, nor its summary written)
+    on_nodes = _plan(tmp_path, driver.Options(executor="ray", workers=1))
+    assert on_nodes.runs[0].status == plan.Status("partial", 500)
+    with pytest.raises(TacbenchError, match=r"holds no"):
+        _plan(tmp_path, driver.Options(executor="ray", workers=1, shared_fs=True))
     (directory / "status.json").unlink()
     (directory / "eval.csv").write_text("step,wall_s,return_mean\n500,1.0,3.0\n")
     with pytest.raises(TacbenchError, match=r"has rows in eval\.csv but no status\.json"):

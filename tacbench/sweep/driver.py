@@ -68,8 +68,10 @@ def load_plan(
         all_runs = [run for run in all_runs if run.key in only]
     history = state.SweepState(out)
     statuses = {run.key: plan.read_status(out, run) for run in all_runs}
+    # Ray without a shared filesystem keeps the checkpoints on its nodes, not under --out
+    checkpoints_here = options.executor != "ray" or options.shared_fs
     for key, status in statuses.items():
-        if status.state == "partial":  # progress no checkpoint holds fails every attempt
+        if status.state == "partial" and checkpoints_here:  # else every attempt would fail
             runs.check_checkpoint(out / key, status.step)
         elif status.state == "failed":
             history.note_failed_status(key, status.step, status.reason)
