@@ -57,7 +57,8 @@ def stop_signals(*, second_interrupts: bool = True) -> Iterator[dict[str, int]]:
     """Record SIGINT, SIGTERM and SIGHUP while active instead of dying: the dict counts them
     (``count``) and keeps the last one (``signal``), so a loop can checkpoint and stop. With
     ``second_interrupts`` a second signal raises :class:`SecondSignal` at once (no checkpoint).
-    The previous handlers come back afterwards. No-op outside the main thread."""
+    SIGHUP stays ignored where it was (``nohup``). The previous handlers come back afterwards.
+    No-op outside the main thread."""
     received: dict[str, int] = {}
     if threading.current_thread() is not threading.main_thread():
         yield received
@@ -73,7 +74,13 @@ def stop_signals(*, second_interrupts: bool = True) -> Iterator[dict[str, int]]:
     if not _depth[0]:
         _received.clear()
     _depth[0] += 1
-    previous = {sig: signal.signal(sig, handler) for sig in STOP_SIGNALS}
+    # a hangup this process was told to ignore (nohup) stays ignored: the session may go away
+    caught = [
+        sig
+        for sig in STOP_SIGNALS
+        if not (sig == signal.SIGHUP and signal.getsignal(sig) == signal.SIG_IGN)
+    ]
+    previous = {sig: signal.signal(sig, handler) for sig in caught}
     try:
         yield received
     finally:

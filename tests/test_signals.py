@@ -86,3 +86,22 @@ def test_the_resume_command_adds_resume_to_a_run_and_leaves_a_sweep_as_it_is() -
     sweep = "tacbench sweep --preset smoke --out results"
     assert resume_command(sweep) == sweep
     assert resume_command("") == "train(..., resume=True) --resume"
+
+
+@pytest.mark.unit
+def test_a_hangup_ignored_as_nohup_asks_stays_ignored() -> None:
+    """Under nohup the hangup of a closed session used to stop a run (or a Slurm sweep, which
+    cancelled its jobs); SIGINT and SIGTERM are still caught, and SIGHUP where not ignored."""
+    before = signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    try:
+        with stop_signals() as received:
+            assert signal.getsignal(signal.SIGHUP) == signal.SIG_IGN
+            os.kill(os.getpid(), signal.SIGHUP)
+            assert received == {}
+            assert signal.getsignal(signal.SIGTERM) not in (signal.SIG_IGN, signal.SIG_DFL)
+        signal.signal(signal.SIGHUP, signal.SIG_DFL)
+        with stop_signals() as received:
+            os.kill(os.getpid(), signal.SIGHUP)
+        assert received == {"count": 1, "signal": signal.SIGHUP}
+    finally:
+        signal.signal(signal.SIGHUP, before)

@@ -99,6 +99,44 @@ def test_no_slurm_on_the_path_is_a_clear_error(
         )
 
 
+def test_jobs_of_an_earlier_driver_still_queued_are_waited_for(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A driver killed (or gone with its session under nohup) leaves its jobs running: a new
+    driver used to submit their runs again, and each new attempt failed against the running
+    one's lock, counted as a failure, until the runs were given up."""
+    pytest.importorskip("submitit")
+    monkeypatch.setattr(slurm.shutil, "which", lambda name: f"/usr/bin/{name}")
+    asked: list[list[str]] = []
+
+    def queued(job_ids: list[str]) -> set[str]:
+        asked.append(sorted(job_ids))
+        return {"41_0", "41_1", "99"}
+
+    monkeypatch.setattr(slurm, "_queued", queued)
+    jobs = tmp_path / "sweep" / "slurm"
+    for name in ("41_0", "41_1", "41_2", "40", "notes"):
+        (jobs / name).mkdir(parents=True)
+
+    def start() -> slurm.SlurmExecutor:
+        return slurm.SlurmExecutor(
+            tmp_path,
+            workers=None,
+            partition=None,
+            time_limit="10",
+            cpus=1,
+            gpus=0,
+            slurm_args={},
+            command="",
+        )
+
+    with pytest.raises(TacbenchError, match=r"still queued or running \(41_0, 41_1\); wait"):
+        start()
+    assert asked == [["40", "41_0", "41_1", "41_2"]]
+    monkeypatch.setattr(slurm, "_queued", lambda job_ids: set())
+    start()  # all ended: the sweep goes on
+
+
 def test_the_cli_refuses_a_bad_time_with_status_2(tmp_path: Path) -> None:
     args = ["sweep", "--preset", "smoke", "--executor", "slurm", "--time", "soon"]
     result = CliRunner().invoke(cli, [*args, "--out", str(tmp_path)])

@@ -16,6 +16,7 @@ No accounting database is needed: jobs are followed with ``squeue``, not ``sacct
 
 from __future__ import annotations
 
+import re
 import shutil
 import subprocess
 import time
@@ -105,6 +106,9 @@ def parse_slurm_args(pairs: tuple[str, ...]) -> dict[str, str]:
     return parsed
 
 
+JOB_ID = re.compile(r"\d+(_\d+)?")  # submitit's job folders: a job's id, or an array task's
+
+
 @dataclass
 class _Submitted:
     unit: Unit
@@ -156,6 +160,22 @@ class SlurmExecutor:
         self._executor.update_parameters(**parameters)
         self._pending: list[Unit] = []
         self._jobs: dict[str, _Submitted] = {}
+        self._check_no_earlier_jobs()
+
+    def _check_no_earlier_jobs(self) -> None:
+        """Refuse to start while jobs an earlier driver submitted for this ``--out`` are still
+        in Slurm's queue (a driver killed, or gone with its login session under nohup): their
+        runs would be submitted again, and each new attempt fail against the running one's
+        lock, counted as a failure."""
+        earlier = [p.name for p in self.folder.glob("*") if JOB_ID.fullmatch(p.name)]
+        still = sorted(set(earlier) & _queued(earlier)) if earlier else []
+        if still:
+            shown = ", ".join(still[:5]) + (f" and {len(still) - 5} more" if len(still) > 5 else "")
+            raise TacbenchError(
+                f"Slurm jobs of an earlier sweep of {self.out} are still queued or running "
+                f"({shown}); wait for them to end (squeue), or cancel them (scancel), then run "
+                "the same command again."
+            )
 
     def capacity(self) -> int:
         return self.workers or MAX_UNITS
