@@ -115,8 +115,9 @@ def test_jobs_of_an_earlier_driver_still_queued_are_waited_for(
 
     monkeypatch.setattr(slurm, "_queued", queued)
     jobs = tmp_path / "sweep" / "slurm"
-    for name in ("41_0", "41_1", "41_2", "40", "notes"):
+    for name in ("41_0", "41_1", "41_2", "40", "notes", "99"):
         (jobs / name).mkdir(parents=True)
+    (jobs / "99" / "99_0_result.pkl").write_bytes(b"")  # ended (squeue may still list it)
 
     def start() -> slurm.SlurmExecutor:
         return slurm.SlurmExecutor(

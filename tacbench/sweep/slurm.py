@@ -167,7 +167,11 @@ class SlurmExecutor:
         in Slurm's queue (a driver killed, or gone with its login session under nohup): their
         runs would be submitted again, and each new attempt fail against the running one's
         lock, counted as a failure."""
-        earlier = [p.name for p in self.folder.glob("*") if JOB_ID.fullmatch(p.name)]
+        earlier = [
+            p.name
+            for p in self.folder.glob("*")
+            if JOB_ID.fullmatch(p.name) and not (p / f"{p.name}_0_result.pkl").exists()
+        ]  # a job with a result has ended, though squeue may list it a moment (completing)
         still = sorted(set(earlier) & _queued(earlier)) if earlier else []
         if still:
             shown = ", ".join(still[:5]) + (f" and {len(still) - 5} more" if len(still) > 5 else "")
