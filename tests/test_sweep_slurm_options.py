@@ -22,9 +22,9 @@ pytestmark = pytest.mark.unit
     [
         ("90", 90),
         ("30:00", 30),  # MINUTES:SECONDS, as sbatch reads it
-        ("1:30", 2),  # a minute and a half, rounded up
+        ("5:30", 6),  # five minutes and a half, rounded up
         ("1:30:00", 90),
-        ("0:00:01", 1),
+        ("0:05:00", 5),
         ("2-0", 2880),
         ("2-00:00", 2880),
         ("1-2:03:04", 1564),
@@ -39,6 +39,14 @@ def test_time_limits_in_slurms_formats(text: str, minutes: int) -> None:
 )
 def test_bad_time_limits_say_what_to_give(text: str) -> None:
     with pytest.raises(TacbenchError, match="--time"):
+        slurm.parse_time(text)
+
+
+@pytest.mark.parametrize("text", ["3", "0:04:59", "1:30"])
+def test_a_time_limit_that_leaves_no_training_before_the_signal_is_refused(text: str) -> None:
+    """The checkpoint signal comes 180 s before the limit: at 3 minutes a job was signalled as
+    it started, requeued itself, and did so without end, never counted as failing."""
+    with pytest.raises(TacbenchError, match=r"is below 5 minutes: each job is signalled 180 s"):
         slurm.parse_time(text)
 
 

@@ -37,6 +37,7 @@ DEFAULT_TIME = "4:00:00"
 longer run is requeued at the limit and resumes, so a short limit costs only queue time."""
 MAX_UNITS = 1000
 """Units in flight without --workers: Slurm's default MaxArraySize is 1001."""
+MIN_TIME_S = 300  # --time: the signal at SIGNAL_DELAY_S before the limit leaves 2 minutes
 GONE_POLLS = 2  # polls a job must be missing from squeue (and have no result) to have died
 TIME_FORMATS = "MINUTES, MINUTES:SECONDS, H:MM:SS, D-H, D-H:MM or D-H:MM:SS"
 """sbatch's --time formats (its manual page), which --time takes as sbatch reads them."""
@@ -61,8 +62,12 @@ def parse_time(text: str) -> int:
         seconds = values[0] * 60 + (values[1] if len(values) == 2 else 0)
     if any(v > 59 for v in values[1:]):
         raise TacbenchError(f"--time {text!r}: minutes and seconds after a ':' are below 60.")
-    if seconds < 1:
-        raise TacbenchError(f"--time {text!r} must be at least one second.")
+    if seconds < MIN_TIME_S:
+        raise TacbenchError(
+            f"--time {text!r} is below {MIN_TIME_S // 60} minutes: each job is signalled "
+            f"{SIGNAL_DELAY_S} s before its limit to checkpoint and requeue, and would have no "
+            "time left to train (it would requeue without end)."
+        )
     return -(-seconds // 60)
 
 
