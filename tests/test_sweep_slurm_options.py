@@ -5,6 +5,7 @@ errors where Slurm is not installed or no GPU is visible."""
 from __future__ import annotations
 
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 import torch
@@ -12,7 +13,8 @@ from click.testing import CliRunner
 
 from tacbench.cli import cli
 from tacbench.errors import TacbenchError
-from tacbench.sweep import driver, options, presets, slurm, summary
+from tacbench.sweep import driver, options, plan, presets, slurm, summary
+from tacbench.sweep.plan import Unit
 
 pytestmark = pytest.mark.unit
 
@@ -144,6 +146,44 @@ def test_jobs_of_an_earlier_driver_still_queued_are_waited_for(
     assert asked == [["40", "41_0", "41_1", "41_2"]]
     monkeypatch.setattr(slurm, "_queued", lambda job_ids: set())
     start()  # all ended: the sweep goes on
+
+
+def test_a_job_gone_from_squeue_has_died_only_after_a_grace_period(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Its result file may reach a network filesystem's view late: two polls a second apart
+    used to declare a job that had succeeded dead, losing its result; and squeue was asked
+    every second for days."""
+    pytest.importorskip("submitit")
+    monkeypatch.setattr(slurm.shutil, "which", lambda name: f"/usr/bin/{name}")
+    asked: list[float] = []
+    clock = [1000.0]
+    monkeypatch.setattr(slurm.time, "monotonic", lambda: clock[0])
+    monkeypatch.setattr(slurm.time, "sleep", lambda seconds: None)
+    monkeypatch.setattr(slurm, "_queued", lambda ids: asked.append(clock[0]) or set())
+    monkeypatch.setattr(slurm, "_job_state", lambda job_id: "COMPLETED")
+    executor = slurm.SlurmExecutor(
+        tmp_path,
+        workers=None,
+        partition=None,
+        time_limit="10",
+        cpus=1,
+        gpus=0,
+        slurm_args={},
+        command="",
+    )
+    result = tmp_path / "7_0_result.pkl"
+    job = SimpleNamespace(paths=SimpleNamespace(result_pickle=result, stderr=tmp_path / "err"))
+    unit = Unit((plan.build_runs(presets.get_preset("smoke"))[0],))
+    executor._jobs["7"] = slurm._Submitted(unit, job)
+    asked.clear()
+    for now in (1000.0, 1005.0, 1009.0, 1010.0, 1089.0):
+        clock[0] = now
+        assert executor.wait(1.0) == []
+    assert asked == [1000.0, 1010.0, 1089.0]  # every SQUEUE_EVERY_S at most, not every poll
+    clock[0] = 1090.0
+    (died,) = executor.wait(1.0)
+    assert died.died.startswith("Slurm job 7 ended without a result (COMPLETED")
 
 
 def test_the_cli_refuses_a_bad_time_with_status_2(tmp_path: Path) -> None:

@@ -16,6 +16,7 @@ No accounting database is needed: jobs are followed with ``squeue``, not ``sacct
 
 from __future__ import annotations
 
+import math
 import re
 import shutil
 import subprocess
@@ -38,7 +39,10 @@ longer run is requeued at the limit and resumes, so a short limit costs only que
 MAX_UNITS = 1000
 """Units in flight without --workers: Slurm's default MaxArraySize is 1001."""
 MIN_TIME_S = 300  # --time: the signal at SIGNAL_DELAY_S before the limit leaves 2 minutes
-GONE_POLLS = 2  # polls a job must be missing from squeue (and have no result) to have died
+# a job missing from squeue without a result for this long has died: its result file may reach
+# this machine's view of a network filesystem that late (attribute caches hold up to 60 s)
+GONE_AFTER_S = 90.0
+SQUEUE_EVERY_S = 10.0  # how often squeue is asked: a sweep's driver runs for days
 TIME_FORMATS = "MINUTES, MINUTES:SECONDS, H:MM:SS, D-H, D-H:MM or D-H:MM:SS"
 """sbatch's --time formats (its manual page), which --time takes as sbatch reads them."""
 
@@ -118,7 +122,7 @@ JOB_ID = re.compile(r"\d+(_\d+)?")  # submitit's job folders: a job's id, or an 
 class _Submitted:
     unit: Unit
     job: Any  # submitit.Job
-    missing: int = 0  # consecutive polls without the job in squeue
+    missing_since: float | None = None  # when squeue first stopped listing it (monotonic)
 
 
 class SlurmExecutor:
@@ -165,6 +169,8 @@ class SlurmExecutor:
         self._executor.update_parameters(**parameters)
         self._pending: list[Unit] = []
         self._jobs: dict[str, _Submitted] = {}
+        self._queued: set[str] = set()  # what squeue listed when last asked
+        self._asked = -math.inf  # when that was (monotonic)
         self._check_no_earlier_jobs()
 
     def _check_no_earlier_jobs(self) -> None:
@@ -217,18 +223,21 @@ class SlurmExecutor:
         self._pending.clear()
 
     def wait(self, timeout: float) -> list[Finished]:
+        submitted = bool(self._pending)
         self._flush()
         finished: list[Finished] = []
-        queued = _queued(list(self._jobs)) if self._jobs else set()
+        now = time.monotonic()
+        if self._jobs and (submitted or now - self._asked >= SQUEUE_EVERY_S):
+            self._queued, self._asked = _queued(list(self._jobs)), now
         for job_id, entry in list(self._jobs.items()):
             if entry.job.paths.result_pickle.exists():
                 finished.append(self._collect(entry))
-            elif job_id in queued:
-                entry.missing = 0
+            elif job_id in self._queued:
+                entry.missing_since = None
                 continue
             else:
-                entry.missing += 1
-                if entry.missing < GONE_POLLS:
+                entry.missing_since = entry.missing_since or now
+                if now - entry.missing_since < GONE_AFTER_S:
                     continue
                 finished.append(
                     Finished(
