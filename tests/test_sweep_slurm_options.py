@@ -186,6 +186,22 @@ def test_a_job_gone_from_squeue_has_died_only_after_a_grace_period(
     assert died.died.startswith("Slurm job 7 ended without a result (COMPLETED")
 
 
+def test_a_failed_jobs_reason_is_its_exception_not_the_path_of_its_log() -> None:
+    failed = (
+        "Job (task=0) failed during processing with trace:\n"
+        "----------------------\n"
+        "Traceback (most recent call last):\n"
+        '  File "worker.py", line 1, in slurm_main\n'
+        "OSError: [Errno 5] Input/output error\n"
+        "----------------------\n"
+        "You can check full logs with 'job.stderr(0)' and 'job.stdout(0)'or at paths:\n"
+        "  - /out/sweep/slurm/7/7_0_log.err\n"
+        "  - /out/sweep/slurm/7/7_0_log.out"
+    )
+    assert slurm._last_error_line(failed) == "OSError: [Errno 5] Input/output error"
+    assert slurm._last_error_line("killed\nby the OOM killer") == "by the OOM killer"
+
+
 def test_the_cli_refuses_a_bad_time_with_status_2(tmp_path: Path) -> None:
     args = ["sweep", "--preset", "smoke", "--executor", "slurm", "--time", "soon"]
     result = CliRunner().invoke(cli, [*args, "--out", str(tmp_path)])

@@ -256,8 +256,7 @@ class SlurmExecutor:
         try:
             result: worker.JobResult = entry.job.result()
         except Exception as err:  # the job's own exception, re-raised by submitit
-            lines = str(err).strip().splitlines()
-            return Finished(entry.unit, None, f"Slurm job failed: {lines[-1] if lines else err}")
+            return Finished(entry.unit, None, f"Slurm job failed: {_last_error_line(str(err))}")
         return Finished(entry.unit, result)
 
     def steps(self) -> dict[str, int]:
@@ -278,6 +277,16 @@ class SlurmExecutor:
         if self._jobs or self._pending:
             self.request_stop()
         self._jobs.clear()
+
+
+def _last_error_line(text: str) -> str:
+    """The exception line of a job's failure as submitit words it: the last line of the trace
+    it frames between two lines of dashes (the paths of the job's logs follow); else the
+    message's last line."""
+    lines = [line.strip() for line in text.strip().splitlines()]
+    rules = [i for i, line in enumerate(lines) if line and set(line) == {"-"}]
+    trace = [line for line in lines[rules[0] + 1 : rules[1]] if line] if len(rules) > 1 else []
+    return (trace or lines or [text])[-1]
 
 
 def _queued(job_ids: list[str]) -> set[str]:
