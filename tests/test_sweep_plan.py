@@ -506,6 +506,31 @@ def test_a_unit_killed_by_the_ctrl_c_that_stops_the_sweep_is_not_a_failure(
     assert all(not history.failures(p.run.key) for p in work.runs)
 
 
+class _WorkersDie(_DiedOfCtrlC):
+    """An executor whose every unit's worker is killed (no Ctrl-C)."""
+
+    def wait(self, timeout: float) -> list[Any]:
+        from tacbench.sweep.executors import Finished
+
+        died = [Finished(u, None, "worker process killed by SIGKILL") for u in self.units]
+        self.units = []
+        return died
+
+
+def test_a_retried_runs_worker_that_dies_is_recorded_with_its_death(
+    smoke_out: tuple[Path, list[plan.Run]],
+) -> None:
+    """Its status.json still says failed (the worker died before resetting it): each attempt
+    used to record that old failure again, the death lost; on this machine, as its host."""
+    out, all_runs = smoke_out
+    options = driver.Options(workers=1, max_retries=2)
+    work, history = driver.load_plan(SMOKE, out, options, save=False)
+    driver._Driver(work, history, _WorkersDie({}), options, stream=None).run({})
+    failures = history.failures(all_runs[4].key)
+    assert [f.reason for f in failures] == ["non-finite", *["worker process killed by SIGKILL"] * 2]
+    assert {f.host for f in failures[1:]} == {socket.gethostname()}
+
+
 @pytest.mark.parametrize(
     "damaged",
     ["{", '{"runs": []}', '{"runs": null}', '{"runs": {"k": {"failures": [{"bad": 1}]}}}'],

@@ -292,10 +292,14 @@ class _Driver:
                 self.ended.add(run.key)
                 self.progress.message(f"complete: {run.key}")
                 continue
-            reason = status.reason if status.state == "failed" else _error_of(run, error, result)
-            if status.state != "failed" and (not reason or self.stopping):
+            # a retried run's status.json still holds the failure recorded already when its
+            # worker died before resetting it: that attempt's error is the worker's death
+            stale = bool(finished.died) and self._recorded(run.key, status)
+            failed_now = status.state == "failed" and not stale
+            reason = status.reason if failed_now else _error_of(run, error, result)
+            if not failed_now and (not reason or self.stopping):
                 continue  # interrupted (or never started): resumes with the next sweep
-            self.history.add_failure(run.key, status.step, reason, result.host if result else "")
+            self.history.add_failure(run.key, status.step, reason, self._host(result))
             n = len(self.history.failures(run.key))
             if n > self.options.max_retries:
                 self.ended.add(run.key)
@@ -306,6 +310,19 @@ class _Driver:
         if again:
             self.queue.append(plan.Unit(tuple(again)))
         self.queue.extend(plan.Unit((run,), retry=(run.key,)) for run in retry)
+
+    def _recorded(self, key: str, status: plan.Status) -> bool:
+        """Whether the history holds ``status``'s failure (its step and reason) already."""
+        return any(
+            (f.step, f.reason) == (status.step, status.reason) for f in self.history.failures(key)
+        )
+
+    def _host(self, result: worker.JobResult | None) -> str:
+        """Where the attempt ran: its worker's host, this machine's for a local worker that died
+        (empty: the history records this host), unknown for a cluster's."""
+        if result is not None:
+            return result.host
+        return "" if self.options.executor == "local" else "unknown"
 
 
 def _error_of(run: plan.Run, error: str, result: worker.JobResult | None) -> str:
