@@ -6,6 +6,7 @@ by another writer, for one: training the others alone would change them)."""
 from __future__ import annotations
 
 import signal
+import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -156,3 +157,18 @@ def test_a_second_signal_in_a_worker_ends_its_unit_quietly(
     result = worker.execute(worker.Job(unit, tmp_path, tmp_path / "log"), lambda step: False)
     assert (result.error, result.outcomes) == ("", ())
     assert capsys.readouterr().err == "stopped at once by a second SIGINT\n"
+
+
+def test_a_ray_tasks_default_scratch_is_in_its_own_nodes_temporary_folder(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The driver used to send its own temporary folder's path (a laptop's /var/folders/...,
+    through ray://) to every node."""
+    unit = _unit((0,))
+    relative = Path(worker.NODE_SCRATCH) / "0123456789ab"
+    job = worker.Job(unit, relative, relative / "sweep" / "logs" / "u.log")
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    placed = worker.on_node(job)
+    assert (placed.root, placed.log) == (tmp_path / relative, tmp_path / job.log)
+    given = worker.Job(unit, tmp_path / "scratch", tmp_path / "scratch" / "u.log")
+    assert worker.on_node(given) is given  # --scratch: the path given

@@ -111,9 +111,10 @@ def _fixed_q(value: str) -> float:
 )
 @click.option(
     "--scratch",
-    type=ResultsFolder("leave --scratch out for $TMPDIR/tacbench-sweep"),
+    type=ResultsFolder("leave --scratch out for each node's temporary folder"),
     default=None,
-    help="Ray: run directories and checkpoints on each node.  [default: $TMPDIR/tacbench-sweep]",
+    help="Ray: run directories and checkpoints on each node.  [default: tacbench-sweep in "
+    "each node's temporary folder]",
 )
 @click.option("--shared-fs", is_flag=True, help="Ray: --out is the same path on every node.")
 @click.option(

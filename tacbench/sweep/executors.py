@@ -14,7 +14,6 @@ import logging
 import multiprocessing
 import os
 import signal
-import tempfile
 from dataclasses import dataclass
 from multiprocessing.connection import wait as wait_for
 from pathlib import Path
@@ -183,8 +182,10 @@ class RayExecutor:
         self.ray, self.out, self.command = ray, Path(out).resolve(), command
         self.workers, self.cpus, self.gpus, self.shared_fs = workers, cpus, gpus, shared_fs
         digest = hashlib.sha1(str(self.out).encode()).hexdigest()[:12]
-        base = scratch or Path(tempfile.gettempdir()) / "tacbench-sweep"
-        self.root = self.out if shared_fs else base.expanduser() / digest
+        # without --scratch, a path relative to each node's own temporary folder (the driver's
+        # may not exist there: a laptop's, through ray://): worker.on_node resolves it
+        base = scratch.expanduser() if scratch else Path(worker.NODE_SCRATCH)
+        self.root = self.out if shared_fs else base / digest
         try:
             ray.init(
                 address=address,

@@ -18,6 +18,7 @@ import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 import traceback
 from collections.abc import Callable, Iterator
@@ -213,11 +214,24 @@ def local_main(job: Job, conn: Connection, step: Any, stop_event: Event, parent_
     conn.close()
 
 
+NODE_SCRATCH = "tacbench-sweep"  # a Ray node's default scratch, in its temporary folder
+
+
+def on_node(job: Job) -> Job:
+    """``job`` with a relative ``root`` (and log) placed in this node's temporary folder."""
+    if job.root.is_absolute():
+        return job
+    base = Path(tempfile.gettempdir())
+    return replace(job, root=base / job.root, log=base / job.log)
+
+
 def ray_main(job: Job, board: Any) -> JobResult:
     """Body of a Ray task: train, then (without a shared filesystem) collect the runs' small
-    files and the log of this attempt for the driver. Checkpoints stay in ``job.root``."""
+    files and the log of this attempt for the driver. Checkpoints stay in ``job.root`` (on
+    this node: :func:`on_node`)."""
     import ray
 
+    job = on_node(job)
     limit_threads(job.threads)
     key = job.unit.key
     start = 0
@@ -227,9 +241,12 @@ def ray_main(job: Job, board: Any) -> JobResult:
     except OSError as err:
         result = _log_failed(job, err)
     files = {run.key: small_files(job.root / run.key) for run in job.unit.runs}
-    with job.log.open("rb") as handle:
-        handle.seek(max(start, job.log.stat().st_size - LOG_TAIL_BYTES))
-        tail = handle.read().decode(errors="replace")
+    try:
+        with job.log.open("rb") as handle:
+            handle.seek(max(start, job.log.stat().st_size - LOG_TAIL_BYTES))
+            tail = handle.read().decode(errors="replace")
+    except OSError:  # the log could not be written (the result says why)
+        tail = ""
     return replace(
         result,
         files=files if job.return_files else {},
