@@ -35,6 +35,11 @@ class SecondSignal(KeyboardInterrupt):
         return 128 + self.signum
 
 
+def received_signals() -> tuple[int, ...]:
+    """The stop signals received since the outermost :func:`stop_signals` began, in order."""
+    return tuple(_received)
+
+
 def exit_status() -> int:
     """The exit status of a command that a stop signal interrupted: 128 + the number of the
     first signal received by the last :func:`stop_signals` (130 when none was: a stop asked for

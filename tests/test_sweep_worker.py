@@ -172,3 +172,11 @@ def test_a_ray_tasks_default_scratch_is_in_its_own_nodes_temporary_folder(
     assert (placed.root, placed.log) == (tmp_path / relative, tmp_path / job.log)
     given = worker.Job(unit, tmp_path / "scratch", tmp_path / "scratch" / "u.log")
     assert worker.on_node(given) is given  # --scratch: the path given
+
+
+def test_a_job_near_its_time_limit_requeues_itself_unless_it_was_cancelled() -> None:
+    """A Ctrl-C's scancel (SIGTERM) during the time-limit checkpoint used to be undone by the
+    job's own requeue: the cancelled job came back and trained on."""
+    assert worker.requeues_itself(True, ())
+    assert not worker.requeues_itself(True, (signal.SIGTERM,))
+    assert not worker.requeues_itself(False, ())

@@ -30,7 +30,7 @@ from typing import TYPE_CHECKING, Any
 
 from tacbench import runs, trainers
 from tacbench.errors import one_line
-from tacbench.interrupts import SecondSignal
+from tacbench.interrupts import SecondSignal, received_signals
 from tacbench.runs import checkpoints
 from tacbench.runs.checkpoints import FULL_ERRNOS, DiskError, NoCommonCheckpoint
 from tacbench.runs.resume_checks import DamagedRun
@@ -262,7 +262,8 @@ def slurm_main(job: Job) -> JobResult:
     SIGUSR2 (the time limit is near; this function's) make the trainer checkpoint and return
     "interrupted"; the job then exits without a result, so the driver keeps waiting for the
     requeued attempt, which resumes from the checkpoint. After SIGUSR2 the job requeues itself
-    (Slurm requeues preempted jobs on its own)."""
+    (Slurm requeues preempted jobs on its own), unless a SIGTERM came too: a cancel then stays
+    cancelled (:func:`requeues_itself`)."""
     near_limit: list[int] = []
     signal.signal(signal.SIGUSR2, lambda signum, _frame: near_limit.append(signum))
     limit_threads(job.threads)
@@ -273,9 +274,16 @@ def slurm_main(job: Job) -> JobResult:
         result = _log_failed(job, err)
     if not any(outcome.state == "interrupted" for outcome in result.outcomes):
         return result
-    if near_limit:
+    if requeues_itself(bool(near_limit), received_signals()):
         subprocess.run(["scontrol", "requeue", _slurm_job_id()], check=False)
     sys.exit("stopped by a signal from Slurm: checkpointed, resumes when the job is requeued")
+
+
+def requeues_itself(near_limit: bool, received: tuple[int, ...]) -> bool:
+    """Whether a stopped Slurm job asks to be requeued: near its time limit (SIGUSR2), unless a
+    SIGTERM came too (a cancel, which must stay cancelled, or a preemption or requeue, which
+    Slurm requeues itself)."""
+    return near_limit and signal.SIGTERM not in received
 
 
 def _slurm_job_id() -> str:
