@@ -186,6 +186,44 @@ def test_a_job_gone_from_squeue_has_died_only_after_a_grace_period(
     assert died.died.startswith("Slurm job 7 ended without a result (COMPLETED")
 
 
+def test_a_failing_squeue_is_asked_again_before_the_sweep_stops(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """One failed squeue (a controller restarting) used to end the sweep, whose close then
+    cancelled every job; meanwhile no job is taken for gone."""
+    pytest.importorskip("submitit")
+    monkeypatch.setattr(slurm.shutil, "which", lambda name: f"/usr/bin/{name}")
+    clock = [1000.0]
+    monkeypatch.setattr(slurm.time, "monotonic", lambda: clock[0])
+    monkeypatch.setattr(slurm.time, "sleep", lambda seconds: None)
+    down = TacbenchError("squeue failed: slurm_load_jobs error: Socket timed out")
+
+    def failing(ids: list[str]) -> set[str]:
+        raise down
+
+    monkeypatch.setattr(slurm, "_queued", lambda ids: set())
+    executor = slurm.SlurmExecutor(
+        tmp_path,
+        workers=None,
+        partition=None,
+        time_limit="10",
+        cpus=1,
+        gpus=0,
+        slurm_args={},
+        command="",
+    )
+    monkeypatch.setattr(slurm, "_queued", failing)
+    job = SimpleNamespace(paths=SimpleNamespace(result_pickle=tmp_path / "none.pkl"))
+    unit = Unit((plan.build_runs(presets.get_preset("smoke"))[0],))
+    executor._jobs["7"] = slurm._Submitted(unit, job)
+    for now in (1000.0, 1200.0, 1599.0):  # past GONE_AFTER_S, but squeue cannot say
+        clock[0] = now
+        assert executor.wait(1.0) == []
+    clock[0] = 1610.0  # failing for SQUEUE_DOWN_S: the sweep stops, saying why
+    with pytest.raises(TacbenchError, match="squeue failed"):
+        executor.wait(1.0)
+
+
 def test_a_failed_jobs_reason_is_its_exception_not_the_path_of_its_log() -> None:
     failed = (
         "Job (task=0) failed during processing with trace:\n"

@@ -43,6 +43,7 @@ MIN_TIME_S = 300  # --time: the signal at SIGNAL_DELAY_S before the limit leaves
 # this machine's view of a network filesystem that late (attribute caches hold up to 60 s)
 GONE_AFTER_S = 90.0
 SQUEUE_EVERY_S = 10.0  # how often squeue is asked: a sweep's driver runs for days
+SQUEUE_DOWN_S = 600.0  # how long squeue may fail before the sweep stops (and cancels its jobs)
 TIME_FORMATS = "MINUTES, MINUTES:SECONDS, H:MM:SS, D-H, D-H:MM or D-H:MM:SS"
 """sbatch's --time formats (its manual page), which --time takes as sbatch reads them."""
 
@@ -171,6 +172,7 @@ class SlurmExecutor:
         self._jobs: dict[str, _Submitted] = {}
         self._queued: set[str] = set()  # what squeue listed when last asked
         self._asked = -math.inf  # when that was (monotonic)
+        self._squeue_down_since: float | None = None  # squeue has failed since (monotonic)
         self._check_no_earlier_jobs()
 
     def _check_no_earlier_jobs(self) -> None:
@@ -228,12 +230,12 @@ class SlurmExecutor:
         finished: list[Finished] = []
         now = time.monotonic()
         if self._jobs and (submitted or now - self._asked >= SQUEUE_EVERY_S):
-            self._queued, self._asked = _queued(list(self._jobs)), now
+            self._ask_squeue(now)
         for job_id, entry in list(self._jobs.items()):
             if entry.job.paths.result_pickle.exists():
                 finished.append(self._collect(entry))
-            elif job_id in self._queued:
-                entry.missing_since = None
+            elif job_id in self._queued or self._squeue_down_since is not None:
+                entry.missing_since = None  # listed, or squeue cannot say
                 continue
             else:
                 entry.missing_since = entry.missing_since or now
@@ -251,6 +253,20 @@ class SlurmExecutor:
         if not finished and self._jobs:
             time.sleep(min(timeout, 5.0))
         return finished
+
+    def _ask_squeue(self, now: float) -> None:
+        """Refresh which jobs Slurm holds. A failing squeue (the controller restarting, a
+        timeout) is asked again on the next polls, the jobs assumed queued meanwhile; after
+        :data:`SQUEUE_DOWN_S` of failures the sweep stops with squeue's error."""
+        self._asked = now
+        try:
+            self._queued = _queued(list(self._jobs))
+        except TacbenchError:
+            self._squeue_down_since = self._squeue_down_since or now
+            if now - self._squeue_down_since >= SQUEUE_DOWN_S:
+                raise
+            return
+        self._squeue_down_since = None
 
     def _collect(self, entry: _Submitted) -> Finished:
         try:
