@@ -4,6 +4,7 @@ choosing what a group resumes from, forgetting later generations, disk errors as
 from __future__ import annotations
 
 import errno
+import hashlib
 import json
 from pathlib import Path
 
@@ -42,7 +43,9 @@ def test_commit_records_sizes_and_checksums_and_keeps_two_generations(tmp_path: 
     ]
     manifest = json.loads((tmp_path / "manifest-000000000400.json").read_text())
     assert manifest["step"] == 400
-    assert manifest["files"]["state-400.bin"] == checkpoints.digest(tmp_path / "state-400.bin")
+    written = b"state-400.bin@400"  # checked against its own hash, not the function that wrote it
+    expected = {"size": len(written), "sha256": hashlib.sha256(written).hexdigest()}
+    assert manifest["files"]["state-400.bin"] == expected
     assert set(manifest["files"]) == {"state-400.bin", "replay/a.npz"}
     assert checkpoints.usable_steps(tmp_path) == ([400, 300], {})
 
@@ -57,6 +60,15 @@ def test_problems_name_the_damaged_file(tmp_path: Path) -> None:
     ]
     (tmp_path / "chunk").unlink()
     assert "chunk: missing" in checkpoints.problems(tmp_path, 100)
+    big = tmp_path / "big.bin"  # more than one block of the checksum: damage at its end counts
+    checkpoints.write_durably(big, lambda h: h.write(bytes(3 << 20)))
+    checkpoints.commit(tmp_path, 200, [big])
+    with big.open("r+b") as handle:
+        handle.seek((3 << 20) - 1)
+        handle.write(b"\x01")
+    assert checkpoints.problems(tmp_path, 200) == [
+        "big.bin: its checksum does not match the manifest's"
+    ]
     (tmp_path / "manifest-000000000100.json").write_text("{")
     assert checkpoints.problems(tmp_path, 100) == [
         "manifest-000000000100.json: unreadable (JSONDecodeError)"

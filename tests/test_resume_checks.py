@@ -132,6 +132,14 @@ def _replace_checkpoint_by_a_file(run: Path) -> None:
     (run / "checkpoint").write_text("not a checkpoint")
 
 
+def _newest_cut_and_eval_deleted(run: Path) -> None:
+    """The newest generation damaged (so the resume falls back to the one before, deleting the
+    newer one only once every CSV can continue) and a CSV the resume then refuses."""
+    state = run / "checkpoint" / "state-000000001000.pt"
+    state.write_bytes(state.read_bytes()[: state.stat().st_size // 2])
+    (run / "eval.csv").unlink()
+
+
 DAMAGES: dict[str, tuple[Callable[[Path], None], str]] = {
     "checkpoint-deleted": (
         lambda run: shutil.rmtree(run / "checkpoint"),
@@ -151,6 +159,7 @@ DAMAGES: dict[str, tuple[Callable[[Path], None], str]] = {
         "rows in eval.csv but no status.json",
     ),
     "config-invalid": (lambda run: (run / "config.json").write_text("{"), "not valid JSON"),
+    "newest-cut-and-eval-deleted": (_newest_cut_and_eval_deleted, "eval.csv is missing"),
 }
 
 
@@ -166,6 +175,20 @@ def test_a_damaged_run_is_refused_and_left_as_it_was(
     with pytest.raises(TacbenchError, match=message):
         train(out, tiny_configs("tac"), resume=True)
     assert _snapshot(out) == before
+
+
+@pytest.mark.unit
+def test_a_baseline_refused_after_falling_back_keeps_its_newest_generation(
+    tmp_path: Path,
+) -> None:
+    """As TAC's: the newer generation a refused resume would fall back from is not deleted."""
+    configs = tiny_configs("ddpg")
+    (stopped,) = train(tmp_path, configs, stop=lambda step: step >= 1000)
+    _newest_cut_and_eval_deleted(stopped.directory)
+    before = _snapshot(tmp_path)
+    with pytest.raises(TacbenchError, match=r"eval\.csv is missing"):
+        train(tmp_path, configs, resume=True)
+    assert _snapshot(tmp_path) == before
 
 
 @pytest.mark.unit

@@ -22,12 +22,23 @@ def test_a_held_run_directory_refuses_a_second_writer_and_names_the_holder(
 ) -> None:
     configs = tiny_configs("tac", seeds=(0, 10))
     locked = run_directory(tmp_path, "tac", configs[1].env, configs[1].variant, 10)
+    first = run_directory(tmp_path, "tac", configs[0].env, configs[0].variant, 0)
     with writing([locked]):
         with pytest.raises(TacbenchError, match=f"being written by .*PID {os.getpid()} on "):
             train(tmp_path, configs)
-        # the group locks all its members before it touches any: seed 0 was not started
-        assert not run_directory(tmp_path, "tac", configs[0].env, configs[0].variant, 0).exists()
-    outcomes = train(tmp_path, configs)  # released: trains
+        assert not first.exists()
+    train(tmp_path, configs[:1])  # seed 0 trained alone
+
+    def files() -> dict[str, bytes]:
+        return {str(p.relative_to(first)): p.read_bytes() for p in first.rglob("*") if p.is_file()}
+
+    before = files()
+    with writing([locked]), pytest.raises(TacbenchError, match="being written"):
+        # the group locks all its members before it touches any: --force does not start
+        # seed 0 over (deleting it) before it finds seed 10 held
+        train(tmp_path, configs, force=True)
+    assert files() == before
+    outcomes = train(tmp_path, configs, force=True)  # released: trains
     assert [o.state for o in outcomes] == ["complete", "complete"]
     assert lock_path(locked).is_file()  # kept: deleting it could let two writers in
 

@@ -71,6 +71,11 @@ def test_the_exit_status_is_128_plus_the_first_signal() -> None:
         os.kill(os.getpid(), signal.SIGTERM)
     assert received == {"count": 1, "signal": signal.SIGTERM}
     assert exit_status() == 143
+    with stop_signals(second_interrupts=False) as received:
+        os.kill(os.getpid(), signal.SIGTERM)
+        os.kill(os.getpid(), signal.SIGINT)
+    assert received == {"count": 2, "signal": signal.SIGINT}
+    assert exit_status() == 143  # the first, not the last
     with stop_signals():
         pass
     assert exit_status() == 130  # no signal: a stop asked for otherwise
