@@ -4,6 +4,7 @@ errors where Slurm is not installed or no GPU is visible."""
 
 from __future__ import annotations
 
+import getpass
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -24,9 +25,9 @@ pytestmark = pytest.mark.unit
     [
         ("90", 90),
         ("30:00", 30),  # MINUTES:SECONDS, as sbatch reads it
-        ("5:30", 6),  # five minutes and a half, rounded up
+        ("10:30", 11),  # ten minutes and a half, rounded up
         ("1:30:00", 90),
-        ("0:05:00", 5),
+        ("0:10:00", 10),
         ("2-0", 2880),
         ("2-00:00", 2880),
         ("1-2:03:04", 1564),
@@ -44,11 +45,11 @@ def test_bad_time_limits_say_what_to_give(text: str) -> None:
         slurm.parse_time(text)
 
 
-@pytest.mark.parametrize("text", ["3", "0:04:59", "1:30"])
+@pytest.mark.parametrize("text", ["3", "0:04:59", "1:30", "9:59"])
 def test_a_time_limit_that_leaves_no_training_before_the_signal_is_refused(text: str) -> None:
     """The checkpoint signal comes 180 s before the limit: at 3 minutes a job was signalled as
     it started, requeued itself, and did so without end, never counted as failing."""
-    with pytest.raises(TacbenchError, match=r"is below 5 minutes: each job is signalled 180 s"):
+    with pytest.raises(TacbenchError, match=r"is below 10 minutes: each job is signalled 180 s"):
         slurm.parse_time(text)
 
 
@@ -184,6 +185,31 @@ def test_a_job_gone_from_squeue_has_died_only_after_a_grace_period(
     clock[0] = 1090.0
     (died,) = executor.wait(1.0)
     assert died.died.startswith("Slurm job 7 ended without a result (COMPLETED")
+    # once the sweep has cancelled its jobs, one that leaves the queue has ended at once (a
+    # Ctrl-C must not wait out the grace period)
+    executor._jobs["8"] = slurm._Submitted(unit, job)
+    cancelled: list[list[str]] = []
+    monkeypatch.setattr(slurm.subprocess, "run", lambda args, **_: cancelled.append(args))
+    executor.request_stop()
+    assert cancelled == [["scancel", "8"]]
+    clock[0] = 1100.0
+    (stopped,) = executor.wait(1.0)
+    assert stopped.unit == unit and "Slurm job 8 ended without a result" in stopped.died
+
+
+def test_squeue_is_asked_for_the_sweeps_own_jobs(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Bare job ids could match another user's job (after a wrap of Slurm's job ids)."""
+    asked: list[list[str]] = []
+
+    def squeue(args: list[str], **_: object) -> SimpleNamespace:
+        asked.append(args)
+        return SimpleNamespace(returncode=0, stdout="41_0\n41_1\n", stderr="")
+
+    monkeypatch.setattr(slurm.subprocess, "run", squeue)
+    assert slurm._queued(["41_0", "41_3"]) == {"41_0", "41_1"}
+    (args,) = asked
+    assert f"--user={getpass.getuser()}" in args and "--name=tacbench-sweep" in args
+    assert args[-2:] == ["--jobs", "41"]
 
 
 def test_a_failing_squeue_is_asked_again_before_the_sweep_stops(

@@ -101,7 +101,7 @@ def _fixed_q(value: str) -> float:
     default=None,
     help="Slurm time limit per job, in sbatch's formats (90 and 1:30:00 are 90 minutes, 30:00 "
     "is 30, 2-0 two days); a unit that needs longer checkpoints at the limit and is "
-    "requeued.  [default: 4:00:00]",
+    "requeued; at least 10 minutes.  [default: 4:00:00]",
 )
 @click.option(
     "--slurm-arg",

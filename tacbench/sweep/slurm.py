@@ -16,6 +16,7 @@ No accounting database is needed: jobs are followed with ``squeue``, not ``sacct
 
 from __future__ import annotations
 
+import getpass
 import math
 import re
 import shutil
@@ -36,9 +37,12 @@ SIGNAL_DELAY_S = 180
 DEFAULT_TIME = "4:00:00"
 """--time default: a Hopper TAC unit of five members at 100,000 steps with room to spare; a
 longer run is requeued at the limit and resumes, so a short limit costs only queue time."""
+JOB_NAME = "tacbench-sweep"  # every job's name: squeue lists the sweep's own jobs by it
 MAX_UNITS = 1000
 """Units in flight without --workers: Slurm's default MaxArraySize is 1001."""
-MIN_TIME_S = 300  # --time: the signal at SIGNAL_DELAY_S before the limit leaves 2 minutes
+# --time: the signal comes SIGNAL_DELAY_S before the limit, or up to 60 s earlier (sbatch's
+# manual), and a job must start, load its checkpoint and train before it
+MIN_TIME_S = 600
 # a job missing from squeue without a result for this long has died: its result file may reach
 # this machine's view of a network filesystem that late (attribute caches hold up to 60 s)
 GONE_AFTER_S = 90.0
@@ -70,8 +74,9 @@ def parse_time(text: str) -> int:
     if seconds < MIN_TIME_S:
         raise TacbenchError(
             f"--time {text!r} is below {MIN_TIME_S // 60} minutes: each job is signalled "
-            f"{SIGNAL_DELAY_S} s before its limit to checkpoint and requeue, and would have no "
-            "time left to train (it would requeue without end)."
+            f"{SIGNAL_DELAY_S} s before its limit (or up to a minute earlier) to checkpoint and "
+            "requeue, and would have little or no time left to train (it could requeue without "
+            "end)."
         )
     return -(-seconds // 60)
 
@@ -157,7 +162,7 @@ class SlurmExecutor:
         self.folder = self.out / "sweep" / "slurm"
         self._executor = submitit.SlurmExecutor(folder=self.folder / "%j")
         parameters: dict[str, Any] = {
-            "job_name": "tacbench-sweep",
+            "job_name": JOB_NAME,
             "time": parse_time(time_limit),
             "cpus_per_task": self.threads,
             "signal_delay_s": SIGNAL_DELAY_S,
@@ -173,6 +178,7 @@ class SlurmExecutor:
         self._queued: set[str] = set()  # what squeue listed when last asked
         self._asked = -math.inf  # when that was (monotonic)
         self._squeue_down_since: float | None = None  # squeue has failed since (monotonic)
+        self._cancelled = False  # request_stop cancelled the jobs
         self._check_no_earlier_jobs()
 
     def _check_no_earlier_jobs(self) -> None:
@@ -239,7 +245,7 @@ class SlurmExecutor:
                 continue
             else:
                 entry.missing_since = entry.missing_since or now
-                if now - entry.missing_since < GONE_AFTER_S:
+                if now - entry.missing_since < GONE_AFTER_S and not self._cancelled:
                     continue
                 finished.append(
                     Finished(
@@ -286,6 +292,7 @@ class SlurmExecutor:
     def request_stop(self) -> None:
         """Cancel every job: Slurm sends SIGTERM, each trainer checkpoints (within KillWait)."""
         self._pending.clear()
+        self._cancelled = True  # a job that leaves the queue now has ended, not vanished
         if self._jobs:
             subprocess.run(["scancel", *self._jobs], check=False, capture_output=True)
 
@@ -309,8 +316,9 @@ def _queued(job_ids: list[str]) -> set[str]:
     """The ids (``<array>_<task>``) of these jobs that Slurm still holds: pending, running,
     completing or requeued."""
     arrays = sorted({job_id.split("_")[0] for job_id in job_ids})
+    own = [f"--user={getpass.getuser()}", f"--name={JOB_NAME}"]  # not another user's job
     listing = subprocess.run(
-        ["squeue", "--noheader", "--array", "--format=%i", "--jobs", ",".join(arrays)],
+        ["squeue", "--noheader", "--array", "--format=%i", *own, "--jobs", ",".join(arrays)],
         capture_output=True,
         text=True,
         check=False,
