@@ -23,13 +23,13 @@ import platform
 import tempfile
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import torch
 
-from tacbench import envs, memory, paper, training
+from tacbench import envs, paper, training
 from tacbench.config import RunConfig
 from tacbench.errors import TacbenchError
 from tacbench.hardware import configure_process, cpu_class, cpu_name
@@ -145,11 +145,16 @@ def contestants(options: BenchOptions) -> list[Contestant]:
 def check_sizes(options: BenchOptions) -> None:
     """Refuse, before anything is built, what ``tacbench run`` refuses: more threads than
     cores, and the largest TAC group of the bench (or of ``--profile``) too big for this
-    machine's memory (:func:`tacbench.training.check_sizes`)."""
-    memory.check_threads(options.threads)
+    machine's memory (:func:`tacbench.training.check_sizes`), counting the replay rows the
+    bench fills (its buffers reserve more, committed only as rows are written)."""
     largest = max((c.members for c in contestants(options) if c.tac), default=options.members)
-    group = _tac_configs(options, Contestant("TAC", largest, tac=True))
-    training.check_sizes(group, envs.env_info(options.env))
+    rows = options.learning_starts + WARMUP_UPDATES + options.steps
+    group = [
+        replace(config, total_steps=rows)
+        for config in _tac_configs(options, Contestant("TAC", largest, tac=True))
+    ]
+    flags = "--hidden-sizes or --members (or leave out --grid)"
+    training.check_sizes(group, envs.env_info(options.env), flags)
 
 
 def _tac_configs(options: BenchOptions, contestant: Contestant) -> list[RunConfig]:

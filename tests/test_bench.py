@@ -257,3 +257,17 @@ def test_bench_profile_of_the_bf16_update_counts_its_bfloat16_products(
     assert profile["matmul_precision"] == "bf16"
     rows = {r["what"]: r for r in profile["rows"]}
     assert rows["product 1x100x3 @ 1x3x16"]["calls"] >= 1  # a bmm of the rounded inputs
+
+
+def test_the_size_check_counts_the_replay_rows_the_bench_fills(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The 90-member grid reserves a million rows per member but fills a few thousand: on a
+    4 GiB machine it fits (the check used to count the reserve, about 10 GiB), and a refusal
+    names bench's own flags."""
+    from tacbench import bench, memory
+
+    monkeypatch.setattr(memory, "machine_memory", lambda: 4 << 30)
+    bench.check_sizes(BenchOptions(env="HalfCheetah-v4", grid=True, compile=True, eager=False))
+    with pytest.raises(TacbenchError, match=r"make --hidden-sizes or --members \(or leave out"):
+        bench.check_sizes(BenchOptions(env="HalfCheetah-v4", hidden_sizes=(20_000, 20_000)))

@@ -110,10 +110,14 @@ def _recorded_compile(out: Path, config: RunConfig) -> str | None:
     return recorded if isinstance(recorded, str) else None
 
 
-def check_sizes(configs: Sequence[RunConfig], info: envs.EnvInfo) -> None:
+def check_sizes(
+    configs: Sequence[RunConfig],
+    info: envs.EnvInfo,
+    flags: str = "--hidden-sizes, --batch-size, --buffer-size or --eval-episodes (or the members)",
+) -> None:
     """Refuse, before anything is written, a group whose networks, minibatches and replay
     buffer would not fit this machine's memory, or that asks for more threads than it has
-    cores (:mod:`tacbench.memory`)."""
+    cores (:mod:`tacbench.memory`); the refusal names ``flags`` as what to make smaller."""
     config = configs[0]
     memory.check_threads(config.threads)
     needs = memory.actor_critic_bytes(
@@ -123,9 +127,7 @@ def check_sizes(configs: Sequence[RunConfig], info: envs.EnvInfo) -> None:
     row_bytes = (info.obs_dim + info.act_dim + 2) * memory.FLOAT32 + 16  # + the (s, s') index
     needs["the replay buffer"] = len(configs) * rows * row_bytes
     needs["an evaluation"] = memory.evaluation_bytes(config.eval_episodes, len(configs))
-    memory.check_fits(
-        needs, "--hidden-sizes, --batch-size, --buffer-size or --eval-episodes (or the members)"
-    )
+    memory.check_fits(needs, flags)
 
 
 class Stepper:
