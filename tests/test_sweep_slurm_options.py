@@ -84,6 +84,7 @@ def test_slurm_args_become_sbatch_options() -> None:
         ({"executor": "ray", "gpus_per_run": float("inf")}, "--gpus-per-run >= 0"),
         ({"executor": "slurm", "gpus_per_run": 0.3}, "Slurm allocates whole CPUs and GPUs"),
         ({"executor": "slurm", "cpus_per_run": 1.5}, "Slurm allocates whole CPUs and GPUs"),
+        ({"executor": "ray", "scratch": Path("scratch")}, "--scratch scratch: give an absolute"),
         ({"group": "none", "members": 4}, "--members 4 groups runs into units, which --group none"),
     ],
 )

@@ -171,7 +171,10 @@ def test_a_ray_tasks_default_scratch_is_in_its_own_nodes_temporary_folder(
     placed = worker.on_node(job)
     assert (placed.root, placed.log) == (tmp_path / relative, tmp_path / job.log)
     given = worker.Job(unit, tmp_path / "scratch", tmp_path / "scratch" / "u.log")
-    assert worker.on_node(given) is given  # --scratch: the path given
+    assert worker.on_node(given) == given  # --scratch: the path given
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    home = worker.Job(unit, Path("~/scratch"), Path("~/scratch/u.log"))
+    assert worker.on_node(home).root == tmp_path / "home" / "scratch"  # this node's home
 
 
 def test_a_job_near_its_time_limit_requeues_itself_unless_it_was_cancelled() -> None:

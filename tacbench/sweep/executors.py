@@ -183,8 +183,9 @@ class RayExecutor:
         self.workers, self.cpus, self.gpus, self.shared_fs = workers, cpus, gpus, shared_fs
         digest = hashlib.sha1(str(self.out).encode()).hexdigest()[:12]
         # without --scratch, a path relative to each node's own temporary folder (the driver's
-        # may not exist there: a laptop's, through ray://): worker.on_node resolves it
-        base = scratch.expanduser() if scratch else Path(worker.NODE_SCRATCH)
+        # may not exist there: a laptop's, through ray://), and ~ each node's own home:
+        # worker.on_node resolves both there
+        base = scratch or Path(worker.NODE_SCRATCH)
         self.root = self.out if shared_fs else base / digest
         try:
             ray.init(

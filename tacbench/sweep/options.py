@@ -81,6 +81,12 @@ class Options:
             raise TacbenchError(
                 "--partition, --time and --slurm-arg are Slurm options: add --executor slurm."
             )
+        scratch = str(self.scratch) if self.scratch is not None else "/"
+        if not (scratch.startswith("/") or scratch.startswith("~")):
+            raise TacbenchError(
+                f"--scratch {scratch}: give an absolute path (or one from ~): each Ray node "
+                "finds it on its own, where a relative one would mean nothing."
+            )
         if self.executor == "slurm":
             if self.address or self.scratch or self.shared_fs:
                 raise TacbenchError(

@@ -218,11 +218,13 @@ NODE_SCRATCH = "tacbench-sweep"  # a Ray node's default scratch, in its temporar
 
 
 def on_node(job: Job) -> Job:
-    """``job`` with a relative ``root`` (and log) placed in this node's temporary folder."""
-    if job.root.is_absolute():
-        return job
-    base = Path(tempfile.gettempdir())
-    return replace(job, root=base / job.root, log=base / job.log)
+    """``job`` with its ``root`` (and log) resolved on this node: ``~`` as this node's home, a
+    relative one (the default scratch) in this node's temporary folder."""
+    root, log = job.root.expanduser(), job.log.expanduser()
+    if not root.is_absolute():
+        base = Path(tempfile.gettempdir())
+        root, log = base / root, base / log
+    return replace(job, root=root, log=log)
 
 
 def ray_main(job: Job, board: Any) -> JobResult:
