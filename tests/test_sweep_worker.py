@@ -5,6 +5,7 @@ by another writer, for one: training the others alone would change them)."""
 
 from __future__ import annotations
 
+import os
 import signal
 import tempfile
 from pathlib import Path
@@ -177,9 +178,35 @@ def test_a_ray_tasks_default_scratch_is_in_its_own_nodes_temporary_folder(
     assert worker.on_node(home).root == tmp_path / "home" / "scratch"  # this node's home
 
 
-def test_a_job_near_its_time_limit_requeues_itself_unless_it_was_cancelled() -> None:
+@pytest.mark.parametrize(
+    ("signals", "requeued"),
+    [((signal.SIGUSR2,), True), ((signal.SIGUSR2, signal.SIGTERM), False), ((), False)],
+    ids=["time-limit", "time-limit-then-cancelled", "stopped-otherwise"],
+)
+def test_a_job_near_its_time_limit_requeues_itself_unless_it_was_cancelled(
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    signals: tuple[signal.Signals, ...],
+    requeued: bool,
+) -> None:
     """A Ctrl-C's scancel (SIGTERM) during the time-limit checkpoint used to be undone by the
     job's own requeue: the cancelled job came back and trained on."""
-    assert worker.requeues_itself(True, ())
-    assert not worker.requeues_itself(True, (signal.SIGTERM,))
-    assert not worker.requeues_itself(False, ())
+    unit = _unit((0,))
+
+    def interrupted(job: worker.Job, report: Any, every_s: float = 1.0) -> worker.JobResult:
+        for sig in signals:  # while the job runs, outside any trainer's handler
+            os.kill(os.getpid(), sig)
+        return worker.JobResult((Outcome(0, tmp_path, "interrupted", 5),))
+
+    ran: list[list[str]] = []
+    monkeypatch.setattr(worker, "execute", interrupted)
+    monkeypatch.setattr(worker.subprocess, "run", lambda args, **_: ran.append(args))
+    monkeypatch.setenv("SLURM_JOB_ID", "41_3")
+    handlers = {sig: signal.getsignal(sig) for sig in (signal.SIGTERM, signal.SIGUSR2)}
+    try:
+        with pytest.raises(SystemExit, match="checkpointed, resumes when the job is requeued"):
+            worker.slurm_main(worker.Job(unit, tmp_path, tmp_path / "log"))
+    finally:
+        for sig, handler in handlers.items():
+            signal.signal(sig, handler)
+    assert ran == ([["scontrol", "requeue", "41_3"]] if requeued else [])

@@ -268,6 +268,9 @@ def slurm_main(job: Job) -> JobResult:
     cancelled (:func:`requeues_itself`)."""
     near_limit: list[int] = []
     signal.signal(signal.SIGUSR2, lambda signum, _frame: near_limit.append(signum))
+    # a SIGTERM outside the trainer's handler (starting up, returning) is recorded here too
+    terminated: list[int] = []
+    signal.signal(signal.SIGTERM, lambda signum, _frame: terminated.append(signum))
     limit_threads(job.threads)
     try:
         with output_to(job.log, f"{job.unit.key} (Slurm job {_slurm_job_id()})"):
@@ -276,7 +279,7 @@ def slurm_main(job: Job) -> JobResult:
         result = _log_failed(job, err)
     if not any(outcome.state == "interrupted" for outcome in result.outcomes):
         return result
-    if requeues_itself(bool(near_limit), received_signals()):
+    if requeues_itself(bool(near_limit), (*received_signals(), *terminated)):
         subprocess.run(["scontrol", "requeue", _slurm_job_id()], check=False)
     sys.exit("stopped by a signal from Slurm: checkpointed, resumes when the job is requeued")
 
