@@ -193,7 +193,9 @@ def test_bench_profile_splits_an_update_into_products_and_the_rest(
     result = CliRunner().invoke(cli, args)
     assert result.exit_code == 0, result.output
     assert "| where | calls/update |" in result.output
-    profiles = json.loads(out.read_text())["profiles"]
+    record = json.loads(out.read_text())
+    assert set(record["machine"]) == {"at start", "at end"}  # as the race's JSON
+    profiles = record["profiles"]
     assert [p["members"] for p in profiles] == [1, 2]
     assert configured == [1, 1]  # one thread and the flush of subnormals, as training runs
     for profile in profiles:

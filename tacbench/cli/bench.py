@@ -127,7 +127,7 @@ def bench(
     )
     measure.check_sizes(options)
     if json_path is not None:  # before minutes of measuring, not after
-        if not json_path.name or json_path.is_dir():
+        if not json_path.name:
             raise TacbenchError(f"--json must name a file (got {str(json_path)!r}).")
         check_writable(json_path.parent, "--json")
     if profile:
@@ -192,6 +192,7 @@ def _profile(options: BenchOptions, compile_: bool, json_path: Path | None) -> N
     from tacbench import bench as measure
     from tacbench.update_profile import profile_table, profile_update
 
+    before = measure.machine()
     results = []
     for members in dict.fromkeys((1, options.members)):
         click.echo(f"profiling the update of {members} member(s) ...", err=True)
@@ -201,4 +202,5 @@ def _profile(options: BenchOptions, compile_: bool, json_path: Path | None) -> N
         results.append(result)
         click.echo(profile_table(result) + "\n")
     if json_path is not None:
-        _write_json(json_path, {"machine": measure.machine(), "profiles": results})
+        machine = {"at start": before, "at end": measure.machine()}
+        _write_json(json_path, {"machine": machine, "profiles": results})
