@@ -63,7 +63,8 @@ if TYPE_CHECKING:
     is_flag=True,
     help="Instead of the race: where one update's time goes (products by shape with their "
     "GFLOP/s against this core's peak, elementwise kernels, Adam, the rest), at 1 and --members "
-    "members, compiled unless --no-compile-profile.",
+    "members, compiled unless --no-compile-profile; one thread, so the race's options "
+    "(--threads, --rounds, --grid, ...) are refused with it.",
 )
 @click.option(
     "--no-compile-profile", is_flag=True, help="With --profile: profile the eager update."
