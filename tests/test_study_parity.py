@@ -272,7 +272,11 @@ def test_runs_short_of_their_budget_or_of_another_budget_are_not_scored(tmp_path
     ("algo", "caution"),
     [
         ("sac-sb3", "Hopper-v4: no finished TAC run; it has no row"),
-        ("tac", "Hopper-v4: no finished SB3 run; its TAC - SB3 columns are empty"),
+        (
+            "tac",
+            "Hopper-v4: no finished SB3 run (nor recorded finals: --finals); its TAC - SB3 "
+            "columns are empty",
+        ),
     ],
 )
 def test_a_task_with_one_side_only_is_said(tmp_path: Path, algo: str, caution: str) -> None:

@@ -216,7 +216,10 @@ def summary(finals: pd.DataFrame, reps: int = REPS) -> tuple[pd.DataFrame, list[
     for env, group in finals.groupby("env"):
         sb3 = group.loc[group["method"] == SB3, "return"].to_numpy()
         if not len(sb3):
-            cautions.append(f"{env}: no finished SB3 run; its TAC - SB3 columns are empty")
+            cautions.append(
+                f"{env}: no finished SB3 run (nor recorded finals: --finals); its TAC - SB3 "
+                "columns are empty"
+            )
         if set(group["method"]) <= {SB3}:
             cautions.append(f"{env}: no finished TAC run; it has no row")
         for method in (*TAC_METHODS, *others):
