@@ -21,6 +21,7 @@ if TYPE_CHECKING:
     import numpy as np
 
     from baselines.config import BaselineConfig
+    from tacbench.envs import EnvInfo
     from tacbench.interrupts import StopCheck
     from tacbench.runs import Outcome
 
@@ -121,12 +122,10 @@ def trainer_for(algo: str) -> Trainer:
     return trainer
 
 
-def check_sizes(configs: Sequence[AnyConfig]) -> None:
-    """Refuse, before anything is written, runs that would not fit this machine's memory or
-    cores, as their trainer does when it starts: TAC's as one group, a baseline's one by one."""
-    from tacbench import envs
-
-    info = envs.env_info(configs[0].env)
+def check_sizes(configs: Sequence[AnyConfig], info: EnvInfo) -> None:
+    """Refuse, before anything is written, runs on the task ``info`` describes that would not
+    fit this machine's memory or cores, as their trainer does when it starts: TAC's as one
+    group, a baseline's one by one."""
     if configs[0].algo == "tac":
         from tacbench import training
 

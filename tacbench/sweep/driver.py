@@ -95,9 +95,11 @@ def check_sizes(work: plan.SweepPlan, options: Options) -> None:
     machine (every attempt would fail the same way); for the local executor, whose workers
     run here (a cluster's nodes are checked where they train)."""
     if options.executor == "local":
+        info_of = functools.cache(envs.env_info)  # builds the task's env: once per task
         for unit in work.units:
             try:
-                trainers.check_sizes([run.config for run in unit.runs])
+                configs = [run.config for run in unit.runs]
+                trainers.check_sizes(configs, info_of(configs[0].env))
             except TacbenchError as err:
                 runs_in = f"{len(unit.runs)} run{'s' if len(unit.runs) != 1 else ''}"
                 raise TacbenchError(f"the unit {unit.key} ({runs_in}): {err}") from None
