@@ -93,22 +93,40 @@ def test_options_that_do_not_go_together_are_refused(options: dict, message: str
         driver.Options(**options)
 
 
+def _executor(out: Path) -> slurm.SlurmExecutor:
+    """A Slurm executor for ``out`` with the tests' settings (submitit imported)."""
+    pytest.importorskip("submitit")
+    return slurm.SlurmExecutor(
+        out,
+        workers=None,
+        partition=None,
+        time_limit="10",
+        cpus=1,
+        gpus=0,
+        slurm_args={},
+        command="",
+    )
+
+
+def _on_a_login_node(monkeypatch: pytest.MonkeyPatch) -> list[float]:
+    """sbatch and squeue found, time stood still at 1000 s: the returned clock moves it."""
+    monkeypatch.setattr(slurm.shutil, "which", lambda name: f"/usr/bin/{name}")
+    clock = [1000.0]
+    monkeypatch.setattr(slurm.time, "monotonic", lambda: clock[0])
+    monkeypatch.setattr(slurm.time, "sleep", lambda seconds: None)
+    return clock
+
+
+def _smoke_unit() -> Unit:
+    return Unit((plan.build_runs(presets.get_preset("smoke"))[0],))
+
+
 def test_no_slurm_on_the_path_is_a_clear_error(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    pytest.importorskip("submitit")
     monkeypatch.setenv("PATH", str(tmp_path))
     with pytest.raises(TacbenchError, match="sbatch and squeue"):
-        slurm.SlurmExecutor(
-            tmp_path,
-            workers=None,
-            partition=None,
-            time_limit="10",
-            cpus=1,
-            gpus=0,
-            slurm_args={},
-            command="",
-        )
+        _executor(tmp_path)
 
 
 def test_jobs_of_an_earlier_driver_still_queued_are_waited_for(
@@ -117,8 +135,7 @@ def test_jobs_of_an_earlier_driver_still_queued_are_waited_for(
     """A driver killed (or gone with its session under nohup) leaves its jobs running: a new
     driver used to submit their runs again, and each new attempt failed against the running
     one's lock, counted as a failure, until the runs were given up."""
-    pytest.importorskip("submitit")
-    monkeypatch.setattr(slurm.shutil, "which", lambda name: f"/usr/bin/{name}")
+    _on_a_login_node(monkeypatch)
     asked: list[list[str]] = []
 
     def queued(job_ids: list[str]) -> set[str]:
@@ -131,23 +148,11 @@ def test_jobs_of_an_earlier_driver_still_queued_are_waited_for(
         (jobs / name).mkdir(parents=True)
     (jobs / "99" / "99_0_result.pkl").write_bytes(b"")  # ended (squeue may still list it)
 
-    def start() -> slurm.SlurmExecutor:
-        return slurm.SlurmExecutor(
-            tmp_path,
-            workers=None,
-            partition=None,
-            time_limit="10",
-            cpus=1,
-            gpus=0,
-            slurm_args={},
-            command="",
-        )
-
     with pytest.raises(TacbenchError, match=r"still queued or running \(41_0, 41_1\); wait"):
-        start()
+        _executor(tmp_path)
     assert asked == [["40", "41_0", "41_1", "41_2"]]
     monkeypatch.setattr(slurm, "_queued", lambda job_ids: set())
-    start()  # all ended: the sweep goes on
+    _executor(tmp_path)  # all ended: the sweep goes on
 
 
 def test_a_job_gone_from_squeue_has_died_only_after_a_grace_period(
@@ -156,27 +161,14 @@ def test_a_job_gone_from_squeue_has_died_only_after_a_grace_period(
     """Its result file may reach a network filesystem's view late: two polls a second apart
     used to declare a job that had succeeded dead, losing its result; and squeue was asked
     every second for days."""
-    pytest.importorskip("submitit")
-    monkeypatch.setattr(slurm.shutil, "which", lambda name: f"/usr/bin/{name}")
+    clock = _on_a_login_node(monkeypatch)
     asked: list[float] = []
-    clock = [1000.0]
-    monkeypatch.setattr(slurm.time, "monotonic", lambda: clock[0])
-    monkeypatch.setattr(slurm.time, "sleep", lambda seconds: None)
     monkeypatch.setattr(slurm, "_queued", lambda ids: asked.append(clock[0]) or set())
     monkeypatch.setattr(slurm, "_job_state", lambda job_id: "COMPLETED")
-    executor = slurm.SlurmExecutor(
-        tmp_path,
-        workers=None,
-        partition=None,
-        time_limit="10",
-        cpus=1,
-        gpus=0,
-        slurm_args={},
-        command="",
-    )
+    executor = _executor(tmp_path)
     result = tmp_path / "7_0_result.pkl"
     job = SimpleNamespace(paths=SimpleNamespace(result_pickle=result, stderr=tmp_path / "err"))
-    unit = Unit((plan.build_runs(presets.get_preset("smoke"))[0],))
+    unit = _smoke_unit()
     executor._jobs["7"] = slurm._Submitted(unit, job)
     asked.clear()
     for now in (1000.0, 1005.0, 1009.0, 1010.0, 1089.0):
@@ -218,31 +210,17 @@ def test_a_failing_squeue_is_asked_again_before_the_sweep_stops(
 ) -> None:
     """One failed squeue (a controller restarting) used to end the sweep, whose close then
     cancelled every job; meanwhile no job is taken for gone."""
-    pytest.importorskip("submitit")
-    monkeypatch.setattr(slurm.shutil, "which", lambda name: f"/usr/bin/{name}")
-    clock = [1000.0]
-    monkeypatch.setattr(slurm.time, "monotonic", lambda: clock[0])
-    monkeypatch.setattr(slurm.time, "sleep", lambda seconds: None)
+    clock = _on_a_login_node(monkeypatch)
     down = TacbenchError("squeue failed: slurm_load_jobs error: Socket timed out")
 
     def failing(ids: list[str]) -> set[str]:
         raise down
 
     monkeypatch.setattr(slurm, "_queued", lambda ids: set())
-    executor = slurm.SlurmExecutor(
-        tmp_path,
-        workers=None,
-        partition=None,
-        time_limit="10",
-        cpus=1,
-        gpus=0,
-        slurm_args={},
-        command="",
-    )
+    executor = _executor(tmp_path)
     monkeypatch.setattr(slurm, "_queued", failing)
     job = SimpleNamespace(paths=SimpleNamespace(result_pickle=tmp_path / "none.pkl"))
-    unit = Unit((plan.build_runs(presets.get_preset("smoke"))[0],))
-    executor._jobs["7"] = slurm._Submitted(unit, job)
+    executor._jobs["7"] = slurm._Submitted(_smoke_unit(), job)
     for now in (1000.0, 1200.0, 1599.0):  # past GONE_AFTER_S, but squeue cannot say
         clock[0] = now
         assert executor.wait(1.0) == []
