@@ -5,9 +5,9 @@
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import click
 
@@ -20,6 +20,18 @@ if TYPE_CHECKING:
 
 _RESULTS = click.Path(exists=True, file_okay=False, path_type=Path)
 _OUT = ResultsFolder("leave --out out to write no CSV")
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+def _commands_out(default: str) -> Callable[[F], F]:
+    """A study's ``commands --out``: the results folder its printed commands write to."""
+    return click.option(
+        "--out",
+        type=ResultsFolder(f"the default is {default}"),
+        default=default,
+        show_default=True,
+        help="Results folder.",
+    )
 
 
 def _check_out(out: Path | None, files: Sequence[str], inputs: Sequence[Path] = ()) -> None:
@@ -76,13 +88,7 @@ def adaptive() -> None:
 
 
 @adaptive.command(name="commands")
-@click.option(
-    "--out",
-    type=ResultsFolder("the default is results/adaptive"),
-    default="results/adaptive",
-    show_default=True,
-    help="Results folder.",
-)
+@_commands_out("results/adaptive")
 def adaptive_commands(out: Path) -> None:
     """Print the study's tacbench run commands."""
     from tacbench.studies import adaptive as adaptive_study
@@ -116,13 +122,7 @@ def parity() -> None:
     help="Repeatable.  [default: 0-40]",
 )
 @click.option("--steps", type=click.IntRange(min=1), default=parity_study.STEPS, show_default=True)
-@click.option(
-    "--out",
-    type=ResultsFolder("the default is results/parity"),
-    default="results/parity",
-    show_default=True,
-    help="Results folder.",
-)
+@_commands_out("results/parity")
 def parity_commands(envs: tuple[str, ...], seeds: tuple[int, ...], steps: int, out: Path) -> None:
     """Print the study's tacbench run commands."""
     from tacbench.envs import resolve_env_id
