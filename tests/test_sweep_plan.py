@@ -4,6 +4,7 @@ lock, the cost estimate and the worker's helpers, on hand-made run directories."
 from __future__ import annotations
 
 import dataclasses
+import io
 import json
 import os
 import shutil
@@ -463,6 +464,7 @@ class _DiedOfCtrlC:
 
     def __init__(self, received: dict[str, int]) -> None:
         self.received, self.units, self.stops = received, [], 0
+        self.told = ["Slurm will not start job 7_0 (JobHeldUser): release it"]
 
     def capacity(self) -> int:
         return 1
@@ -484,6 +486,10 @@ class _DiedOfCtrlC:
     def steps(self) -> dict[str, int]:
         return {}
 
+    def notices(self) -> list[str]:
+        told, self.told = self.told, []
+        return told
+
     def request_stop(self) -> None:
         self.stops += 1
 
@@ -500,10 +506,13 @@ def test_a_unit_killed_by_the_ctrl_c_that_stops_the_sweep_is_not_a_failure(
     work, history = driver.load_plan(SMOKE, tmp_path, options, save=False)
     received: dict[str, int] = {}
     executor = _DiedOfCtrlC(received)
-    sweep = driver._Driver(work, history, executor, options, stream=None)
+    stream = io.StringIO()
+    sweep = driver._Driver(work, history, executor, options, stream=stream)
     assert sweep.run(received) is True  # stopped early
     assert executor.stops == 1
     assert all(not history.failures(p.run.key) for p in work.runs)
+    # what the executor has to tell (a job Slurm will not start) reaches the user, once
+    assert stream.getvalue().count("Slurm will not start job 7_0 (JobHeldUser)") == 1
 
 
 class _WorkersDie(_DiedOfCtrlC):

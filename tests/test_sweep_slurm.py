@@ -136,3 +136,25 @@ def _pending(job_id: str) -> bool:
         ["squeue", "-h", "-j", job_id, "-o", "%T"], capture_output=True, text=True, check=False
     )
     return shown.stdout.strip() == "PENDING"
+
+
+def test_squeue_gives_the_reason_a_held_job_waits() -> None:
+    """The reason the driver tells its user of a job that Slurm will not start, read from a
+    real squeue: an array's pending tasks each with its own, a running one's empty."""
+    from tacbench.sweep import slurm
+
+    held = ["--hold", "--array=0-1", f"--job-name={slurm.JOB_NAME}", "--wrap", "sleep 60"]
+    submitted = subprocess.run(
+        ["sbatch", "--parsable", *held],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    array = submitted.stdout.strip().split(";")[0]
+    try:
+        _slurm("scontrol", "release", f"{array}_1")
+        running = lambda: slurm._queued([array]).get(f"{array}_1") == ""  # noqa: E731
+        wait_for(running, timeout=60, poll=0.5, what=f"job {array}_1 to run")
+        assert slurm._queued([array])[f"{array}_0"] == "JobHeldUser"
+    finally:
+        _slurm("scancel", array)

@@ -138,9 +138,9 @@ def test_jobs_of_an_earlier_driver_still_queued_are_waited_for(
     _on_a_login_node(monkeypatch)
     asked: list[list[str]] = []
 
-    def queued(job_ids: list[str]) -> set[str]:
+    def queued(job_ids: list[str]) -> dict[str, str]:
         asked.append(sorted(job_ids))
-        return {"41_0", "41_1", "99"}
+        return {"41_0": "", "41_1": "Priority", "99": ""}
 
     monkeypatch.setattr(slurm, "_queued", queued)
     jobs = tmp_path / "sweep" / "slurm"
@@ -151,7 +151,7 @@ def test_jobs_of_an_earlier_driver_still_queued_are_waited_for(
     with pytest.raises(TacbenchError, match=r"still queued or running \(41_0, 41_1\); wait"):
         _executor(tmp_path)
     assert asked == [["40", "41_0", "41_1", "41_2"]]
-    monkeypatch.setattr(slurm, "_queued", lambda job_ids: set())
+    monkeypatch.setattr(slurm, "_queued", lambda job_ids: {})
     _executor(tmp_path)  # all ended: the sweep goes on
 
 
@@ -163,7 +163,7 @@ def test_a_job_gone_from_squeue_has_died_only_after_a_grace_period(
     every second for days."""
     clock = _on_a_login_node(monkeypatch)
     asked: list[float] = []
-    monkeypatch.setattr(slurm, "_queued", lambda ids: asked.append(clock[0]) or set())
+    monkeypatch.setattr(slurm, "_queued", lambda ids: asked.append(clock[0]) or {})
     monkeypatch.setattr(slurm, "_job_state", lambda job_id: "COMPLETED")
     executor = _executor(tmp_path)
     result = tmp_path / "7_0_result.pkl"
@@ -196,13 +196,62 @@ def test_squeue_is_asked_for_the_sweeps_own_jobs(monkeypatch: pytest.MonkeyPatch
 
     def squeue(args: list[str], **_: object) -> SimpleNamespace:
         asked.append(args)
-        return SimpleNamespace(returncode=0, stdout="41_0\n41_1\n", stderr="")
+        listing = "41_0|R|None\n41_1|PD|launch failed requeued held\n41_2|PD|None\n"
+        return SimpleNamespace(returncode=0, stdout=listing, stderr="")
 
     monkeypatch.setattr(slurm.subprocess, "run", squeue)
-    assert slurm._queued(["41_0", "41_3"]) == {"41_0", "41_1"}
+    assert slurm._queued(["41_0", "41_3"]) == {
+        "41_0": "",
+        "41_1": "launch failed requeued held",  # a reason may have spaces
+        "41_2": "None",
+    }
     (args,) = asked
     assert f"--user={getpass.getuser()}" in args and "--name=tacbench-sweep" in args
     assert args[-2:] == ["--jobs", "41"]
+
+
+def test_a_job_slurm_will_not_start_is_told_once_with_what_to_do(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A held job, or one asking more than its partition allows, pends for ever: the sweep
+    used to wait for it without a word."""
+    clock = _on_a_login_node(monkeypatch)
+    monkeypatch.setattr(slurm, "_queued", lambda ids: {})
+    executor = _executor(tmp_path)
+    job = SimpleNamespace(paths=SimpleNamespace(result_pickle=tmp_path / "none.pkl"))
+    for job_id in ("7_0", "7_1", "7_2", "7_3"):
+        executor._jobs[job_id] = slurm._Submitted(_smoke_unit(), job)
+    listings = iter(
+        [
+            {
+                "7_0": "JobHeldAdmin",
+                "7_1": "PartitionTimeLimit",
+                "7_2": "Resources",
+                "7_3": "QOSMaxJobsPerUserLimit",  # waits for the user's other jobs: not stuck
+                "8_0": "JobHeldUser",  # not this sweep's job
+            },
+            {"7_0": "JobHeldAdmin", "7_1": "PartitionTimeLimit", "7_2": "QOSMaxCpuPerJobLimit"},
+            {"7_0": "", "7_1": "PartitionTimeLimit", "7_2": "QOSMaxCpuPerJobLimit"},  # released
+            {"7_0": "launch failed requeued held", "7_1": "PartitionTimeLimit", "7_2": ""},
+        ]
+    )
+    monkeypatch.setattr(slurm, "_queued", lambda ids: next(listings))
+    told = []
+    for now in (1000.0, 1010.0, 1020.0, 1030.0):
+        clock[0] = now
+        assert executor.wait(1.0) == []
+        told.append(executor.notices())
+    assert told[0] == [
+        "Slurm will not start job 7_0 (JobHeldAdmin): release it (scontrol release 7_0) or "
+        "cancel it (scancel); the sweep waits for it",
+        "Slurm will not start job 7_1 (PartitionTimeLimit): stop the sweep (Ctrl-C) and run it "
+        "again with a --time, --partition or --slurm-arg that Slurm grants; the sweep waits for it",
+    ]
+    assert [[n.split(":")[0] for n in notes] for notes in told[1:]] == [
+        ["Slurm will not start job 7_2 (QOSMaxCpuPerJobLimit)"],  # news only, once
+        [],
+        ["Slurm will not start job 7_0 (launch failed requeued held)"],  # held again
+    ]
 
 
 def test_a_failing_squeue_is_asked_again_before_the_sweep_stops(
@@ -216,7 +265,7 @@ def test_a_failing_squeue_is_asked_again_before_the_sweep_stops(
     def failing(ids: list[str]) -> set[str]:
         raise down
 
-    monkeypatch.setattr(slurm, "_queued", lambda ids: set())
+    monkeypatch.setattr(slurm, "_queued", lambda ids: {})
     executor = _executor(tmp_path)
     monkeypatch.setattr(slurm, "_queued", failing)
     job = SimpleNamespace(paths=SimpleNamespace(result_pickle=tmp_path / "none.pkl"))

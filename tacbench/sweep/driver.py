@@ -256,6 +256,8 @@ class _Driver:
                     # (before it ignores it) is stopped, not failed
                     self._stop_if(received)
                     self._handle(finished)
+                for notice in self.executor.notices():
+                    self.progress.message(notice)
                 for key, step in self.executor.steps().items():
                     for run_key in self.unit_runs.get(key, ()):
                         self.step[run_key] = max(self.step[run_key], step)

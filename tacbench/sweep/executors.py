@@ -54,6 +54,10 @@ class Executor(Protocol):
     def steps(self) -> dict[str, int]:
         """The latest step each running unit reported, by unit key."""
 
+    def notices(self) -> list[str]:
+        """What the user should hear since last asked: units that wait on something only the
+        user can change (a Slurm job held, or asking more than its partition allows)."""
+
     def request_stop(self) -> None:
         """Ask every running unit to checkpoint and return."""
 
@@ -121,6 +125,9 @@ class LocalExecutor:
 
     def steps(self) -> dict[str, int]:
         return {key: int(p.step.value) for key, p in self._procs.items()}
+
+    def notices(self) -> list[str]:
+        return []  # a worker process starts at once
 
     def request_stop(self) -> None:
         self._stop.set()
@@ -276,6 +283,9 @@ class RayExecutor:
     def steps(self) -> dict[str, int]:
         steps: dict[str, int] = self.ray.get(self._board.snapshot.remote())
         return steps
+
+    def notices(self) -> list[str]:
+        return []  # Ray warns itself of tasks that no node can take
 
     def request_stop(self) -> None:
         self.ray.get(self._board.request_stop.remote())

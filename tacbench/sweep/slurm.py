@@ -48,6 +48,15 @@ MIN_TIME_S = 600
 GONE_AFTER_S = 90.0
 SQUEUE_EVERY_S = 10.0  # how often squeue is asked: a sweep's driver runs for days
 SQUEUE_DOWN_S = 600.0  # how long squeue may fail before the sweep stops (and cancels its jobs)
+# squeue's reasons for a pending job that Slurm will not start until someone acts (squeue's
+# manual, "JOB REASON CODES"): a hold, by its user, an administrator or Slurm itself ("launch
+# failed requeued held", after MaxBatchRequeue failed launches), or a request beyond what its
+# partition, account or QOS allows per job (AssocMax*PerJob*, QOSMax*PerJob*)
+HELD = re.compile(r"held", re.IGNORECASE)
+BEYOND_LIMITS = re.compile(
+    r"PartitionTimeLimit|PartitionConfig|BadConstraints|InvalidAccount|InvalidQOS"
+    r"|AccountNotAllowed|QOSNotAllowed|Max\w*PerJob"
+)
 TIME_FORMATS = "MINUTES, MINUTES:SECONDS, H:MM:SS, D-H, D-H:MM or D-H:MM:SS"
 """sbatch's --time formats (its manual page), which --time takes as sbatch reads them."""
 
@@ -175,7 +184,9 @@ class SlurmExecutor:
         self._executor.update_parameters(**parameters)
         self._pending: list[Unit] = []
         self._jobs: dict[str, _Submitted] = {}
-        self._queued: set[str] = set()  # what squeue listed when last asked
+        self._queued: dict[str, str] = {}  # what squeue listed when last asked: id -> reason
+        self._told: dict[str, str] = {}  # the waiting jobs the user has heard of, and why
+        self._notices: list[str] = []  # what the user has yet to hear
         self._asked = -math.inf  # when that was (monotonic)
         self._squeue_down_since: float | None = None  # squeue has failed since (monotonic)
         self._cancelled = False  # request_stop cancelled the jobs
@@ -191,7 +202,7 @@ class SlurmExecutor:
             for p in self.folder.glob("*")
             if JOB_ID.fullmatch(p.name) and not (p / f"{p.name}_0_result.pkl").exists()
         ]  # a job with a result has ended, though squeue may list it a moment (completing)
-        still = sorted(set(earlier) & _queued(earlier)) if earlier else []
+        still = sorted(set(earlier) & _queued(earlier).keys()) if earlier else []
         if still:
             shown = ", ".join(still[:5]) + (f" and {len(still) - 5} more" if len(still) > 5 else "")
             raise TacbenchError(
@@ -273,6 +284,32 @@ class SlurmExecutor:
                 raise
             return
         self._squeue_down_since = None
+        self._tell_of_waiting_jobs()
+
+    def _tell_of_waiting_jobs(self) -> None:
+        """Queue a notice, once per job and reason, for each job that waits on its user: Slurm
+        would hold it for ever, and the sweep with it."""
+        for job_id, reason in self._queued.items():
+            if job_id not in self._jobs or self._told.get(job_id) == reason:
+                continue
+            if HELD.search(reason):
+                advice = f"release it (scontrol release {job_id}) or cancel it (scancel)"
+            elif BEYOND_LIMITS.search(reason):
+                advice = (
+                    "stop the sweep (Ctrl-C) and run it again with a --time, --partition or "
+                    "--slurm-arg that Slurm grants"
+                )
+            else:
+                self._told.pop(job_id, None)
+                continue
+            self._told[job_id] = reason
+            self._notices.append(
+                f"Slurm will not start job {job_id} ({reason}): {advice}; the sweep waits for it"
+            )
+
+    def notices(self) -> list[str]:
+        told, self._notices = self._notices, []
+        return told
 
     def _collect(self, entry: _Submitted) -> Finished:
         try:
@@ -312,20 +349,26 @@ def _last_error_line(text: str) -> str:
     return (trace or lines or [text])[-1]
 
 
-def _queued(job_ids: list[str]) -> set[str]:
-    """The ids (``<array>_<task>``) of these jobs that Slurm still holds: pending, running,
-    completing or requeued."""
+def _queued(job_ids: list[str]) -> dict[str, str]:
+    """The ids (``<array>_<task>``) of these jobs that Slurm still holds (pending, running,
+    completing or requeued), each with squeue's reason if it is pending, else ``""``."""
     arrays = sorted({job_id.split("_")[0] for job_id in job_ids})
     own = [f"--user={getpass.getuser()}", f"--name={JOB_NAME}"]  # not another user's job
     listing = subprocess.run(
-        ["squeue", "--noheader", "--array", "--format=%i", *own, "--jobs", ",".join(arrays)],
+        ["squeue", "--noheader", "--array", "--format=%i|%t|%r", *own, "--jobs", ",".join(arrays)],
         capture_output=True,
         text=True,
         check=False,
     )
     if listing.returncode != 0 and "Invalid job id" not in listing.stderr:
         raise TacbenchError(f"squeue failed: {listing.stderr.strip()}")
-    return set(listing.stdout.split())
+    queued: dict[str, str] = {}
+    for line in listing.stdout.splitlines():
+        job_id, _, rest = line.strip().partition("|")
+        code, _, reason = rest.partition("|")
+        if job_id:
+            queued[job_id] = reason if code == "PD" else ""
+    return queued
 
 
 def _job_state(job_id: str) -> str:
