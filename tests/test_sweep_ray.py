@@ -5,7 +5,12 @@ driver writes into --out; checkpoints stay in the scratch folder."""
 from __future__ import annotations
 
 import json
+import os
 import shutil
+import signal
+import socket
+import subprocess
+import sys
 from pathlib import Path
 
 import pandas as pd
@@ -13,6 +18,7 @@ import pytest
 from click.testing import CliRunner
 
 from tacbench.cli import cli
+from tests.helpers import wait_for
 
 ray = pytest.importorskip("ray")
 
@@ -74,3 +80,44 @@ def test_ray_executor_returns_small_files_and_keeps_checkpoints_on_the_node(
     assert again.exit_code == 0, again.output
     assert pd.read_csv(run_dirs[0] / "eval.csv")["step"].tolist() == [500, 1000]
     assert _ray_processes() <= before  # ray.shutdown() stopped the local Ray
+
+
+def _task_processes() -> list[int]:
+    """Ids of the Ray worker processes running a sweep task (titled ``ray::ray_main``)."""
+    found = []
+    for cmdline in Path("/proc").glob("[0-9]*/cmdline"):
+        try:
+            if cmdline.read_bytes().startswith(b"ray::ray_main"):
+                found.append(int(cmdline.parent.name))
+        except OSError:
+            continue
+    return found
+
+
+def test_a_task_killed_on_its_node_is_recorded_with_its_node_and_host(tmp_path: Path) -> None:
+    """A task killed there (out of memory) returns no result: its node used to be lost, so the
+    retry could start over elsewhere, its checkpoints left behind, and its host was unknown."""
+    out, scratch = tmp_path / "out", tmp_path / "scratch"
+    args = ["sweep", "--preset", "smoke", "--algo", "tac", "--q", "1", "--seed", "0"]
+    args += ["--steps", "50000", "--executor", "ray", "--workers", "1", "--max-retries", "0"]
+    args += ["--scratch", str(scratch), "--out", str(out)]
+    driver = subprocess.Popen(
+        [sys.executable, "-m", "tacbench", *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    try:
+        started = lambda: any(scratch.glob("*/runs/tac/*/*/seed0/status.json"))  # noqa: E731
+        wait_for(started, timeout=180, proc=driver, poll=0.1, what="the task to start training")
+        (task,) = _task_processes()
+        os.kill(task, signal.SIGKILL)
+        output, _ = driver.communicate(timeout=180)
+    finally:
+        driver.kill()
+    assert driver.returncode == 1, output
+    assert "Ray task failed" in output
+    (entry,) = json.loads((out / "sweep" / "state.json").read_text())["runs"].values()
+    assert len(entry["node"]) > 10  # the node holding its checkpoints, for the retry
+    (failure,) = entry["failures"]
+    assert failure["host"] == socket.gethostname() and "Ray task failed" in failure["reason"]

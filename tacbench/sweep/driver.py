@@ -277,8 +277,9 @@ class _Driver:
     def _handle(self, finished: executors.Finished) -> None:
         """Read each run's status after its unit ended; record failures, queue retries."""
         result, out = finished.result, self.plan.out
-        if result is not None and result.node:
-            self.history.set_node([r.key for r in finished.unit.runs], result.node)
+        node = result.node if result is not None else finished.node
+        if node:  # a retry goes back to the node holding the checkpoints
+            self.history.set_node([r.key for r in finished.unit.runs], node)
         error = finished.died or (result.error if result else "")
         if result is not None and result.disk_full:  # not the run's fault: stop, keep no failure
             self.disk_full = self.disk_full or finished.unit.key
@@ -303,7 +304,7 @@ class _Driver:
             reason = status.reason if failed_now else _error_of(run, error, result)
             if not failed_now and (not reason or self.stopping):
                 continue  # interrupted (or never started): resumes with the next sweep
-            self.history.add_failure(run.key, status.step, reason, self._host(result))
+            self.history.add_failure(run.key, status.step, reason, self._host(finished))
             n = len(self.history.failures(run.key))
             if n > self.options.max_retries:
                 self.ended.add(run.key)
@@ -321,12 +322,15 @@ class _Driver:
             (f.step, f.reason) == (status.step, status.reason) for f in self.history.failures(key)
         )
 
-    def _host(self, result: worker.JobResult | None) -> str:
+    def _host(self, finished: executors.Finished) -> str:
         """Where the attempt ran: its worker's host, this machine's for a local worker that died
-        (empty: the history records this host), unknown for a cluster's."""
-        if result is not None:
-            return result.host
-        return "" if self.options.executor == "local" else "unknown"
+        (empty: the history records this host), else where the cluster said it started, or
+        unknown."""
+        if finished.result is not None:
+            return finished.result.host
+        if self.options.executor == "local":
+            return ""
+        return finished.host or "unknown"
 
 
 def _error_of(run: plan.Run, error: str, result: worker.JobResult | None) -> str:

@@ -29,11 +29,14 @@ GRACE_S = 30.0  # how long a stopping worker may take to checkpoint before it is
 
 @dataclass(frozen=True)
 class Finished:
-    """A unit that ended: the worker's result, or None and why the worker died."""
+    """A unit that ended: the worker's result, or None and why the worker died (and, where
+    known, the Ray node and host it died on)."""
 
     unit: Unit
     result: worker.JobResult | None
     died: str = ""
+    node: str = ""
+    host: str = ""
 
 
 class Executor(Protocol):
@@ -253,9 +256,9 @@ class RayExecutor:
                 result: worker.JobResult = self.ray.get(ref)
             except self.ray.exceptions.RayError as err:
                 lines = str(err).strip().splitlines()
-                finished.append(
-                    Finished(unit, None, f"Ray task failed: {type(err).__name__}: {lines[-1]}")
-                )
+                node, host = self.ray.get(self._board.where.remote(unit.key))
+                died = f"Ray task failed: {type(err).__name__}: {lines[-1]}"
+                finished.append(Finished(unit, None, died, node, host))
                 continue
             if not self.shared_fs:
                 self._write_back(unit, result)
@@ -303,11 +306,20 @@ class RayExecutor:
 
 
 class _Board:
-    """A Ray actor: the latest step of each running unit, and the stop flag tasks poll."""
+    """A Ray actor: where each unit's latest attempt runs, the latest step of each running
+    unit, and the stop flag tasks poll."""
 
     def __init__(self) -> None:
         self.latest: dict[str, int] = {}
+        self.nodes: dict[str, tuple[str, str]] = {}  # unit key -> (Ray node id, host)
         self.stop = False
+
+    def started(self, key: str, node: str, host: str) -> None:
+        self.nodes[key] = (node, host)
+
+    def where(self, key: str) -> tuple[str, str]:
+        """The node and host of the unit's latest attempt; empty if it never started."""
+        return self.nodes.get(key, ("", ""))
 
     def report(self, key: str, step: int) -> bool:
         self.latest[key] = step

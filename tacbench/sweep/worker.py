@@ -236,6 +236,9 @@ def ray_main(job: Job, board: Any) -> JobResult:
     job = on_node(job)
     limit_threads(job.threads)
     key = job.unit.key
+    node = ray.get_runtime_context().get_node_id()
+    # where this attempt runs, known to the driver even if the task dies (out of memory)
+    ray.get(board.started.remote(key, node, socket.gethostname()))
     start = 0
     try:
         with output_to(job.log, key) as start:
@@ -253,7 +256,7 @@ def ray_main(job: Job, board: Any) -> JobResult:
         result,
         files=files if job.return_files else {},
         log_tail=tail if job.return_files else "",
-        node=ray.get_runtime_context().get_node_id(),
+        node=node,
     )
 
 
