@@ -181,6 +181,29 @@ def test_grouping_makes_member_units_at_equal_resume_steps(tmp_path: Path) -> No
     assert [u.key for u in alone.units] == [r.key for r in all_runs]
 
 
+@pytest.mark.parametrize("shared_fs", [False, True])
+def test_members_resume_together_only_on_the_node_holding_their_checkpoints(
+    tmp_path: Path, shared_fs: bool
+) -> None:
+    """Without a shared filesystem each run's checkpoints stay on its Ray node: runs at the same
+    step on two nodes used to share a unit, sent to one node, where the other started over."""
+    tac = narrow(SMOKE, Narrowing(algos=("tac",), q=(1.0,)))
+    seed0, seed10 = plan.build_runs(tac)
+    history = state.SweepState(tmp_path)
+    for run, node in ((seed0, "node-a"), (seed10, "node-b")):
+        _fake_run(tmp_path, run, {"state": "running", "step": 500})
+        history.set_node([run.key], node)
+    options = driver.Options(executor="ray", workers=1, group="seeds", shared_fs=shared_fs)
+    units = driver.load_plan(tac, tmp_path, options, save=False)[0].units
+    together = [[seed0.key, seed10.key]]
+    assert [[r.key for r in u.runs] for u in units] == (
+        together if shared_fs else [[seed0.key], [seed10.key]]
+    )
+    history.set_node([seed10.key], "node-a")
+    units = driver.load_plan(tac, tmp_path, options, save=False)[0].units
+    assert [[r.key for r in u.runs] for u in units] == together
+
+
 def test_the_reference_profile_groups_its_seeds_too(tmp_path: Path) -> None:
     """Members update at their own episode ends, so --profile reference runs are
     grouped like any other TAC runs."""

@@ -86,6 +86,8 @@ def load_plan(
         max_retries=options.max_retries,
         group=options.group,
         unit_size=unit_size(options),
+        # members resume together only where their checkpoints are: on one node
+        nodes={} if checkpoints_here else {k: n for k in statuses if (n := history.node(k))},
     )
     return built, history
 

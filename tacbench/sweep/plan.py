@@ -186,10 +186,12 @@ def make_plan(
     max_retries: int,
     group: str,
     unit_size: UnitSize,
+    nodes: Mapping[str, str] | None = None,
 ) -> SweepPlan:
     """Each run's action and the units to train, from its status (:func:`read_status`) and its
     number of recorded failures: a run that failed more than ``max_retries`` times is given up
-    on, a failed run with fewer failures is retried, complete runs are skipped."""
+    on, a failed run with fewer failures is retried, complete runs are skipped. ``nodes``: the
+    Ray node holding each run's checkpoints, where they stay on the nodes."""
     planned = []
     for run in runs_:
         status, n_failed = statuses[run.key], failures.get(run.key, 0)
@@ -201,16 +203,23 @@ def make_plan(
         else:
             action = "retry" if status.state == "failed" else "train"
         planned.append(PlannedRun(run, status, n_failed, action))
-    return SweepPlan(preset, out, planned, make_units(planned, group, unit_size))
+    return SweepPlan(preset, out, planned, make_units(planned, group, unit_size, nodes or {}))
 
 
-def make_units(planned: Sequence[PlannedRun], group: str, unit_size: UnitSize) -> list[Unit]:
+def make_units(
+    planned: Sequence[PlannedRun],
+    group: str,
+    unit_size: UnitSize,
+    nodes: Mapping[str, str] | None = None,
+) -> list[Unit]:
     """One unit per run to train, or (``group`` "seeds" or "task") TAC runs equal but for the
-    seed, or for q, alpha and the seed, at the same resume step, as members of units of at most
-    ``unit_size(runs of the group, number of groups)`` runs (a larger group is split into units of
-    near-equal size). Failed runs are retried alone."""
-    units: list[Unit | tuple[str, int]] = []  # a tuple marks where a group goes
-    groups: dict[tuple[str, int], list[Run]] = {}
+    seed, or for q, alpha and the seed, at the same resume step and on the same node (``nodes``,
+    by run key: where its checkpoints are), as members of units of at most ``unit_size(runs of
+    the group, number of groups)`` runs (a larger group is split into units of near-equal size).
+    Failed runs are retried alone."""
+    nodes = nodes or {}
+    units: list[Unit | tuple[str, int, str]] = []  # a tuple marks where a group goes
+    groups: dict[tuple[str, int, str], list[Run]] = {}
     for p in planned:
         config = p.run.config
         if p.action == "retry":
@@ -220,7 +229,8 @@ def make_units(planned: Sequence[PlannedRun], group: str, unit_size: UnitSize) -
         elif group in _MEMBER_FIELDS and isinstance(config, RunConfig):
             ignored = _MEMBER_FIELDS[group]
             shared = {k: v for k, v in config.to_dict().items() if k not in ignored}
-            key = (json.dumps(shared, sort_keys=True), p.status.step)
+            where = nodes.get(p.run.key, "") if p.status.step else ""
+            key = (json.dumps(shared, sort_keys=True), p.status.step, where)
             if key not in groups:
                 groups[key] = []
                 units.append(key)
