@@ -143,7 +143,8 @@ def test_squeue_gives_the_reason_a_held_job_waits() -> None:
     real squeue: an array's pending tasks each with its own, a running one's empty."""
     from tacbench.sweep import slurm
 
-    held = ["--hold", "--array=0-1", f"--job-name={slurm.JOB_NAME}", "--wrap", "sleep 60"]
+    held = ["--hold", "--array=0-1", f"--job-name={slurm.JOB_NAME}", "--output=/dev/null"]
+    held += ["--wrap", "sleep 60"]
     submitted = subprocess.run(
         ["sbatch", "--parsable", *held],
         capture_output=True,
