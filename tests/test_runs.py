@@ -120,6 +120,31 @@ def test_plan_refuses_another_config_naming_the_fields(tmp_path: Path) -> None:
     ).action == ("resume")
 
 
+def test_a_run_written_before_a_setting_existed_reads_it_as_its_default(tmp_path: Path) -> None:
+    """The published studies' configs lack the settings added since (matmul_precision, the
+    density settings, ...): running their own commands again was refused for every run."""
+    config = RunConfig(env="Hopper-v4", q=1.5, alpha=0.2, seed=0)
+    older = config.to_dict()
+    for name in ("matmul_precision", "density_cap", "q_range", "alpha_mode", "target_entropy"):
+        del older[name]
+    directory = _run(tmp_path, "running", 500, older)
+    with pytest.raises(TacbenchError, match=r"matmul_precision: '\(absent\)' -> 'float32'"):
+        runs.plan_run(directory, config.to_dict(), resume=True, force=False)
+    plan = runs.plan_run(directory, config.to_dict(), resume=True, force=False, read_as=config)
+    assert plan.action == "resume"
+    # a value other than the default is another run, named so
+    bf16 = RunConfig(env="Hopper-v4", q=1.5, alpha=0.2, seed=0, density_cap="off")
+    with pytest.raises(TacbenchError, match=r"density_cap: 'paper' -> 'off'"):
+        runs.plan_run(directory, bf16.to_dict(), resume=True, force=False, read_as=bf16)
+    # a default that the new config's other settings refuse stays absent: the run differs
+    # (alpha_mode's default, fixed, refuses a target entropy; target_entropy's, None, is read)
+    auto = RunConfig(env="Hopper-v4", q=1.5, alpha=0.2, seed=0, alpha_mode="auto")
+    auto = RunConfig(**{**auto.to_dict(), "target_entropy": -3.0})
+    with pytest.raises(TacbenchError) as refused:
+        runs.plan_run(directory, auto.to_dict(), resume=True, force=False, read_as=auto)
+    assert "alpha_mode: '(absent)' -> 'auto'; target_entropy: None -> -3.0" in str(refused.value)
+
+
 def test_run_writer_files(tmp_path: Path) -> None:
     writer = runs.RunWriter(tmp_path / "run", ["loss"])
     run = RunConfig(env="Hopper-v4", q=1.5, alpha=0.2, seed=10)

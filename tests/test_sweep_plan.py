@@ -145,6 +145,18 @@ def test_a_run_directory_with_files_but_no_config_stops_the_plan(tmp_path: Path)
         _plan(tmp_path)
 
 
+def test_a_run_written_before_a_setting_existed_is_this_sweeps_run(tmp_path: Path) -> None:
+    """The published studies lack settings added since (matmul_precision, ...): their own
+    sweep commands were refused ("holds a run with another config")."""
+    run = next(r for r in plan.build_runs(SMOKE) if r.config.algo == "tac")
+    directory = _fake_run(tmp_path, run, {"state": "complete", "step": 1000})
+    older = runs.read_json(directory / "config.json")
+    del older["config"]["matmul_precision"], older["config"]["density_cap"]
+    runs.atomic_write_json(directory / "config.json", older)
+    statuses = {p.run.key: p.status for p in _plan(tmp_path).runs}
+    assert statuses[run.key] == plan.Status("complete", 1000)
+
+
 def test_compile_auto_matches_what_a_run_recorded_when_it_started(tmp_path: Path) -> None:
     run = next(r for r in plan.build_runs(SMOKE) if r.config.algo == "tac")
     assert run.config.compile == "auto"  # each worker resolves it for its own machine

@@ -29,6 +29,7 @@ from tacbench.runs.files import (
 from tacbench.runs.planning import (
     DirectoryPlan,
     Outcome,
+    as_read_now,
     check_checkpoint,
     check_nothing_to_lose,
     differing_fields,
@@ -49,6 +50,7 @@ __all__ = [
     "Outcome",
     "RunWriter",
     "State",
+    "as_read_now",
     "atomic_write_json",
     "check_checkpoint",
     "check_nothing_to_lose",

@@ -3,6 +3,7 @@ command starts, resumes, skips or must refuse it, while it holds the directories
 
 from __future__ import annotations
 
+import dataclasses
 import shutil
 from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
@@ -36,6 +37,31 @@ def differing_fields(
     ]
 
 
+def as_read_now(stored: Mapping[str, Any], config: Any) -> dict[str, Any]:
+    """A run's stored config with each field of ``config``'s class that it lacks (a setting
+    tacbench gained after the run was written) at the value its default takes beside
+    ``config``'s other fields: a new setting's default keeps the behaviour before it, and the
+    report reads an older config so too (:meth:`tacbench.config.RunConfig.from_dict`). A
+    default that ``config``'s other fields refuse stays absent: the run differs."""
+    filled = dict(stored)
+    for field in dataclasses.fields(config):
+        if field.name in filled or not field.init:
+            continue
+        if field.default is not dataclasses.MISSING:
+            default = field.default
+        elif field.default_factory is not dataclasses.MISSING:
+            default = field.default_factory()
+        else:
+            continue
+        try:
+            filled[field.name] = dataclasses.replace(config, **{field.name: default}).to_dict()[
+                field.name
+            ]
+        except (TacbenchError, TypeError, ValueError):
+            continue
+    return filled
+
+
 @dataclass(frozen=True)
 class DirectoryPlan:
     """What to do with one run directory: start it, resume it, or skip it (with why)."""
@@ -51,9 +77,12 @@ def plan_run(
     resume: bool,
     force: bool,
     neutral: Sequence[str] = (),
+    read_as: Any = None,
 ) -> DirectoryPlan:
     """Decide how a new command treats ``directory``; refuse (TacbenchError) when it must not
-    touch it. Fields in ``neutral`` may differ between the stored config and the new one."""
+    touch it. Fields in ``neutral`` may differ between the stored config and the new one; with
+    ``read_as`` (the new config object) a stored config's missing fields are read as its
+    class's defaults (:func:`as_read_now`)."""
     _resume_or_force(resume, force)
     _check_a_folder(directory)
     config_path = directory / "config.json"
@@ -65,6 +94,8 @@ def plan_run(
     stored = read_json(config_path).get("config")
     if not isinstance(stored, dict):
         raise TacbenchError(f"{config_path} holds no run config; {RESTORE_OR_FORCE}.")
+    if read_as is not None:
+        stored = as_read_now(stored, read_as)
     differences = differing_fields(stored, config, neutral)
     if differences:
         raise TacbenchError(
@@ -196,7 +227,12 @@ def plan_runs(
     for config in configs:
         directory = run_directory(out, config.algo, config.env, config.variant, config.seed)
         plan = plan_run(
-            directory, config.to_dict(), resume=resume, force=force, neutral=RESULT_NEUTRAL_FIELDS
+            directory,
+            config.to_dict(),
+            resume=resume,
+            force=force,
+            neutral=RESULT_NEUTRAL_FIELDS,
+            read_as=config,
         )
         if plan.action == "skip":
             skipped.append(Outcome(config.seed, directory, "skipped", -1, plan.message))
