@@ -112,7 +112,7 @@ def _check_combination(algo: str, effective: Mapping[str, Any]) -> None:
         raise TacbenchError(
             f"target_entropy={effective['target_entropy']} (--target-entropy) is what a learned "
             f"alpha aims at, and sac-sb3's alpha is fixed here (ent_coef={effective['ent_coef']}); "
-            "add --alpha auto, or leave the target entropy out."
+            "add --alpha auto (or --alpha-mode auto), or leave the target entropy out."
         )
     normalised = algo == "ppo" and effective.get("normalize_advantage", True)
     if normalised and int(effective.get("batch_size", 64)) < 2:  # SB3's PPO default: 64

@@ -104,7 +104,10 @@ def test_cli_trains_two_seeds_then_skips_refuses_and_forces(tmp_path: Path) -> N
             ["--algo", "sac-sb3", "--target-entropy", "5"],
             "target_entropy=5.0 (--target-entropy) is what a learned alpha aims at",
         ),
-        (["--algo", "sac-sb3", "--hp", "target_entropy=-1"], "sac-sb3's alpha is fixed here"),
+        (  # a sweep has no --alpha: it named only that
+            ["--algo", "sac-sb3", "--hp", "target_entropy=-1"],
+            "sac-sb3's alpha is fixed here (ent_coef=0.2); add --alpha auto (or --alpha-mode auto)",
+        ),
         (  # used to learn alpha
             ["--algo", "sac-sb3", "--alpha", "auto", "--alpha-mode", "fixed"],
             "--alpha auto learns alpha; it does not mix with --alpha-mode fixed",
