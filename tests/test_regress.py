@@ -300,6 +300,8 @@ def test_regress_cli_usage_errors_exit_two(tmp_path: Path) -> None:
     assert result.exit_code == 2 and "no such folder" in result.output
     result = runner.invoke(cli, ["regress", "--tier", "stat", "--against", str(tmp_path)])
     assert result.exit_code == 2 and "tacbench regress --update --tier stat" in result.output
+    # a folder that is not the references one is said to be so (before: "create them there")
+    assert f"{tmp_path} holds no references (no exact/, theory/ or stat/ folder)" in result.output
     result = runner.invoke(cli, ["regress", "--update", "--only", "x"])
     assert result.exit_code == 2 and "--only selects what to check" in result.output
     (tmp_path / "work").mkdir()
@@ -434,3 +436,81 @@ def test_a_second_update_of_the_same_references_is_refused_before_it_touches_the
     ):
         regress.update(reference, "theory", work=tmp_path / "work")
     assert [p.name for p in reference.rglob("*")] == ["theory", "kept.csv"]
+
+
+def test_update_refuses_to_replace_a_folder_that_holds_no_references(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """--update deleted whatever <against>/<tier> held: a results folder given as --against
+    lost its theory/ folder."""
+    _fake_theory(monkeypatch, {"a.csv": CSV})
+    mine = tmp_path / "project" / "theory"
+    mine.mkdir(parents=True)
+    (mine / "notes.md").write_text("mine")
+    args = ["regress", "--update", "--tier", "theory", "--against", str(mine.parent)]
+    result = CliRunner().invoke(cli, args)
+    assert result.exit_code == 2, result.output
+    assert f"{mine} holds no theory references (no manifest.json)" in result.output
+    assert [p.name for p in mine.parent.rglob("*")] == ["theory", "notes.md"]
+
+    def must_not_train(args: Any, out: Path) -> mf.CommandResult:
+        raise AssertionError("trained before refusing")
+
+    with pytest.raises(TacbenchError, match="holds no theory references"):  # before training
+        regress.update(mine.parent, "exact", work=tmp_path / "work", runner=must_not_train)
+
+
+def _stopped_runner(status: int) -> mf.Runner:
+    """A runner whose command a stop signal ended (its exit status ``status``)."""
+    return lambda args, out: mf.finished(status, "interrupted at step 100", out)
+
+
+def test_an_interrupted_update_leaves_the_references_as_they_were(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Ctrl-C in the exact runs had already replaced the theory references, and left a
+    half-filled staging folder beside the exact ones."""
+    reference, _ = _copy_exact_reference(tmp_path)
+    _fake_theory(monkeypatch, {"a.csv": CSV})
+    regress.update(reference, "theory", work=tmp_path / "w1")
+    before = {p: p.read_bytes() for p in reference.rglob("*") if p.is_file()}
+    _fake_theory(monkeypatch, {"a.csv": CSV.replace("0.25", "0.5")})
+    with pytest.raises(mf.RunStopped):
+        regress.update(reference, "exact", work=tmp_path / "w2", runner=_stopped_runner(130))
+    assert {p: p.read_bytes() for p in reference.rglob("*") if p.is_file()} == before
+    assert not [p for p in reference.rglob(".*.new")]
+
+
+@pytest.mark.parametrize(("status", "name"), [(130, "Ctrl-C"), (143, "SIGTERM")])
+def test_a_check_whose_run_a_signal_stopped_stops_with_its_status(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, status: int, name: str
+) -> None:
+    """The interrupted run was counted as drift (exit 1, "REGRESSION") and the next run
+    trained on."""
+    reference, _ = _copy_exact_reference(tmp_path)
+    ran: list[str] = []
+
+    def stopped(args: Any, out: Path) -> mf.CommandResult:
+        ran.append(out.name)
+        return _stopped_runner(status)(args, out)
+
+    monkeypatch.setattr(sys.modules["tacbench.cli.regress"], "in_process", lambda group: stopped)
+    names = [e.name for e in EXACT_RUNS[:2]]
+    args = ["regress", "--against", str(reference), "--only", names[0], "--only", names[1]]
+    result = CliRunner().invoke(cli, args)
+    assert result.exit_code == status, result.output
+    assert f"interrupted by {name}" in result.output and "REGRESSION" not in result.output
+    assert ran == names[:1]
+
+
+def test_a_manifest_entry_lacking_what_a_check_reads_is_refused(tmp_path: Path) -> None:
+    """An entry without its args ended in a KeyError traceback (exit 1, read as a regression)."""
+    reference, path = _copy_exact_reference(tmp_path)
+    manifest = json.loads(path.read_text())
+    del manifest["runs"][1]["args"]
+    manifest["runs"][2]["step"] = "2000"
+    path.write_text(json.dumps(manifest))
+    first, second = manifest["runs"][1]["name"], manifest["runs"][2]["name"]
+    with pytest.raises(TacbenchError) as refused:
+        regress.check(reference, "exact", names=[manifest["runs"][0]["name"]])
+    assert f"is damaged: {first!r} lacks 'args'; {second!r} lacks 'step'" in str(refused.value)

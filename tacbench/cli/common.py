@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import shlex
+import signal
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
@@ -38,9 +39,12 @@ class Group(click.Group):
                 err=True,
             )
             ctx.exit(stopped.exit_status)
-        except KeyboardInterrupt:  # a Ctrl-C outside the commands' own handling of signals
-            click.echo("interrupted by Ctrl-C", err=True)
-            ctx.exit(exit_status())
+        except KeyboardInterrupt as stopped:  # outside the commands' own handling of signals
+            # (a regress whose reference run a signal stopped says which signal by its status)
+            status = getattr(stopped, "exit_status", 0) or exit_status()
+            name = "Ctrl-C" if status == 128 + signal.SIGINT else signal.Signals(status - 128).name
+            click.echo(f"interrupted by {name}", err=True)
+            ctx.exit(status)
 
 
 def command_line(ctx: click.Context) -> str:

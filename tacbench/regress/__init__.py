@@ -22,7 +22,7 @@ from pathlib import Path
 from tacbench import runs
 from tacbench.errors import TacbenchError
 from tacbench.regress.exact import check_exact, check_theory, update_exact, update_theory
-from tacbench.regress.manifest import Runner, subprocess_runner
+from tacbench.regress.manifest import Runner, check_replaceable, subprocess_runner
 from tacbench.regress.outcome import Row, TierResult, format_result
 from tacbench.regress.stat import check_stat, update_stat
 from tacbench.runs import locks
@@ -104,9 +104,12 @@ def update(
     reference = Path(reference)
     runs.check_writable(reference, "--against")  # before minutes of training, not after
     with locks.writing([reference], hint=""), _scratch(work) as scratch:
+        for replaced in ("theory", "exact") if tier == "exact" else (tier,):
+            check_replaceable(reference, replaced)
         if tier == "stat":
             return [update_stat(reference, scratch / "stat", log=log, runner=runner)]
-        written = [update_theory(reference, scratch / "theory")]
+        # the exact runs first: stopped or failed, they leave the theory references as they were
+        written = []
         if tier == "exact":
             written.append(update_exact(reference, scratch / "exact", log=log, runner=runner))
-        return written
+        return [update_theory(reference, scratch / "theory"), *written]

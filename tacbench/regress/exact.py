@@ -104,36 +104,37 @@ def update_exact(
 ) -> Path:
     """Run every spec and write ``<reference>/exact/<this CPU class>``: the CSVs and
     ``manifest.json`` (other CPU classes' references are kept)."""
-    start, staging = time.perf_counter(), mf.staging_directory(reference, "exact")
-    entries = []
-    for spec in specs:
-        t0 = time.perf_counter()
-        directory = _completed(spec.name, runner(spec.args, work / spec.name))
-        (staging / spec.name).mkdir()
-        for name in EXACT_FILES:
-            text = mf.without_wall_clock((directory / name).read_text())
-            (staging / spec.name / name).write_text(text)
-        status = runs.read_json(directory / "status.json")
-        entries.append(
-            {
-                "name": spec.name,
-                "command": mf.command_line(spec.args),
-                "args": list(spec.args),
-                "state": status["state"],
-                "step": status["step"],
-                "seconds": round(time.perf_counter() - t0, 1),
-                "config": runs.read_json(directory / "config.json")["config"],
-            }
+    start = time.perf_counter()
+    with mf.staged(reference, "exact") as staging:
+        entries = []
+        for spec in specs:
+            t0 = time.perf_counter()
+            directory = _completed(spec.name, runner(spec.args, work / spec.name))
+            (staging / spec.name).mkdir()
+            for name in EXACT_FILES:
+                text = mf.without_wall_clock((directory / name).read_text())
+                (staging / spec.name / name).write_text(text)
+            status = runs.read_json(directory / "status.json")
+            entries.append(
+                {
+                    "name": spec.name,
+                    "command": mf.command_line(spec.args),
+                    "args": list(spec.args),
+                    "state": status["state"],
+                    "step": status["step"],
+                    "seconds": round(time.perf_counter() - t0, 1),
+                    "config": runs.read_json(directory / "config.json")["config"],
+                }
+            )
+            log(f"{spec.name}: {entries[-1]['seconds']} s")
+        manifest = mf.provenance("exact", reference)
+        manifest.update(
+            files=list(EXACT_FILES),
+            ignored_columns=[mf.WALL_CLOCK],
+            seconds=round(time.perf_counter() - start, 1),
+            runs=entries,
         )
-        log(f"{spec.name}: {entries[-1]['seconds']} s")
-    manifest = mf.provenance("exact", reference)
-    manifest.update(
-        files=list(EXACT_FILES),
-        ignored_columns=[mf.WALL_CLOCK],
-        seconds=round(time.perf_counter() - start, 1),
-        runs=entries,
-    )
-    return mf.publish(staging, manifest, reference, "exact")
+        return mf.publish(staging, manifest, reference, "exact")
 
 
 def check_exact(
@@ -233,13 +234,13 @@ def _theory_csvs(work: Path) -> dict[str, str]:
 
 def update_theory(reference: Path, work: Path) -> Path:
     """Write ``<reference>/theory``: the CSVs of ``tacbench figures`` and ``manifest.json``."""
-    staging = mf.staging_directory(reference, "theory")
-    csvs = _theory_csvs(work)
-    for name, text in csvs.items():
-        (staging / name).write_text(text)
-    manifest = mf.provenance("theory", reference)
-    manifest.update(command=THEORY_COMMAND, files=sorted(csvs))
-    return mf.publish(staging, manifest, reference, "theory")
+    with mf.staged(reference, "theory") as staging:
+        csvs = _theory_csvs(work)
+        for name, text in csvs.items():
+            (staging / name).write_text(text)
+        manifest = mf.provenance("theory", reference)
+        manifest.update(command=THEORY_COMMAND, files=sorted(csvs))
+        return mf.publish(staging, manifest, reference, "theory")
 
 
 def check_theory(reference: Path, work: Path) -> TierResult:

@@ -16,7 +16,8 @@ import shlex
 import shutil
 import subprocess
 import sys
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -24,6 +25,7 @@ from typing import Any
 from tacbench import runs
 from tacbench.errors import TacbenchError
 from tacbench.hardware import cpu_class
+from tacbench.interrupts import STOP_SIGNALS
 
 FORMAT = 1  # the manifest layout; a reader refuses another
 RECORDED_PACKAGES = ("torch", "numpy", "gymnasium", "mujoco", "stable_baselines3", "sb3_contrib")
@@ -117,6 +119,25 @@ CONTENTS: dict[str, dict[str, str]] = {
 }
 
 
+# what each entry of a manifest's list must hold, besides its name: what a check reads
+ENTRY_FIELDS: dict[str, dict[str, type]] = {
+    "runs": {"args": list, "config": dict, "state": str, "step": int},
+    "groups": {"args": list, "check_seeds": list, "scores": dict},
+}
+
+
+def _entry_problems(manifest: Mapping[str, Any]) -> list[str]:
+    """``"<name> lacks 'args'"`` for each manifest entry lacking a field a check reads, or
+    holding it as the wrong kind."""
+    problems = []
+    for key, fields in ENTRY_FIELDS.items():
+        for entry in manifest.get(key) or ():
+            wrong = [f for f, kind in fields.items() if not isinstance(entry.get(f), kind)]
+            if wrong:
+                problems.append(f"{entry['name']!r} lacks {', '.join(map(repr, wrong))}")
+    return problems
+
+
 def _holds(value: Any, kind: str) -> bool:
     if kind == "mapping":
         return isinstance(value, dict)
@@ -135,6 +156,12 @@ def read_manifest(reference: Path, tier: str, cpu: str | None = None) -> dict[st
     """The manifest of ``tier`` under ``reference`` (the exact tier's for CPU class ``cpu``,
     this machine's by default); a TacbenchError says how to create it."""
     path = tier_directory(reference, tier, cpu) / MANIFEST
+    if not path.is_file() and not any((reference / name).is_dir() for name in CONTENTS):
+        raise TacbenchError(
+            f"{reference} holds no references (no exact/, theory/ or stat/ folder): --against "
+            "names the references folder (results/reference). To record new references there "
+            f"on purpose: {regenerate_command(tier, reference)}"
+        )
     if not path.is_file():
         raise TacbenchError(
             f"no {tier} references at {path.parent}; create them with: "
@@ -154,6 +181,12 @@ def read_manifest(reference: Path, tier: str, cpu: str | None = None) -> dict[st
             f"{path} is damaged: {', '.join(map(repr, damaged))} missing, empty or of the wrong "
             f"kind, so nothing could be compared; restore it from git, or regenerate it with: "
             f"{regenerate_command(tier, reference)}"
+        )
+    problems = _entry_problems(manifest)
+    if problems:
+        raise TacbenchError(
+            f"{path} is damaged: {'; '.join(problems)} (or of the wrong kind); restore it from "
+            f"git, or regenerate it with: {regenerate_command(tier, reference)}"
         )
     return manifest
 
@@ -200,20 +233,41 @@ def provenance_note(manifest: dict[str, Any]) -> str:
     )
 
 
-def staging_directory(reference: Path, tier: str) -> Path:
-    """An empty ``.<name>.new`` beside :func:`tier_directory` to build the new references in."""
+def check_replaceable(reference: Path, tier: str) -> None:
+    """A TacbenchError when :func:`tier_directory` exists but holds no manifest: not
+    references, and :func:`publish` would delete it."""
+    target = tier_directory(reference, tier)
+    if target.exists() and not (target / MANIFEST).is_file():
+        raise TacbenchError(
+            f"{target} holds no {tier} references (no {MANIFEST}), and --update would replace "
+            f"it: is --against {reference} the references folder (results/reference)? Move "
+            f"{target} away, or give another --against."
+        )
+
+
+@contextmanager
+def staged(reference: Path, tier: str) -> Iterator[Path]:
+    """An empty ``.<name>.new`` beside :func:`tier_directory` to build the new references in
+    (:func:`publish` puts it in place); deleted if the block fails or is interrupted, so that
+    the references stay as they were, with nothing half-built beside them."""
+    check_replaceable(reference, tier)
     target = tier_directory(reference, tier)
     staging = target.parent / f".{target.name}.new"
     if staging.exists():
         shutil.rmtree(staging)
     staging.mkdir(parents=True)
-    return staging
+    try:
+        yield staging
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
 
 
 def publish(staging: Path, manifest: Mapping[str, Any], reference: Path, tier: str) -> Path:
-    """Write ``manifest`` into ``staging`` (:func:`staging_directory`), then put ``staging``
-    where :func:`tier_directory` was (same parent, so the rename is cheap); returns the new
+    """Write ``manifest`` into ``staging`` (:func:`staged`), then put ``staging`` where
+    :func:`tier_directory` was (same parent, so the rename is cheap); returns the new
     manifest's path. The exact tier's other CPU classes are left as they are."""
+    check_replaceable(reference, tier)
     write_manifest(staging, manifest)
     target = tier_directory(reference, tier)
     if target.exists():
@@ -268,7 +322,19 @@ def subprocess_runner(args: Sequence[str], out: Path) -> CommandResult:
     return finished(done.returncode, done.stdout + done.stderr, out)
 
 
+class RunStopped(KeyboardInterrupt):
+    """A recorded command stopped by a stop signal (Ctrl-C, SIGTERM, SIGHUP): the check or
+    update stops too, instead of counting the interrupted run as drift and training on."""
+
+    def __init__(self, exit_status: int) -> None:
+        super().__init__(f"a reference run was interrupted (exit status {exit_status})")
+        self.exit_status = exit_status
+
+
 def finished(exit_code: int, output: str, out: Path) -> CommandResult:
-    """A :class:`CommandResult` from a finished command that wrote under ``out``."""
+    """A :class:`CommandResult` from a finished command that wrote under ``out``;
+    :class:`RunStopped` if a stop signal ended it."""
+    if exit_code in {128 + signum for signum in STOP_SIGNALS}:
+        raise RunStopped(exit_code)
     directories = tuple(sorted((out / "runs").glob("*/*/*/seed*")))
     return CommandResult(exit_code, output, directories)

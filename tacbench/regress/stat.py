@@ -129,47 +129,48 @@ def update_stat(
     runner: mf.Runner = mf.subprocess_runner,
 ) -> Path:
     """Train every group with its reference seeds and write ``<reference>/stat``."""
-    start, staging = time.perf_counter(), mf.staging_directory(reference, "stat")
-    entries = []
-    for group in groups:
-        t0 = time.perf_counter()
-        scores, problems, result = _train(
-            group.args, group.reference_seeds, work / group.name, STAT_LAST, runner
-        )
-        if problems:
-            raise TacbenchError(
-                f"reference group {group.name}: not every run completed "
-                f"({'; '.join(f'seed {s}: {p}' for s, p in sorted(problems.items()))})"
+    start = time.perf_counter()
+    with mf.staged(reference, "stat") as staging:
+        entries = []
+        for group in groups:
+            t0 = time.perf_counter()
+            scores, problems, result = _train(
+                group.args, group.reference_seeds, work / group.name, STAT_LAST, runner
             )
-        (staging / group.name).mkdir()
-        for directory in result.directories:
-            text = mf.without_wall_clock((directory / "eval.csv").read_text())
-            (staging / group.name / f"{directory.name}-eval.csv").write_text(text)
-        entries.append(
-            {
-                "name": group.name,
-                "command": mf.command_line([*group.args, *_seed_args(group.reference_seeds)]),
-                "args": list(group.args),
-                "reference_seeds": list(group.reference_seeds),
-                "check_seeds": list(group.check_seeds),
-                "scores": {str(seed): value for seed, value in sorted(scores.items())},
-                "seconds": round(time.perf_counter() - t0, 1),
-            }
+            if problems:
+                raise TacbenchError(
+                    f"reference group {group.name}: not every run completed "
+                    f"({'; '.join(f'seed {s}: {p}' for s, p in sorted(problems.items()))})"
+                )
+            (staging / group.name).mkdir()
+            for directory in result.directories:
+                text = mf.without_wall_clock((directory / "eval.csv").read_text())
+                (staging / group.name / f"{directory.name}-eval.csv").write_text(text)
+            entries.append(
+                {
+                    "name": group.name,
+                    "command": mf.command_line([*group.args, *_seed_args(group.reference_seeds)]),
+                    "args": list(group.args),
+                    "reference_seeds": list(group.reference_seeds),
+                    "check_seeds": list(group.check_seeds),
+                    "scores": {str(seed): value for seed, value in sorted(scores.items())},
+                    "seconds": round(time.perf_counter() - t0, 1),
+                }
+            )
+            log(
+                f"{group.name}: mean score {np.mean(list(scores.values())):.1f} "
+                f"({entries[-1]['seconds']} s)"
+            )
+        manifest = mf.provenance("stat", reference)
+        manifest.update(
+            score=f"mean eval return_mean over a run's last {STAT_LAST} evaluations",
+            last=STAT_LAST,
+            test=TEST,
+            alpha=STAT_ALPHA,
+            seconds=round(time.perf_counter() - start, 1),
+            groups=entries,
         )
-        log(
-            f"{group.name}: mean score {np.mean(list(scores.values())):.1f} "
-            f"({entries[-1]['seconds']} s)"
-        )
-    manifest = mf.provenance("stat", reference)
-    manifest.update(
-        score=f"mean eval return_mean over a run's last {STAT_LAST} evaluations",
-        last=STAT_LAST,
-        test=TEST,
-        alpha=STAT_ALPHA,
-        seconds=round(time.perf_counter() - start, 1),
-        groups=entries,
-    )
-    return mf.publish(staging, manifest, reference, "stat")
+        return mf.publish(staging, manifest, reference, "stat")
 
 
 def check_stat(
