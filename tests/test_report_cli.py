@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import pandas as pd
@@ -104,6 +105,7 @@ def test_svg_figures_are_embedded_as_svg(results: Path, tmp_path: Path) -> None:
     format) are named in a caution, not deleted (a file of the user's is left alone too)."""
     out = tmp_path / "report"
     out.mkdir()
+    (out / "report.md").write_text("# tacbench report\n")  # an earlier report's folder
     (out / "comparison.png").write_bytes(b"an earlier report's")
     (out / "notes.txt").write_text("mine")
     code, output = _invoke(
@@ -138,6 +140,44 @@ def test_user_errors_exit_with_status_two(tmp_path: Path) -> None:
     code, output = _invoke("--results", str(tmp_path), "--out", str(tmp_path / "afile" / "r"))
     assert code == 2 and "cannot create or write the output folder" in output
     assert "choose one you can write with --out" in output and "Traceback" not in output
+
+
+def test_a_folder_of_other_tables_is_refused_before_the_analysis(
+    results: Path, tmp_path: Path
+) -> None:
+    """A study's analysis folder as --out had its own summary.csv and curves.csv replaced."""
+    (tmp_path / "summary.csv").write_text("the study's own\n")
+    (tmp_path / "notes.txt").write_text("mine")
+    code, output = _invoke("--results", str(results), "--out", str(tmp_path), "--reps", "100")
+    assert code == 2, output
+    assert f"--out {tmp_path} holds summary.csv, which a report could overwrite" in output
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt", "summary.csv"]
+    assert (tmp_path / "summary.csv").read_text() == "the study's own\n"
+
+
+def test_a_report_stopped_while_writing_leaves_the_earlier_one_whole(
+    results: Path, report_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A Ctrl-C half-way through writing left the new report's tables beside the earlier
+    report's page, which read as one report."""
+    out = tmp_path / "report"
+    shutil.copytree(report_dir, out)
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    from tacbench.report import plots
+
+    saved: list[object] = []
+    real_save = plots.save
+
+    def save_then_stop(fig: object, path: object, *args: object) -> None:
+        saved.append(path)
+        if len(saved) == 3:
+            raise KeyboardInterrupt
+        real_save(fig, path, *args)
+
+    monkeypatch.setattr(plots, "save", save_then_stop)
+    code, output = _invoke("--results", str(results), "--out", str(out), "--reps", "150")
+    assert code == 130, output
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before  # no staging folder left
 
 
 def test_config_provenance_reaches_the_page(results: Path, report_dir: Path) -> None:

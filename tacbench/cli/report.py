@@ -66,10 +66,11 @@ def report(
     """Figures, tables and rliable statistics from the run directories under --results."""
     from tacbench.report import ReportOptions, analyse, write_report  # pandas etc. only here
     from tacbench.report.mixing import cautions
-    from tacbench.report.write import leftovers
+    from tacbench.report.write import check_out, leftovers
     from tacbench.runs.files import check_writable
 
     check_writable(out)  # before the analysis, which can take minutes
+    check_out(out)
 
     options = ReportOptions(
         results=results,

@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import io
+import shutil
 from collections.abc import Sequence
 from pathlib import Path
 
 import pandas as pd
 
+from tacbench.errors import TacbenchError
 from tacbench.report import plots
 from tacbench.report.build import Report
 from tacbench.report.page import (
@@ -51,10 +53,54 @@ def _tables(report: Report) -> dict[str, pd.DataFrame]:
     }
 
 
+STAGING = ".tacbench-report.new"  # in --out: the report is written here, then moved into place
+
+
+def is_report(out: Path) -> bool:
+    """Whether ``out`` holds a report tacbench wrote (its report.md, by its title)."""
+    try:
+        with (out / "report.md").open(encoding="utf-8") as handle:
+            return handle.readline().strip() == f"# {TITLE}"
+    except (OSError, UnicodeDecodeError):
+        return False
+
+
+def check_out(out: Path) -> None:
+    """A TacbenchError, before any analysis, when ``out`` holds files of the kinds a report
+    writes but no earlier report: a study's own tables (summary.csv, ...) would be replaced."""
+    if not out.is_dir() or is_report(out):
+        return
+    found = sorted(p.name for p in out.iterdir() if p.is_file() and p.suffix in REPORT_SUFFIXES)
+    if found:
+        shown = ", ".join(found[:5]) + (", ..." if len(found) > 5 else "")
+        raise TacbenchError(
+            f"--out {out} holds {shown}, which a report could overwrite, and no earlier report "
+            "(report.md); give a new or empty --out, or the folder of an earlier report."
+        )
+
+
 def write_report(report: Report) -> list[Path]:
-    """Write everything under ``report.options.out``; returns the files written."""
+    """Write everything under ``report.options.out`` (:func:`check_out` first); returns the
+    files written. They are written into a staging folder inside it and moved into place when
+    all are written, so that a failure or a Ctrl-C leaves an earlier report as it was."""
     out = report.options.out
+    check_out(out)
     out.mkdir(parents=True, exist_ok=True)
+    staging = out / STAGING
+    if staging.exists():
+        shutil.rmtree(staging)
+    staging.mkdir()
+    try:
+        names = [path.name for path in _write(report, staging)]
+        for name in names:
+            (staging / name).replace(out / name)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    return [out / name for name in names]
+
+
+def _write(report: Report, out: Path) -> list[Path]:
+    """Every file of the report, written into ``out``."""
     written: list[Path] = []
     for name, frame in _tables(report).items():
         path = out / f"{name}.csv"
