@@ -65,6 +65,9 @@ def test_train_metric_reads_training_episodes(tmp_path: Path) -> None:
     assert runset.data["return"].tolist() == [-1.0, 4.0, 6.0]
 
 
+HEADER = "step,wall_s,return_mean,return_std,length_mean\n"
+
+
 def test_non_finite_rows_are_dropped(tmp_path: Path) -> None:
     path = _tac(tmp_path)
     (path / "eval.csv").write_text(
@@ -74,9 +77,24 @@ def test_non_finite_rows_are_dropped(tmp_path: Path) -> None:
     runset = load_runs(tmp_path)
     assert runset.data["step"].tolist() == [100.0, 200.0, 400.0]
     assert runset.data["return"].tolist() == [1.0, 2.5, 4.0]
+    run = runset.runs.iloc[0]
+    assert (run["rows"], run["dropped"]) == (3, 1)
+    assert (
+        run["note"]
+        == "eval.csv: 1 row with a non-finite step or return left out, the last at step 300"
+    )
 
 
-HEADER = "step,wall_s,return_mean,return_std,length_mean\n"
+def test_non_finite_last_rows_are_dropped_not_taken_for_lost_rows(tmp_path: Path) -> None:
+    """Two diverged last evaluations read as rows lost from the end of the file ("restore the
+    file"): they were logged, so the run is whole, its non-finite rows dropped and counted."""
+    path = _tac(tmp_path, status_step=400, total_steps=400)
+    (path / "eval.csv").write_text(
+        HEADER + "100,1,1.0,0,1\n200,2,2.0,0,1\n300,3,-inf,0,1\n400,4,nan,0,1\n"
+    )
+    runset = load_runs(tmp_path)
+    assert not runset.skipped
+    assert runset.runs["dropped"].tolist() == [2] and not runset.runs["partial"].iloc[0]
 
 
 @pytest.mark.parametrize(
@@ -232,3 +250,21 @@ def test_a_complete_run_whose_evaluations_stop_short_of_its_end_is_skipped(
     )
     assert reasons["seed2"].startswith("eval.csv ends at step 100, though the run completed 1,000")
     assert reasons["seed4"] == "config.json: 'total_steps' is 'lots', not a step count"
+
+
+def test_a_complete_runs_training_episodes_cut_short_are_skipped(tmp_path: Path) -> None:
+    """With --metric train a complete run whose train.csv lost its last 80,000 steps of
+    episodes was scored by its early returns: episodes must reach the end to within the task's
+    time limit (the unfinished last one is never logged; Hopper's limit is 1,000 steps)."""
+    steps = list(range(1000, 100_001, 1000))
+    cut = steps[:20]
+    _tac(tmp_path, seed=0, steps=steps, returns=[1.0] * 100, train=(cut, [1.0] * 20))
+    _tac(tmp_path, seed=1, steps=steps, returns=[1.0] * 100, train=(steps[:-1], [1.0] * 99))
+    runset = load_runs(tmp_path, metric="train")
+    assert runset.runs["seed"].tolist() == [1]  # its last episode unfinished at the end
+    (skipped,) = runset.skipped
+    assert skipped.reason == (
+        "train.csv ends at step 20,000, though the run completed 100,000 steps and its "
+        "episodes last at most 1,000 steps (the time limit): its last rows were lost; restore "
+        "the file"
+    )

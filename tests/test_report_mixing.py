@@ -31,7 +31,7 @@ def test_a_tac_setting_is_its_variant_without_q_and_alpha(variant: str, setting:
 
 def _runs(rows: list[tuple[str, str, str, float]], logged: int = 20) -> pd.DataFrame:
     frame = pd.DataFrame(rows, columns=["algo", "env", "variant", "total_steps"])
-    return frame.assign(rows=logged)
+    return frame.assign(rows=logged, dropped=0, path=[f"run{i}" for i in range(len(rows))])
 
 
 def test_several_settings_or_budgets_on_a_task_are_cautioned() -> None:
@@ -56,6 +56,18 @@ def test_a_last_beyond_the_runs_logged_returns_is_cautioned() -> None:
     assert cautions(runs, 1_000_000) == [
         "2 of 2 runs logged fewer returns than --last 1,000,000 (the fewest: 4): their final "
         "return is the mean of all of them, early ones included."
+    ]
+
+
+def test_runs_with_non_finite_returns_left_out_are_cautioned() -> None:
+    """A diverged evaluation's row was dropped without a word: a complete run showed no note,
+    and its final return was of the rows before."""
+    runs = _runs([("tac", "H", "q1-a0.2", 1e5), ("td3", "H", "default", 1e5)])
+    assert cautions(runs, 10) == []
+    runs.loc[1, "dropped"] = 2
+    assert cautions(runs, 10) == [
+        "1 of 2 runs logged rows with a non-finite step or return (run1; 2 rows in all), which "
+        "are left out: a diverged evaluation or episode is in none of their scores."
     ]
 
 

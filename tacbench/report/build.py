@@ -20,7 +20,7 @@ from tacbench.errors import TacbenchError
 from tacbench.paper import task_sort_key
 from tacbench.report import plots
 from tacbench.report.curves import run_matrix, seed_curves
-from tacbench.report.load import METRIC_SOURCES, Metric, RunSet, load_runs
+from tacbench.report.load import RunSet, load_runs
 from tacbench.report.methods import (
     BEST_Q_LABEL,
     Q_AUTO_LABEL,
@@ -30,6 +30,7 @@ from tacbench.report.methods import (
 )
 from tacbench.report.population import one_per_population, q_trajectories
 from tacbench.report.ranges import q_range_table
+from tacbench.report.series import METRIC_SOURCES, Metric
 from tacbench.report.stats import (
     ALL_TASKS,
     DEFAULT_REPS,

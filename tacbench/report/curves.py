@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from tacbench.report.load import Metric
+from tacbench.report.series import Metric
 
 CURVE_COLUMNS = ("env", "method", "q", "step", "mean", "std", "n")
 

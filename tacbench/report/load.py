@@ -12,27 +12,19 @@ flagged ``partial``.
 
 from __future__ import annotations
 
-import io
 import json
 import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 import pandas as pd
 
 from tacbench.errors import TacbenchError
+from tacbench.report.series import METRIC_SOURCES, Metric, Unreadable, read_series
 from tacbench.report.tables import run_scores
-
-Metric = Literal["eval", "train"]
-
-METRIC_SOURCES: dict[str, tuple[str, str]] = {
-    "eval": ("eval.csv", "return_mean"),
-    "train": ("train.csv", "return"),
-}
-"""Per metric: the CSV it is read from and the column that becomes ``return``."""
 
 CONTRACT_FILES = ("config.json", "status.json", "eval.csv", "train.csv")
 STATES = ("running", "interrupted", "complete", "failed")
@@ -52,6 +44,7 @@ RUN_COLUMNS = (
     "total_steps",
     "partial",
     "rows",
+    "dropped",
     "note",
     "command",
     "git_commit",
@@ -90,14 +83,6 @@ class RunSet:
     root: Path
 
 
-class _Unreadable(Exception):
-    """A run directory that cannot be used; the message is the reason shown to the user."""
-
-    def __init__(self, reason: str, identity: dict[str, Any] | None = None) -> None:
-        super().__init__(reason)
-        self.identity = identity
-
-
 def runs_root(results: Path) -> Path:
     """``<results>/runs`` when it exists (the contract layout), else ``results`` itself."""
     nested = results / "runs"
@@ -120,11 +105,11 @@ def _read_json(path: Path) -> dict[str, Any]:
     try:
         value = json.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
-        raise _Unreadable(f"{path.name} missing") from None
+        raise Unreadable(f"{path.name} missing") from None
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
-        raise _Unreadable(f"{path.name} unreadable: {err}") from None
+        raise Unreadable(f"{path.name} unreadable: {err}") from None
     if not isinstance(value, dict):
-        raise _Unreadable(f"{path.name} is not a JSON object")
+        raise Unreadable(f"{path.name} is not a JSON object")
     return value
 
 
@@ -133,7 +118,7 @@ def _number(value: Any) -> float:
     if value is None:
         return math.nan
     if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise _Unreadable(f"config.json: expected a number or null, got {value!r}")
+        raise Unreadable(f"config.json: expected a number or null, got {value!r}")
     return float(value)
 
 
@@ -141,20 +126,20 @@ def _identity(config: dict[str, Any]) -> dict[str, Any]:
     """The run's identity and provenance from ``config.json``."""
     for key in ("algo", "env", "variant"):
         if not isinstance(config.get(key), str) or not config[key]:
-            raise _Unreadable(f"config.json: '{key}' missing or not a string")
+            raise Unreadable(f"config.json: '{key}' missing or not a string")
     seed = config.get("seed")
     if isinstance(seed, bool) or not isinstance(seed, int):
-        raise _Unreadable("config.json: 'seed' missing or not an integer")
+        raise Unreadable("config.json: 'seed' missing or not an integer")
     q, alpha = _number(config.get("q")), _number(config.get("alpha"))
     settings = config.get("config")
     population = _population(config) if isinstance(settings, dict) else ""
     if population:
         q = math.nan  # learned (--q auto): config.json's q is where the member started
     elif config["algo"] == "tac" and not q > 0:
-        raise _Unreadable("config.json: a TAC run needs a number q > 0")
+        raise Unreadable("config.json: a TAC run needs a number q > 0")
     total = config.get("total_steps")
     if total is not None and (isinstance(total, bool) or not isinstance(total, int) or total < 1):
-        raise _Unreadable(f"config.json: 'total_steps' is {total!r}, not a step count")
+        raise Unreadable(f"config.json: 'total_steps' is {total!r}, not a step count")
     versions = config.get("versions")
     return {
         "algo": config["algo"],
@@ -180,7 +165,7 @@ def _population(config: dict[str, Any]) -> str:
         return ""
     members = config.get("members")
     if not isinstance(members, list) or not all(isinstance(m, dict) for m in members):
-        raise _Unreadable("config.json: a --q auto run needs its 'members'")
+        raise Unreadable("config.json: a --q auto run needs its 'members'")
     return "seeds " + ",".join(str(m.get("seed")) for m in members)
 
 
@@ -191,7 +176,7 @@ def _status(run_dir: Path) -> tuple[str, float, str]:
     status = _read_json(run_dir / "status.json")
     state = status.get("state")
     if state not in STATES:
-        raise _Unreadable(f"status.json: unknown state {state!r}")
+        raise Unreadable(f"status.json: unknown state {state!r}")
     step = status.get("step")
     step_f = (
         float(step) if isinstance(step, int | float) and not isinstance(step, bool) else math.nan
@@ -199,107 +184,20 @@ def _status(run_dir: Path) -> tuple[str, float, str]:
     return str(state), step_f, str(status.get("reason", ""))
 
 
-def _check_numbers(fields: list[str], filename: str, line: int) -> None:
-    for field in fields:
-        try:
-            float(field)
-        except ValueError:
-            raise _Unreadable(
-                f"{filename} line {line} is not numbers: {','.join(fields)!r}"
-            ) from None
-
-
-def _series(
-    run_dir: Path, metric: Metric, state: str
-) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], str]:
-    """(step, return, wall_s) of whole rows in logged order, rows with a non-finite step or
-    return dropped, and a note on what was dropped ("" if nothing). A run whose rows are not
-    whole numbers of the header's width with steps rising throughout is unreadable (the reason
-    says which line); a torn last line, which a writer leaves while it appends, is dropped (and
-    noted) only while the run is still ``running``."""
-    filename, column = METRIC_SOURCES[metric]
-    path = run_dir / filename
-    if not path.exists():
-        raise _Unreadable(f"{filename} missing")
-    try:
-        text = path.read_text()
-    except (OSError, UnicodeDecodeError) as err:
-        raise _Unreadable(f"{filename} unreadable: {err}") from None
-    if not text.strip():
-        raise _Unreadable(f"{filename} is empty")
-    header, *lines = text.split("\n")
-    names = header.split(",")
-    missing = [name for name in ("step", "wall_s", column) if name not in names]
-    if missing:
-        raise _Unreadable(f"{filename} unreadable: no column {', '.join(missing)}")
-    torn = lines.pop() if lines else ""  # "" when the file ends with a newline
-    if torn and state != "running":
-        raise _Unreadable(
-            f"{filename} ends in a torn line {torn!r} (a writer was cut off); "
-            "`tacbench run ... --resume` repairs an interrupted run"
-        )
-    for number, line in enumerate(lines, start=2):
-        fields = line.split(",")
-        if len(fields) != len(names):
-            raise _Unreadable(
-                f"{filename} line {number} has {len(fields)} fields, not {len(names)}"
-            )
-        _check_numbers(fields, filename, number)
-    if not lines:
-        raise _Unreadable(
-            f"{filename} has no rows (the run made no evaluation: --eval-every 0? report "
-            "--metric train)"
-            if state == "complete" and metric == "eval"
-            else f"{filename} has no rows yet"
-        )
-    # the checked lines, parsed by pandas as the published reports were (its fast parser can
-    # differ from Python's float in the last bit)
-    whole = io.StringIO("\n".join([header, *lines]))
-    frame = pd.read_csv(whole, usecols=["step", "wall_s", column])
-    values = frame[["step", column, "wall_s"]].to_numpy(dtype=np.float64)
-    falling = np.flatnonzero(np.diff(values[:, 0]) <= 0)
-    if len(falling):
-        at = falling[0] + 1
-        raise _Unreadable(
-            f"{filename} line {at + 2}: step {values[at, 0]:g} does not follow step "
-            f"{values[at - 1, 0]:g} (a repeated or out-of-order row)"
-        )
-    values = values[np.isfinite(values[:, 0]) & np.isfinite(values[:, 1])]
-    if len(values) == 0:
-        raise _Unreadable(f"{filename} has no finite rows")
-    note = f"{filename}: its torn last line, still being written, left out" if torn else ""
-    return (values[:, 0], values[:, 1], values[:, 2]), note
-
-
 def _read_run(run_dir: Path, metric: Metric) -> tuple[dict[str, Any], tuple[np.ndarray, ...]]:
     identity = _identity(_read_json(run_dir / "config.json"))
     state, status_step, reason = _status(run_dir)
     if state == "failed":
         at = "" if math.isnan(status_step) else f" at step {int(status_step)}"
-        raise _Unreadable(f"run failed{at}: {reason or 'no reason given'}", identity)
-    series, note = _series(run_dir, metric, state)
-    if state == "complete" and metric == "eval":
-        _check_rows_reach_the_end(series[0], status_step, METRIC_SOURCES[metric][0])
+        raise Unreadable(f"run failed{at}: {reason or 'no reason given'}", identity)
+    read = read_series(run_dir, metric, state, status_step, identity["env"])
+    series = (read.step, read.value, read.wall_s)
     reached = float(np.nanmax([status_step, series[0][-1]]))
     total = identity["total_steps"]
     partial = state != "complete" or (not math.isnan(total) and reached < total)
     row = {**identity, "state": state, "step_reached": reached, "partial": partial}
-    row["rows"], row["note"] = len(series[0]), note
+    row["rows"], row["note"], row["dropped"] = len(series[0]), read.note, read.dropped
     return row, series
-
-
-def _check_rows_reach_the_end(steps: np.ndarray, end: float, filename: str) -> None:
-    """A complete run evaluates to its end: evaluations that stop more than one interval (the
-    widest gap between them, or the first one's step when there is one) before the ``end`` its
-    status.json records were lost (a file cut short), and its final return would be an early
-    one. (Training episodes are not checked: the last one may run on past any gap before it.)"""
-    interval = float(np.diff(steps).max()) if len(steps) > 1 else float(steps[0])
-    if not math.isnan(end) and end - steps[-1] > interval:
-        raise _Unreadable(
-            f"{filename} ends at step {steps[-1]:,.0f}, though the run completed {end:,.0f} "
-            f"steps and evaluates every {interval:,.0f} at most: its last rows were lost; "
-            "restore the file"
-        )
 
 
 def final_return(run_dir: Path, last: int) -> float:
@@ -308,7 +206,7 @@ def final_return(run_dir: Path, last: int) -> float:
     complete or cannot be read."""
     try:
         row, (step, value, _) = _read_run(run_dir, "eval")
-    except _Unreadable as err:
+    except Unreadable as err:
         raise TacbenchError(f"{run_dir}: {err}") from None
     if row["partial"]:
         raise TacbenchError(f"{run_dir} is not complete (step {row['step_reached']:g}).")
@@ -346,7 +244,7 @@ def load_runs(results: Path | str, metric: Metric = "eval") -> RunSet:
         rel = run_dir.relative_to(root).as_posix()
         try:
             row, run_series = _read_run(run_dir, metric)
-        except _Unreadable as err:
+        except Unreadable as err:
             skipped.append(Skipped(rel, str(err), err.identity))
             continue
         key = (row["algo"], row["env"], row["variant"], row["seed"])

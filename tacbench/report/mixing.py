@@ -22,8 +22,8 @@ def tac_setting(variant: str) -> str:
 
 def cautions(runs: pd.DataFrame, last: int) -> list[str]:
     """One sentence per task whose TAC runs have several settings, and per task whose runs
-    were planned for several budgets; and one when runs logged fewer returns than the ``last``
-    that their final return averages."""
+    were planned for several budgets; one when runs logged fewer returns than the ``last``
+    that their final return averages, and one when runs logged non-finite returns (left out)."""
     found = []
     tac = runs[runs["algo"] == "tac"]
     for env, group in tac.groupby("env"):
@@ -49,5 +49,14 @@ def cautions(runs: pd.DataFrame, last: int) -> list[str]:
             f"{len(short)} of {len(runs)} runs logged fewer returns than --last {last:,} (the "
             f"fewest: {int(short['rows'].min()):,}): their final return is the mean of all of "
             "them, early ones included."
+        )
+    dropped = runs[runs["dropped"] > 0]
+    if len(dropped):
+        paths = list(dropped["path"])
+        shown = ", ".join(paths[:3]) + (f" and {len(paths) - 3} more" if len(paths) > 3 else "")
+        found.append(
+            f"{len(dropped)} of {len(runs)} runs logged rows with a non-finite step or return "
+            f"({shown}; {int(dropped['dropped'].sum()):,} rows in all), which are left out: a "
+            "diverged evaluation or episode is in none of their scores."
         )
     return found

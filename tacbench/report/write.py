@@ -33,7 +33,8 @@ def _tables(report: Report) -> dict[str, pd.DataFrame]:
         }
     )
     return {
-        "runs": report.scores.drop(columns=["versions", "note"]),  # the note: on the page
+        # the note: on the page; rows dropped: in a caution (and the tables keep their columns)
+        "runs": report.scores.drop(columns=["versions", "note", "dropped"]),
         "skipped": skipped,
         "summary": report.summary,
         "best_q": report.best_q,
