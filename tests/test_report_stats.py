@@ -12,6 +12,8 @@ from tacbench.bootstrap import strata_seed
 from tacbench.detectable import detectable_shift
 from tacbench.report.stats import (
     ALL_TASKS,
+    TOO_FEW_RUNS,
+    decidable,
     improvement_over_baselines,
     improvement_over_q1,
     interval_estimates,
@@ -173,8 +175,33 @@ def test_baseline_comparison_pairs_each_method_with_each_baseline_on_shared_task
     ]
     assert table["p"].tolist() == [1.0, 1.0, 1.0, 0.0]
     assert table["tasks"].tolist() == [1, 1, 2, 1]
-    assert table["verdict"].tolist()[:2] == ["larger", "larger"]
+    # three runs against two (or two against three) are too few for any verdict; both tasks
+    # together are enough (10 x 10 rankings)
+    assert table["verdict"].tolist()[:3] == [TOO_FEW_RUNS, TOO_FEW_RUNS, "larger"]
     assert table["difference"].iloc[0] == pytest.approx(6.0 - 1.5)
+
+
+@pytest.mark.parametrize(
+    ("sizes", "enough"),
+    [
+        ([(1, 1)], False),
+        ([(2, 2)], False),  # its bootstrap interval was [0, 0] below: "smaller"
+        ([(3, 3)], False),  # the most extreme ranking: 2 in 20 when alike
+        ([(3, 4)], False),  # 2 in 35
+        ([(3, 5)], True),  # 2 in 56
+        ([(4, 4)], True),  # 2 in 70
+        ([(5, 5)], True),
+        ([(3, 3), (3, 3)], True),  # over two tasks: 2 in 400
+        ([(1, 5), (1, 5)], False),  # 2 in 36
+    ],
+)
+def test_a_verdict_needs_runs_enough_for_any_ranking_to_be_evidence(
+    sizes: list[tuple[int, int]], enough: bool
+) -> None:
+    """Two runs a side, all below, gave P = 0 [0, 0], "smaller"; one a side gave "larger"."""
+    xs = [np.arange(n, dtype=float) for n, _ in sizes]
+    ys = [np.arange(m, dtype=float) + 100 for _, m in sizes]
+    assert decidable(xs, ys) is enough
 
 
 def _finals(cells: dict[tuple[str, str], list[float]]) -> pd.DataFrame:

@@ -3,8 +3,9 @@ report's verdict and interval.
 
 The table has one row per claim of the paper and one column per task. A cell reads
 ``**confirmed** 0.84 [0.67, 0.97]``: P(the claim's side beats the other side) with its 95 %
-interval, and the verdict that interval gives (confirmed where it lies above 0.5, contradicted
-where below, not distinguishable where it holds 0.5), or ``not run``. Rows whose verdict is a
+interval, and the report's verdict (confirmed where the interval lies above 0.5, contradicted
+where below, not distinguishable where it holds 0.5; too few runs where no interval of these
+run counts could be evidence), or ``not run``. Rows whose verdict is a
 reading of curves rather than one interval (early convergence) are checked for their form only.
 """
 
@@ -13,11 +14,12 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 
 from tacbench.paper import TASK_FACTS, task_name
-from tacbench.report.stats import improvement_verdict
+from tacbench.report.stats import TOO_FEW_RUNS, decidable, improvement_verdict
 from tests.helpers import Q_GRID_STUDIES, STUDIES
 
 pytestmark = pytest.mark.unit
@@ -30,8 +32,7 @@ NOT_RUN = "not run"
 HEADING = "## The whole paper, task by task"
 
 
-def _cell(p: float, low: float, high: float) -> str:
-    verdict = improvement_verdict(low, high)
+def _cell(p: float, low: float, high: float, verdict: str) -> str:
     return f"**{VERDICTS.get(verdict, verdict)}** {p:.2f} [{low:.2f}, {high:.2f}]"
 
 
@@ -44,7 +45,11 @@ def _range_cell(env: str, q_range: str) -> str:
     row = ranges[(ranges["env"] == env) & (ranges["range"] == q_range)]
     if row.empty:
         return NOT_RUN
-    return _cell(*row[["p_middle", "p_low", "p_high"]].iloc[0])
+    middle = ranges[(ranges["env"] == env) & (ranges["range"] == "1 <= q < 2")]
+    p, low, high = row[["p_middle", "p_low", "p_high"]].iloc[0]
+    counts = [np.zeros(int(middle["runs"].iloc[0]))], [np.zeros(int(row["runs"].iloc[0]))]
+    verdict = improvement_verdict(low, high) if decidable(*counts) else TOO_FEW_RUNS
+    return _cell(p, low, high, verdict)
 
 
 def _best_q_cell(env: str) -> str:
@@ -53,7 +58,7 @@ def _best_q_cell(env: str) -> str:
     row = improvement[
         (improvement["env"] == env) & (improvement["method"] == f"TAC q={facts.best_q:g}")
     ]
-    return f"q = {facts.best_q:g}: " + _cell(*row[["p", "low", "high"]].iloc[0])
+    return f"q = {facts.best_q:g}: " + _cell(*row[["p", "low", "high", "verdict"]].iloc[0])
 
 
 def _baseline_rows(env: str) -> pd.DataFrame:
@@ -66,7 +71,7 @@ def _baseline_cell(env: str, baseline: str) -> str:
     row = rows[rows["baseline"] == baseline]
     if row.empty:
         return NOT_RUN
-    return _cell(*row[["p", "low", "high"]].iloc[0])
+    return _cell(*row[["p", "low", "high", "verdict"]].iloc[0])
 
 
 def _state_of_the_art_cell(env: str) -> str:
@@ -126,6 +131,5 @@ def test_every_row_has_a_verdict_in_every_cell() -> None:
     for claim, cells in _table().items():
         assert len(cells) == len(TASKS), claim
         for cell in cells:
-            assert cell.startswith(("**confirmed", "**contradicted", "**not dist", NOT_RUN)) or (
-                re.match(r"q = [\d.]+: \*\*", cell)
-            ), (claim, cell)
+            verdicts = ("**confirmed", "**contradicted", "**not dist", "**too few", NOT_RUN)
+            assert cell.startswith(verdicts) or (re.match(r"q = [\d.]+: \*\*", cell)), (claim, cell)

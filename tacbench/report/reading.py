@@ -42,7 +42,10 @@ def how_to_read(report: Report) -> list[str]:
         "verdict is 'not distinguishable' and 'detectable (80 % power)' says how large a "
         "difference of mean final returns these run counts would have found: the smallest one a "
         "two-sided permutation test at 5 % finds in 80 % of resamples of the observed runs "
-        "(docs/sequential.md), so the verdict reads 'no difference larger than that'.",
+        "(docs/sequential.md), so the verdict reads 'no difference larger than that'. Where "
+        "even every run of one side above every run of the other would be no evidence (three "
+        "runs a side or fewer on a task: that ranking has a chance of 2 in 20 when both are "
+        "alike), the verdict is 'too few runs', whatever the interval.",
         *(
             [
                 f"On an '{ALL_TASKS}' row, 'detectable' is a shift of every task's mean final "

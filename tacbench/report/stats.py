@@ -19,6 +19,7 @@ leaves every other interval unchanged.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -28,6 +29,9 @@ from rliable import metrics
 from tacbench.bootstrap import interval, scalar_interval, strata_seed
 from tacbench.detectable import detectable_difference, detectable_shift
 from tacbench.sequential import NOT_DISTINGUISHABLE
+
+TOO_FEW_RUNS = "too few runs"
+"""The verdict where no interval of these run counts could be evidence (:func:`decidable`)."""
 
 DEFAULT_REPS = 2000
 """Bootstrap replications. With 2,000 the Monte-Carlo standard deviation of each interval endpoint
@@ -274,7 +278,7 @@ def _comparison_rows(
     rows: list[dict[str, object]] = []
     for env, x, y in zip(envs, xs, ys, strict=True):
         p, low, high = probability_of_improvement([x], [y], reps, seed)
-        verdict = improvement_verdict(low, high)
+        verdict = improvement_verdict(low, high) if decidable([x], [y]) else TOO_FEW_RUNS
         rows.append(
             {
                 "env": env,
@@ -289,7 +293,7 @@ def _comparison_rows(
         )
     if len(xs) > 1:
         p, low, high = probability_of_improvement(xs, ys, reps, seed)
-        verdict = improvement_verdict(low, high)
+        verdict = improvement_verdict(low, high) if decidable(xs, ys) else TOO_FEW_RUNS
         rows.append(
             {
                 "env": ALL_TASKS,
@@ -305,6 +309,19 @@ def _comparison_rows(
             }
         )
     return rows
+
+
+def decidable(xs: Sequence[np.ndarray], ys: Sequence[np.ndarray]) -> bool:
+    """Whether these run counts (``xs[t]`` against ``ys[t]`` on each task t) could give a
+    verdict at all. P(X > Y) compares ranks: its interval can be evidence at the two-sided 5 %
+    level only if even the most extreme ranking, every run of one side above every run of the
+    other, is rarer than that when both are alike, 2 / prod_t C(n_t + m_t, n_t) <= 0.05. Three
+    runs a side are too few (2 / 20), four are enough (2 / 70). Below that the bootstrap's
+    interval shrinks to a point ([0, 0] at two runs a side, all below) that is no evidence."""
+    arrangements = math.prod(
+        math.comb(len(x) + len(y), len(x)) for x, y in zip(xs, ys, strict=True)
+    )
+    return 2 / arrangements <= 0.05
 
 
 def improvement_verdict(low: float, high: float) -> str:
