@@ -338,7 +338,7 @@ def variant(defaults: Mapping[str, Any], effective: Mapping[str, Any]) -> str:
     """``default`` when ``effective`` equals the table's values, else a slug of the differences
     plus a hash of them (``learning_rate0.0003-net_arch64x64-1a2b3c4d``), so runs with different
     overrides never share a directory. Values keep their signs and exponents
-    (``log_std_init-2``, ``learning_rate1e-05``), as TAC's variants do (``-lsmin-5``)."""
+    (``log_std_init-2``, ``learning_rate1e-05``), as TAC's variants do (``-log_std_min-5``)."""
     changed = {k: effective[k] for k in sorted(effective) if effective[k] != defaults.get(k)}
     if not changed:
         return "default"

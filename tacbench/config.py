@@ -142,7 +142,8 @@ class RunConfig(RunSettings):
         None,
         "step: one update per env step; episode: at each episode end, one update per step of "
         "that episode (paper Algorithm 1; each member at its own episode ends).",
-        source="paper: Algorithm 1 read as one update per step; reference: tac.py's main loop",
+        source="ours: tacbench's first specification (step); episode is paper Algorithm 1 and "
+        "the reference code (tac.py's main loop)",
         choices=("step", "episode"),
         variant={"episode": "episode", "step": "step"},
         profile=True,

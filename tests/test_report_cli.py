@@ -185,3 +185,18 @@ def test_config_provenance_reaches_the_page(results: Path, report_dir: Path) -> 
     page = (report_dir / "index.html").read_text()
     assert config["command"] in page and config["git_commit"] in page
     assert config["versions"]["torch"] in page
+
+
+def test_runs_of_one_q_range_say_so_in_place_of_the_range_table(tmp_path: Path) -> None:
+    """The page showed an empty table."""
+    for seed in (0, 10):
+        write_run(
+            tmp_path, algo="tac", env="Hopper-v4", variant="q1-a0.2", seed=seed,
+            steps=[1.0, 2.0], returns=[1.0, 2.0 + seed], q=1.0, alpha=0.2,
+        )  # fmt: skip
+    out = tmp_path / "report"
+    code, output = _invoke("--results", str(tmp_path), "--out", str(out), "--reps", "100")
+    assert code == 0, output
+    page = (out / "report.md").read_text()
+    assert "needs TAC runs at 1 <= q < 2 and in another range on one task" in page
+    assert (out / "q_ranges.csv").read_text().count("\n") == 1  # the header only

@@ -24,7 +24,7 @@ from tacbench.report.build import ReportOptions, analyse
 from tacbench.sweep import driver, plan, sequential_design, until_decided
 from tacbench.sweep.presets import Narrowing, Preset, get_preset, narrow
 from tacbench.sweep.sequential_design import Design
-from tacbench.sweep.until_decided import run_until_decided
+from tacbench.sweep.until_decided import describe_design, run_until_decided
 from tests.helpers import assert_same_results, past_checkpoint, start_cli, wait_for
 from tests.report_fixtures import write_run
 
@@ -127,6 +127,9 @@ def test_bad_designs_are_refused_with_what_to_change(tmp_path: Path) -> None:
     with pytest.raises(TacbenchError, match=r"can ever be decided.*--interim-runs 3 can"):
         run_until_decided(HOPPER, tmp_path, driver.Options(), never, train=FakeTrain())
     assert not (tmp_path / "runs").exists()
+    # the dry run refuses it too, naming the n that can (it used to price it, saying "never")
+    with pytest.raises(TacbenchError, match=r"can ever be decided.*--interim-runs 3 can"):
+        describe_design(HOPPER, tmp_path, driver.Options(), never)
 
 
 def test_a_decided_comparison_stops_spending_runs(tmp_path: Path) -> None:

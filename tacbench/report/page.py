@@ -298,6 +298,11 @@ def sections(report: Report) -> list[Section]:
                     "0 < q < 1 and q >= 2 in stable convergence and final return): TAC's runs "
                     "pooled per range; spread = mean within-run std of the last logged returns "
                     "(lower is steadier); 'all tasks' pools normalised scores",
+                )
+                if not report.q_ranges.empty
+                else Text(
+                    "The paper's claim by range of q (section 7.1) needs TAC runs at 1 <= q < 2 "
+                    "and in another range on one task; these runs have none to compare."
                 ),
             ],
         ),

@@ -27,8 +27,9 @@ from tacbench import runs
 # jobs) from step 1,001 to 3,000, 4 evaluation episodes every 1,000 steps (the paper's ratio, 10
 # per 5,000; early episodes are short on Hopper, Ant and Humanoid, so later evaluations cost
 # more). TAC: as the paper's grid trains by default, compiled, in units of as
-# many members as tacbench sweep --dry-run plans on the development machine (2 cores, 23 GiB:
-# 45 members, Ant 30, Humanoid 5), AMD EPYC class, torch 2.13 CPU, 2026-12-02. The baselines: one
+# many members as tacbench sweep --dry-run planned on the development machine then (2 cores,
+# 23 GiB: 45 members, Ant 30, Humanoid 5; it now plans 45 for Ant), AMD EPYC class, torch 2.13
+# CPU, 2026-12-02. The baselines: one
 # run per process (K = 1), 2026-11-22. TD3's table uses a (400, 300) network, DDPG's one of 300.
 DEFAULT_SECONDS_PER_STEP: dict[tuple[str, str], float] = {
     # tac, grouped and compiled (members per unit in the comment)

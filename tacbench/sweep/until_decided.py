@@ -211,11 +211,14 @@ def describe_design(preset: Preset, out: Path, options: Options, design: Design)
     """The dry run: each task's methods and comparisons, what the record holds (its decisions),
     the most runs and core-hours the design can still take (every open comparison to the last
     interim; a method no longer in one keeps the runs it has), the fixed design's runs, and the
-    first interim at which a decision is possible at all."""
+    first interim at which a decision is possible at all. A design that can never decide is
+    refused, as the sweep refuses it (:func:`check_decidable`)."""
     design = replace(design, control=design.control or default_control(preset))
     tasks = methods_of(preset)
     controls = {env: control_of(design, env, methods) for env, methods in tasks.items()}
     record = Record(out, design, tasks)
+    if not any(record.interims.values()):
+        check_decidable(design, tasks)
     compared = comparisons(record, controls)
     lines = [
         f"sequential design: interims of {design.n} runs per open method, at most "
