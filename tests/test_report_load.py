@@ -204,6 +204,20 @@ def test_failed_unreadable_and_duplicate_runs_are_skipped_with_reasons(tmp_path:
     assert len(runset.skipped) == 10
 
 
+def test_of_duplicates_the_run_that_trained_further_is_kept(tmp_path: Path) -> None:
+    """The first path in sorted order was kept, though it was an interrupted copy and the
+    other complete: the complete one was skipped as its duplicate."""
+    early = _tac(tmp_path / "a", state="interrupted", status_step=200, total_steps=300)
+    (early / "eval.csv").write_text(HEADER + "100,1,1.0,0,1\n200,2,2.0,0,1\n")
+    _tac(tmp_path / "b", status_step=300, total_steps=300)
+    runset = load_runs(tmp_path)
+    assert runset.runs["path"].tolist() == ["b/runs/tac/Hopper-v4/q1.5-a0.2/seed0"]
+    assert not runset.runs["partial"].iloc[0] and runset.data["step"].max() == 300
+    (skipped,) = runset.skipped
+    assert skipped.path == "a/runs/tac/Hopper-v4/q1.5-a0.2/seed0"
+    assert skipped.reason.startswith("duplicate of b/runs/tac/Hopper-v4/q1.5-a0.2/seed0")
+
+
 def test_no_runs_is_a_clear_error(tmp_path: Path) -> None:
     with pytest.raises(TacbenchError, match="does not exist"):
         load_runs(tmp_path / "missing")

@@ -239,7 +239,7 @@ def load_runs(results: Path | str, metric: Metric = "eval") -> RunSet:
     rows: list[dict[str, Any]] = []
     series: list[tuple[np.ndarray, ...]] = []
     skipped: list[Skipped] = []
-    seen: dict[tuple[str, str, str, int], str] = {}
+    seen: dict[tuple[str, str, str, int], int] = {}  # a run's identity -> its index in rows
     for run_dir in run_dirs:
         rel = run_dir.relative_to(root).as_posix()
         try:
@@ -248,14 +248,17 @@ def load_runs(results: Path | str, metric: Metric = "eval") -> RunSet:
             skipped.append(Skipped(rel, str(err), err.identity))
             continue
         key = (row["algo"], row["env"], row["variant"], row["seed"])
-        if key in seen:
-            skipped.append(
-                Skipped(rel, f"duplicate of {seen[key]} (same algo, env, variant, seed)")
-            )
+        if key not in seen:
+            seen[key] = len(rows)
+            rows.append({"run": len(rows), "path": rel, **row})
+            series.append(run_series)
             continue
-        seen[key] = rel
-        rows.append({"run": len(rows), "path": rel, **row})
-        series.append(run_series)
+        at = seen[key]
+        kept = rows[at]
+        if _further(row, kept):  # the one that trained further stays, whatever the path order
+            rows[at], series[at] = {"run": at, "path": rel, **row}, run_series
+            rel, kept = kept["path"], rows[at]
+        skipped.append(Skipped(rel, f"duplicate of {kept['path']} (same algo, env, variant, seed)"))
     if not rows:
         reasons = "; ".join(f"{s.path}: {s.reason}" for s in skipped[:5])
         raise TacbenchError(
@@ -268,6 +271,12 @@ def load_runs(results: Path | str, metric: Metric = "eval") -> RunSet:
     planned = runs.groupby(["algo", "env", "variant"])["total_steps"].transform("max")
     runs["partial"] = runs["partial"] | (runs["total_steps"] < planned)
     return RunSet(_tidy(runs, series), runs, tuple(skipped), metric, root)
+
+
+def _further(row: dict[str, Any], than: dict[str, Any]) -> bool:
+    """Whether a run trained further than another of the same identity: complete against
+    partial, else more steps reached."""
+    return (not row["partial"], row["step_reached"]) > (not than["partial"], than["step_reached"])
 
 
 def _tidy(runs: pd.DataFrame, series: list[tuple[np.ndarray, ...]]) -> pd.DataFrame:
