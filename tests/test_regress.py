@@ -514,3 +514,47 @@ def test_a_manifest_entry_lacking_what_a_check_reads_is_refused(tmp_path: Path) 
     with pytest.raises(TacbenchError) as refused:
         regress.check(reference, "exact", names=[manifest["runs"][0]["name"]])
     assert f"is damaged: {first!r} lacks 'args'; {second!r} lacks 'step'" in str(refused.value)
+
+
+def test_an_update_whose_theory_step_fails_changes_neither_tier(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The exact tier was published before the theory figures were drawn: a failure there
+    left new exact references beside the old theory ones."""
+    reference, _ = _copy_exact_reference(tmp_path)
+    _fake_theory(monkeypatch, {"a.csv": CSV})
+    regress.update(reference, "theory", work=tmp_path / "w1")
+    before = {p: p.read_bytes() for p in reference.rglob("*") if p.is_file()}
+
+    def drawing_fails(work: Path) -> dict[str, str]:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(exact, "_theory_csvs", drawing_fails)
+    with pytest.raises(KeyboardInterrupt):
+        regress.update(reference, "exact", work=tmp_path / "w2", runner=_stopped_runner(0))
+    assert {p: p.read_bytes() for p in reference.rglob("*") if p.is_file()} == before
+    assert not [p for p in reference.rglob(".*")]
+
+
+def test_a_swap_that_fails_puts_the_old_references_back(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The old references were deleted before the new ones were renamed into place: a failed
+    rename lost both."""
+    reference = tmp_path / "reference"
+    _fake_theory(monkeypatch, {"a.csv": CSV})
+    regress.update(reference, "theory", work=tmp_path / "w1")
+    before = (reference / "theory" / "a.csv").read_text()
+    real_rename = Path.rename
+
+    def rename(self: Path, target: Any) -> Any:
+        if self.name == ".theory.new":
+            raise OSError("the disk went away")
+        return real_rename(self, target)
+
+    monkeypatch.setattr(Path, "rename", rename)
+    _fake_theory(monkeypatch, {"a.csv": CSV.replace("0.25", "0.5")})
+    with pytest.raises(OSError, match="the disk went away"):
+        regress.update(reference, "theory", work=tmp_path / "w2")
+    assert (reference / "theory" / "a.csv").read_text() == before
+    assert sorted(p.name for p in reference.iterdir()) == ["theory"]

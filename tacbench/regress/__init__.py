@@ -21,7 +21,13 @@ from pathlib import Path
 
 from tacbench import runs
 from tacbench.errors import TacbenchError
-from tacbench.regress.exact import check_exact, check_theory, update_exact, update_theory
+from tacbench.regress.exact import (
+    check_exact,
+    check_theory,
+    theory_staged,
+    update_exact,
+    update_theory,
+)
 from tacbench.regress.manifest import Runner, check_replaceable, subprocess_runner
 from tacbench.regress.outcome import Row, TierResult, format_result
 from tacbench.regress.stat import check_stat, update_stat
@@ -108,8 +114,9 @@ def update(
             check_replaceable(reference, replaced)
         if tier == "stat":
             return [update_stat(reference, scratch / "stat", log=log, runner=runner)]
-        # the exact runs first: stopped or failed, they leave the theory references as they were
-        written = []
-        if tier == "exact":
-            written.append(update_exact(reference, scratch / "exact", log=log, runner=runner))
-        return [update_theory(reference, scratch / "theory"), *written]
+        if tier == "theory":
+            return [update_theory(reference, scratch / "theory")]
+        # both tiers built before either is published: stopped or failed, neither changes
+        with theory_staged(reference, scratch / "theory") as publish_theory:
+            exact = update_exact(reference, scratch / "exact", log=log, runner=runner)
+            return [publish_theory(), exact]

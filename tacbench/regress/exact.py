@@ -15,7 +15,8 @@ import csv
 import io
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -234,13 +235,21 @@ def _theory_csvs(work: Path) -> dict[str, str]:
 
 def update_theory(reference: Path, work: Path) -> Path:
     """Write ``<reference>/theory``: the CSVs of ``tacbench figures`` and ``manifest.json``."""
+    with theory_staged(reference, work) as publish:
+        return publish()
+
+
+@contextmanager
+def theory_staged(reference: Path, work: Path) -> Iterator[Callable[[], Path]]:
+    """The theory references built in a staging folder (:func:`mf.staged`); the block calls the
+    yielded function to publish them, or leaves the references as they were."""
     with mf.staged(reference, "theory") as staging:
         csvs = _theory_csvs(work)
         for name, text in csvs.items():
             (staging / name).write_text(text)
         manifest = mf.provenance("theory", reference)
         manifest.update(command=THEORY_COMMAND, files=sorted(csvs))
-        return mf.publish(staging, manifest, reference, "theory")
+        yield lambda: mf.publish(staging, manifest, reference, "theory")
 
 
 def check_theory(reference: Path, work: Path) -> TierResult:

@@ -270,9 +270,18 @@ def publish(staging: Path, manifest: Mapping[str, Any], reference: Path, tier: s
     check_replaceable(reference, tier)
     write_manifest(staging, manifest)
     target = tier_directory(reference, tier)
+    old = target.parent / f".{target.name}.old"  # the references replaced, until the swap is done
+    if old.exists():
+        shutil.rmtree(old)
     if target.exists():
-        shutil.rmtree(target)
-    staging.rename(target)
+        target.rename(old)
+    try:
+        staging.rename(target)
+    except BaseException:
+        if old.exists() and not target.exists():
+            old.rename(target)  # the swap failed: the references stay as they were
+        raise
+    shutil.rmtree(old, ignore_errors=True)
     return target / MANIFEST
 
 
