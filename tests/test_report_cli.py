@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import shutil
 from pathlib import Path
+from typing import Any
 
 import pandas as pd
 import pytest
@@ -200,3 +201,21 @@ def test_runs_of_one_q_range_say_so_in_place_of_the_range_table(tmp_path: Path) 
     page = (out / "report.md").read_text()
     assert "needs TAC runs at 1 <= q < 2 and in another range on one task" in page
     assert (out / "q_ranges.csv").read_text().count("\n") == 1  # the header only
+
+
+def test_the_page_is_moved_into_place_last(
+    results: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Until report.md and index.html are replaced the folder reads as the earlier report."""
+    moved: list[str] = []
+    real_replace = Path.replace
+
+    def replace(self: Path, target: Any) -> Any:
+        moved.append(self.name)
+        return real_replace(self, target)
+
+    monkeypatch.setattr(Path, "replace", replace)
+    code, output = _invoke("--results", str(results), "--out", str(tmp_path), "--reps", "100")
+    assert code == 0, output
+    pages = [i for i, name in enumerate(moved) if name in ("report.md", "index.html")]
+    assert len(moved) > 10 and pages == [len(moved) - 2, len(moved) - 1]

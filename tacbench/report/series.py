@@ -126,8 +126,9 @@ def read_series(run_dir: Path, metric: Metric, state: str, end: float, env: str)
 def check_rows_reach_the_end(steps: np.ndarray, end: float, metric: Metric, env: str) -> None:
     """A complete run's rows reach the ``end`` its status.json records: evaluations to within
     one interval (the widest gap between them, or the first one's step when there is one),
-    training episodes to within the task's time limit (the last episode, unfinished at the end,
-    is never logged, and no episode runs longer). Rows that stop earlier were lost (a file cut
+    training episodes to within twice the task's time limit (the last episode, unfinished at
+    the end, is never logged, and no episode runs longer; a run resumed where the env's state is
+    not saved drops one more unfinished episode). Rows that stop earlier were lost (a file cut
     short), and the run's final return would be an early one."""
     if math.isnan(end):
         return
@@ -139,7 +140,8 @@ def check_rows_reach_the_end(steps: np.ndarray, end: float, metric: Metric, env:
         limit = episode_limit(env)
         if limit is None:  # a task without a known time limit: no bound on the last episode
             return
-        within, what = float(limit), f"its episodes last at most {limit:,} steps (the time limit)"
+        within = 2.0 * limit
+        what = f"its episodes last at most {limit:,} steps (the time limit; twice that allowed)"
     if end - steps[-1] > within:
         raise Unreadable(
             f"{filename} ends at step {steps[-1]:,.0f}, though the run completed {end:,.0f} "

@@ -83,7 +83,8 @@ def check_out(out: Path) -> None:
 def write_report(report: Report) -> list[Path]:
     """Write everything under ``report.options.out`` (:func:`check_out` first); returns the
     files written. They are written into a staging folder inside it and moved into place when
-    all are written, so that a failure or a Ctrl-C leaves an earlier report as it was."""
+    all are written (the page last), so that a failure or a Ctrl-C while the report is made
+    leaves an earlier report as it was."""
     out = report.options.out
     check_out(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -93,7 +94,8 @@ def write_report(report: Report) -> list[Path]:
     staging.mkdir()
     try:
         names = [path.name for path in _write(report, staging)]
-        for name in names:
+        # the page last: until it is replaced, the folder reads as the earlier report
+        for name in sorted(names, key=lambda name: name in ("report.md", "index.html")):
             (staging / name).replace(out / name)
     finally:
         shutil.rmtree(staging, ignore_errors=True)
