@@ -121,3 +121,14 @@ def test_a_task_killed_on_its_node_is_recorded_with_its_node_and_host(tmp_path: 
     assert len(entry["node"]) > 10  # the node holding its checkpoints, for the retry
     (failure,) = entry["failures"]
     assert failure["host"] == socket.gethostname() and "Ray task failed" in failure["reason"]
+
+
+def test_the_board_forgets_where_a_unit_ran_when_it_is_submitted_again() -> None:
+    """A retry that dies before it reports was recorded on the last attempt's node and host."""
+    from tacbench.sweep.executors import _Board
+
+    board = _Board()
+    board.started("unit", "node-a", "host-a")
+    assert board.where("unit") == ("node-a", "host-a")
+    board.forget("unit")
+    assert board.where("unit") == ("", "")

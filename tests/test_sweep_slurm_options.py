@@ -219,7 +219,7 @@ def test_a_job_slurm_will_not_start_is_told_once_with_what_to_do(
     monkeypatch.setattr(slurm, "_queued", lambda ids: {})
     executor = _executor(tmp_path)
     job = SimpleNamespace(paths=SimpleNamespace(result_pickle=tmp_path / "none.pkl"))
-    for job_id in ("7_0", "7_1", "7_2", "7_3"):
+    for job_id in ("7_0", "7_1", "7_2", "7_3", "7_4"):
         executor._jobs[job_id] = slurm._Submitted(_smoke_unit(), job)
     listings = iter(
         [
@@ -228,6 +228,7 @@ def test_a_job_slurm_will_not_start_is_told_once_with_what_to_do(
                 "7_1": "PartitionTimeLimit",
                 "7_2": "Resources",
                 "7_3": "QOSMaxJobsPerUserLimit",  # waits for the user's other jobs: not stuck
+                "7_4": "PartitionTimeLimit",  # told with 7_1: one notice per reason
                 "8_0": "JobHeldUser",  # not this sweep's job
             },
             {"7_0": "JobHeldAdmin", "7_1": "PartitionTimeLimit", "7_2": "QOSMaxCpuPerJobLimit"},
@@ -243,9 +244,10 @@ def test_a_job_slurm_will_not_start_is_told_once_with_what_to_do(
         told.append(executor.notices())
     assert told[0] == [
         "Slurm will not start job 7_0 (JobHeldAdmin): release it (scontrol release 7_0) or "
-        "cancel it (scancel); the sweep waits for it",
-        "Slurm will not start job 7_1 (PartitionTimeLimit): stop the sweep (Ctrl-C) and run it "
-        "again with a --time, --partition or --slurm-arg that Slurm grants; the sweep waits for it",
+        "cancel (scancel); the sweep waits for it",
+        "Slurm will not start 2 jobs (7_1 7_4) (PartitionTimeLimit): stop the sweep (Ctrl-C) and "
+        "run it again with a --time, --partition or --slurm-arg that Slurm grants; the sweep "
+        "waits for them",
     ]
     assert [[n.split(":")[0] for n in notes] for notes in told[1:]] == [
         ["Slurm will not start job 7_2 (QOSMaxCpuPerJobLimit)"],  # news only, once

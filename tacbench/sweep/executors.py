@@ -243,6 +243,8 @@ class RayExecutor:
             from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
 
             task = task.options(scheduling_strategy=NodeAffinitySchedulingStrategy(node, soft=True))
+        # a retry that dies before it reports must not be placed where the last attempt ran
+        self.ray.get(self._board.forget.remote(unit.key))
         self._refs[task.remote(job, self._board)] = unit
 
     def wait(self, timeout: float) -> list[Finished]:
@@ -316,6 +318,9 @@ class _Board:
 
     def started(self, key: str, node: str, host: str) -> None:
         self.nodes[key] = (node, host)
+
+    def forget(self, key: str) -> None:
+        self.nodes.pop(key, None)
 
     def where(self, key: str) -> tuple[str, str]:
         """The node and host of the unit's latest attempt; empty if it never started."""

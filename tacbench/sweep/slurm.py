@@ -287,24 +287,33 @@ class SlurmExecutor:
         self._tell_of_waiting_jobs()
 
     def _tell_of_waiting_jobs(self) -> None:
-        """Queue a notice, once per job and reason, for each job that waits on its user: Slurm
-        would hold it for ever, and the sweep with it."""
+        """Queue a notice, once per job and reason (one per reason, naming its jobs), for the
+        jobs that wait on their user: Slurm would hold them for ever, and the sweep with them."""
+        news: dict[str, list[str]] = {}
         for job_id, reason in self._queued.items():
             if job_id not in self._jobs or self._told.get(job_id) == reason:
                 continue
+            if HELD.search(reason) or BEYOND_LIMITS.search(reason):
+                self._told[job_id] = reason
+                news.setdefault(reason, []).append(job_id)
+            else:
+                self._told.pop(job_id, None)
+        for reason, ids in news.items():
+            shown = " ".join(ids[:5]) + (f" and {len(ids) - 5} more" if len(ids) > 5 else "")
             if HELD.search(reason):
-                advice = f"release it (scontrol release {job_id}) or cancel it (scancel)"
-            elif BEYOND_LIMITS.search(reason):
+                advice = f"release {'them' if len(ids) > 1 else 'it'} (scontrol release "
+                advice += (
+                    f"{' '.join(ids[:5])}{' ...' if len(ids) > 5 else ''}) or cancel (scancel)"
+                )
+            else:
                 advice = (
                     "stop the sweep (Ctrl-C) and run it again with a --time, --partition or "
                     "--slurm-arg that Slurm grants"
                 )
-            else:
-                self._told.pop(job_id, None)
-                continue
-            self._told[job_id] = reason
+            what = f"job {shown}" if len(ids) == 1 else f"{len(ids)} jobs ({shown})"
             self._notices.append(
-                f"Slurm will not start job {job_id} ({reason}): {advice}; the sweep waits for it"
+                f"Slurm will not start {what} ({reason}): {advice}; the sweep waits for "
+                f"{'them' if len(ids) > 1 else 'it'}"
             )
 
     def notices(self) -> list[str]:
