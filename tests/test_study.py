@@ -83,14 +83,20 @@ def test_the_report_has_the_tables_the_page_quotes(study: str) -> None:
 
 
 @pytest.mark.parametrize(
-    ("study", "table"),
-    [(study, table) for study in RUNS for table in _tables(study) if table != "report.md"],
+    ("study", "table"), [(study, table) for study in RUNS for table in _tables(study)]
 )
 def test_the_committed_report_tables_regenerate_exactly(
     regenerated: dict[str, Path], study: str, table: str
 ) -> None:
+    """The page too (report.md; index.html is the same page), with the paths it names made
+    the committed ones: a change to the page's text leaves no published page behind."""
     expected = (STUDIES / study / "report" / table).read_text()
-    assert (regenerated[study] / table).read_text() == expected, table
+    fresh = (regenerated[study] / table).read_text()
+    if table == "report.md":
+        here = f"results/studies/{study}"
+        fresh = fresh.replace(str(regenerated[study]), f"{here}/report")
+        fresh = fresh.replace(str(STUDIES / study), here)
+    assert fresh == expected, table
 
 
 @pytest.fixture(scope="module")
