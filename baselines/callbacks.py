@@ -26,6 +26,7 @@ from typing import Any
 
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.logger import Logger
+from stable_baselines3.common.type_aliases import TrainFrequencyUnit
 
 from tacbench import runs
 from tacbench.progress import Progress
@@ -152,10 +153,23 @@ class RunCallback(BaseCallback):
             self.progress.message(
                 f"stop requested at step {step}: finishing this rollout, then checkpointing"
             )
-        if self.on_policy and step >= self.total_steps:
+        if step >= self.total_steps:
             # a rollout that would run past the budget is cut here (its data is not trained on)
-            return bool(self.locals["n_steps"] + 1 >= self.locals["n_rollout_steps"])
+            return self._rollout_ends_here()
         return True
+
+    def _rollout_ends_here(self) -> bool:
+        """Whether the rollout SB3 is collecting is complete with this step (it trains on it
+        next): PPO's and TRPO's after ``n_steps`` steps, an off-policy algorithm's after
+        ``train_freq`` steps or episodes (1 step by default: then never cut)."""
+        if self.on_policy:
+            return bool(self.locals["n_steps"] + 1 >= self.locals["n_rollout_steps"])
+        freq = self.locals["train_freq"]
+        if freq.unit == TrainFrequencyUnit.STEP:
+            return bool(self.locals["num_collected_steps"] >= freq.frequency)
+        # SB3 counts this step's episode end only after the callback
+        episodes = self.locals["num_collected_episodes"] + int(any(self.locals["dones"]))
+        return bool(episodes >= freq.frequency)
 
     def _on_rollout_start(self) -> None:
         self._boundary(self.model.num_timesteps)

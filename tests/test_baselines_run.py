@@ -132,3 +132,20 @@ def test_cli_refuses_bad_hyperparameters_clearly(
     assert message in result.output
     assert "Traceback" not in result.output
     assert not (tmp_path / "runs").exists()
+
+
+@pytest.mark.parametrize("train_freq", ["7", "[1,episode]"])
+def test_an_off_policy_rollout_is_cut_at_the_budget(tmp_path: Path, train_freq: str) -> None:
+    """With train_freq above one step SB3 collects whole rollouts: TD3 trained to step 1,505 (a
+    losses row and a checkpoint there) and an episode ended at 1,501 though the run said
+    complete at 1,500."""
+    args = ["--algo", "td3", *CLI_TINY, "--learning-starts", "100", "--checkpoint-every", "130"]
+    args += ["--log-every", "50", "--hp", f"train_freq={train_freq}", "--hp", "batch_size=16"]
+    result = CliRunner().invoke(cli, ["run", *args, "--out", str(tmp_path)])
+    assert result.exit_code == 0, result.output
+    (run,) = (tmp_path / "runs" / "td3" / "Hopper-v4").glob("*/seed0")
+    assert json.loads((run / "status.json").read_text())["step"] == 300
+    assert pd.read_csv(run / "losses.csv")["step"].max() == 300
+    assert pd.read_csv(run / "train.csv")["step"].max() <= 300
+    steps = [int(p.stem.split("-")[1]) for p in (run / "checkpoint").glob("manifest-*.json")]
+    assert max(steps) == 300
