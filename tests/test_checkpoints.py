@@ -106,8 +106,16 @@ def test_a_group_resumes_from_the_newest_step_all_its_members_have(tmp_path: Pat
     assert checkpoints.choose([a, b]) == (100, [])
     c.mkdir()
     assert checkpoints.choose([c]) == (None, [])  # no checkpoint: start afresh
+    d = tmp_path / "d"
+    _generation(d, 300)
     with pytest.raises(TacbenchError, match="the members' checkpoints are at different steps"):
-        checkpoints.choose([a, c])
+        checkpoints.choose([a, d])
+    # a new member beside a partial one: the advice was --force, which would lose a's steps
+    with pytest.raises(TacbenchError) as refused:
+        checkpoints.choose([a, c / "checkpoint"])
+    assert f"{c} has no checkpoint, and the other members have" in str(refused.value)
+    assert "--force" not in str(refused.value)
+    assert "resume the others in a command without the new members" in str(refused.value)
 
 
 def test_a_damaged_generation_is_passed_over_and_later_ones_forgotten(tmp_path: Path) -> None:

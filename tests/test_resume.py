@@ -217,3 +217,21 @@ def test_a_resume_from_before_the_step_status_json_records_says_so(tmp_path: Pat
     assert "status.json records step 1,100, but the newest intact checkpoint is at step 1,000" in (
         reason
     )
+
+
+def test_a_group_resumed_with_fewer_members_says_its_numbers_round_otherwise(
+    tmp_path: Path,
+) -> None:
+    """A member that failed is not resumed, so the others train as a smaller group, whose
+    batched products round otherwise than the group's: the resumed CSVs then differ from an
+    uninterrupted run's without a word (and config.json still lists every member)."""
+    train(tmp_path, tiny_configs("tac", seeds=[0, 10]), stop=lambda step: step >= 1100)
+    [outcome] = train(tmp_path, tiny_configs("tac", seeds=[0]), resume=True)
+    assert (outcome.state, outcome.step) == ("complete", 1500)
+    reason = json.loads((outcome.directory / "status.json").read_text())["reason"]
+    assert "it trained in a group of 2 members and resumes in one of 1" in reason
+    # the whole group resumed together: nothing to say
+    train(tmp_path / "whole", tiny_configs("tac", seeds=[0, 10]), stop=lambda s: s >= 1100)
+    outcomes = train(tmp_path / "whole", tiny_configs("tac", seeds=[0, 10]), resume=True)
+    for done in outcomes:
+        assert "group" not in json.loads((done.directory / "status.json").read_text())["reason"]

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import shlex
+import shutil
 from pathlib import Path
 from typing import Any
 
@@ -129,6 +130,25 @@ def test_cli_run_skip_refuse_and_force(tmp_path: Path) -> None:
     forced = runner.invoke(cli, ["run", *args, "--eval-every", "150", "--force"])
     assert forced.exit_code == 0, forced.output
     assert pd.read_csv(run / "eval.csv")["step"].tolist() == [150, 300]
+
+
+def test_a_resume_without_a_checkpoint_says_it_trains_again_from_step_0(tmp_path: Path) -> None:
+    """A run killed (kill -9, out of memory) before its first checkpoint resumed from step 0
+    without a word, writing its CSVs again."""
+    args = [*CLI_TINY, "--checkpoint-every", "0", "--out", str(tmp_path)]
+    runner = CliRunner()
+    assert runner.invoke(cli, ["run", *args]).exit_code == 0
+    run = tmp_path / "runs" / "tac" / "Hopper-v4" / "q2-a0.2-ls200" / "seed0"
+    rows = (run / "eval.csv").read_text()
+    shutil.rmtree(run / "checkpoint")  # as a run killed before its first checkpoint leaves it
+    (run / "status.json").write_text('{"state": "running", "step": 0}')
+    resumed = runner.invoke(cli, ["run", *args, "--resume"])
+    assert resumed.exit_code == 0, resumed.output
+    said = f"seed 0: {run} has no checkpoint yet (it stopped before its first, --checkpoint-every"
+    assert said in resumed.output
+    assert (run / "eval.csv").read_text().count("\n") == rows.count("\n")
+    again = runner.invoke(cli, ["run", *args, "--resume"])  # complete: skipped, nothing said
+    assert again.exit_code == 0 and "no checkpoint yet" not in again.output
 
 
 def test_cli_user_errors_and_failed_run(tmp_path: Path) -> None:

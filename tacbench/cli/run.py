@@ -18,6 +18,7 @@ from tacbench.cli.common import command_line, report_outcomes
 from tacbench.cli.options import NumberOrAuto, ResultsFolder, cli_settings, setting_options
 from tacbench.config import RunConfig
 from tacbench.errors import TacbenchError
+from tacbench.runs.files import CRASHED
 from tacbench.settings import RunSettings, settings_of
 
 _SETTINGS = cli_settings(RunConfig)
@@ -180,9 +181,10 @@ def run(
 
 
 def _say_what_starts_afresh(configs: Sequence[Any], out: Path) -> None:
-    """Under --resume, name each run that has nothing to resume (no config.json in its
-    directory): it starts from step 0, which a mistyped setting (another variant) or --out
-    would otherwise do silently."""
+    """Under --resume, name each run that has nothing to resume: no config.json in its
+    directory (a mistyped setting, another variant, or --out would otherwise start it silently),
+    or no checkpoint yet (killed before its first: it trains again from step 0, and the rows it
+    had logged are written again, the same ones for its seed)."""
     for config in configs:
         directory = runs.run_directory(out, config.algo, config.env, config.variant, config.seed)
         if not (directory / "config.json").exists():
@@ -190,3 +192,25 @@ def _say_what_starts_afresh(configs: Sequence[Any], out: Path) -> None:
                 f"seed {config.seed}: nothing to resume at {directory} (no run there); starting "
                 "afresh (check --out and the settings if you meant another run)"
             )
+        elif not any((directory / "checkpoint").glob("manifest-*.json")) and _unfinished(directory):
+            every = config.checkpoint_every
+            when = f"due every {every:,} steps" if every else "--checkpoint-every 0: at the end"
+            click.echo(
+                f"seed {config.seed}: {directory} has no checkpoint yet (it stopped before its "
+                f"first, {when}); it trains again from step 0, writing its rows again"
+            )
+
+
+def _unfinished(directory: Path) -> bool:
+    """Whether the run in ``directory`` is one --resume continues: neither complete nor failed,
+    or failed by a crash (an unreadable status is left to the planning, which says what to
+    do)."""
+    path = directory / "status.json"
+    if not path.exists():
+        return True
+    try:
+        status = runs.read_json(path)
+    except (TacbenchError, OSError):
+        return False
+    crashed = str(status.get("reason", "")).startswith(CRASHED)
+    return status.get("state") not in ("complete", "failed") or crashed

@@ -208,7 +208,7 @@ def choose(folders: Sequence[Path]) -> tuple[int | None, list[str]]:
     no member has a checkpoint, so training starts afresh), and a note on each damaged
     generation passed over. A TacbenchError (exit status 2) when a member has checkpoints but
     none that every member can use; nothing is deleted."""
-    usable, notes, any_checkpoint = [], [], False
+    usable, notes, any_checkpoint, without = [], [], False, []
     for folder in folders:
         if folder.exists() and not folder.is_dir():
             raise TacbenchError(
@@ -224,11 +224,21 @@ def choose(folders: Sequence[Path]) -> tuple[int | None, list[str]]:
         good, bad = usable_steps(folder)
         any_checkpoint |= bool(good or bad)
         usable.append(set(good))
+        if not (good or bad):
+            without.append(folder.parent)
         for step, found in bad.items():
             notes.append(f"{folder}: the checkpoint at step {step} is damaged ({'; '.join(found)})")
     if not any_checkpoint:
         return None, []
     common = set.intersection(*usable) if usable else set()
+    if not common and without:  # a new member beside partial ones: --force would lose theirs
+        named = ", ".join(str(d) for d in without[:3]) + (", ..." if len(without) > 3 else "")
+        raise NoCommonCheckpoint(
+            f"{named} {'have' if len(without) > 1 else 'has'} no checkpoint, and the other "
+            "members have: a group resumes only from a checkpoint all its members share. "
+            "Nothing was deleted; resume the others in a command without the new members (their "
+            "seeds, q or alpha), then train those in a command of their own."
+        )
     if not common:
         raise NoCommonCheckpoint(
             "no usable checkpoint to resume from: "

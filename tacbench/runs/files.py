@@ -174,6 +174,23 @@ def rounding_changes(stored: Mapping[str, Any], config: Mapping[str, Any]) -> li
     ]
 
 
+def group_changes(recorded: Any, members: Sequence[Mapping[str, Any]]) -> list[str]:
+    """A note when a group resumes with other members than config.json records (``recorded``)
+    it trained with: one failed, or the command leaves some out. The maths per member is the
+    same, but the members' products are batched together, so from here on the numbers round
+    otherwise than in an uninterrupted run."""
+    if not members or not isinstance(recorded, list) or len(recorded) <= 1:
+        return []
+    key = lambda m: (m.get("q"), m.get("alpha"), m.get("seed"))  # noqa: E731
+    if sorted(map(key, recorded)) == sorted(map(key, members)):
+        return []
+    return [
+        f"it trained in a group of {len(recorded)} members and resumes in one of "
+        f"{len(members)} (a member failed, or this command leaves some out): the same maths, "
+        "but from here the numbers round otherwise than had the group trained on uninterrupted"
+    ]
+
+
 class RunWriter:
     """Writes one run directory: config.json, status.json, the three CSVs and, with
     ``tensorboard``, TensorBoard event files of the same rows under ``<run>/tensorboard/``."""
@@ -211,19 +228,24 @@ class RunWriter:
             **{name: tuple(columns) for name, columns in self.extra.items()},
         }
 
-    def check_resume(self, step: int, config: Mapping[str, Any]) -> ResumePlan:
+    def check_resume(
+        self, step: int, config: Mapping[str, Any], members: Sequence[Mapping[str, Any]] = ()
+    ) -> ResumePlan:
         """Check every CSV against the (intact) checkpoint generation at ``step``, whose
         manifest records what each held (an older generation records nothing: then the rows up
         to ``step`` are kept), and say what a resume keeps, writing nothing: a
         :class:`~tacbench.runs.resume_checks.DamagedRun` if a CSV cannot continue
         (:func:`~tacbench.runs.resume_checks.check_log`). Its notes also name the hardware
         settings in which ``config`` (the resumed run's settings) differs from config.json's
-        (:func:`rounding_changes`), and progress that status.json records beyond ``step`` (a
+        (:func:`rounding_changes`), a group of other ``members`` than config.json's
+        (:func:`group_changes`), and progress that status.json records beyond ``step`` (a
         newer generation whose manifest was lost)."""
         recorded = recorded_logs(self.directory / "checkpoint", step)
         plan = ResumePlan(step)
-        stored = read_json(self.directory / "config.json").get("config")
+        metadata = read_json(self.directory / "config.json")
+        stored = metadata.get("config")
         plan.notes += rounding_changes(stored if isinstance(stored, dict) else {}, config)
+        plan.notes += group_changes(metadata.get("members"), members)
         status = self.directory / "status.json"
         reached = read_json(status).get("step") if status.exists() else None
         if isinstance(reached, int) and reached > step:  # a newer generation is lost

@@ -106,17 +106,17 @@ class GroupTrainer:
         folders = [d / "checkpoint" for d in directories]
         step, self.resume_notes = checkpoints.choose(folders)
         pairs = zip(self.writers, self.configs, strict=True)
+        members = [{"q": c.q, "alpha": c.alpha, "seed": c.seed} for c in self.configs]
         plans = (  # every member's CSVs are checked before anything is written
             [None] * len(folders)
             if step is None
-            else [w.check_resume(step, c.to_dict()) for w, c in pairs]
+            else [w.check_resume(step, c.to_dict(), members) for w, c in pairs]
         )
         if step is not None:
             for folder in folders:
                 checkpoints.discard_after(folder, step)
-        # each note once: the members share their hardware settings
+        # each note once: the members share their hardware settings and their group
         self.resume_notes += dict.fromkeys(note for plan in plans if plan for note in plan.notes)
-        members = [{"q": c.q, "alpha": c.alpha, "seed": c.seed} for c in self.configs]
         for writer, config, plan in zip(self.writers, self.configs, plans, strict=True):
             if self.resume_notes:
                 writer.note = f"resumed from step {step}: " + "; ".join(self.resume_notes)
