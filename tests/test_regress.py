@@ -558,3 +558,7 @@ def test_a_swap_that_fails_puts_the_old_references_back(
         regress.update(reference, "theory", work=tmp_path / "w2")
     assert (reference / "theory" / "a.csv").read_text() == before
     assert sorted(p.name for p in reference.iterdir()) == ["theory"]
+    monkeypatch.setattr(Path, "rename", real_rename)  # a swap that works leaves nothing beside
+    regress.update(reference, "theory", work=tmp_path / "w3")
+    assert (reference / "theory" / "a.csv").read_text() != before
+    assert sorted(p.name for p in reference.iterdir()) == ["theory"]

@@ -144,9 +144,15 @@ def test_user_errors_exit_with_status_two(tmp_path: Path) -> None:
 
 
 def test_a_folder_of_other_tables_is_refused_before_the_analysis(
-    results: Path, tmp_path: Path
+    results: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """A study's analysis folder as --out had its own summary.csv and curves.csv replaced."""
+    import tacbench.report
+
+    def analyse(options: object) -> None:
+        raise AssertionError("analysed before refusing --out")
+
+    monkeypatch.setattr(tacbench.report, "analyse", analyse)
     (tmp_path / "summary.csv").write_text("the study's own\n")
     (tmp_path / "notes.txt").write_text("mine")
     code, output = _invoke("--results", str(results), "--out", str(tmp_path), "--reps", "100")

@@ -95,6 +95,13 @@ def test_non_finite_last_rows_are_dropped_not_taken_for_lost_rows(tmp_path: Path
     runset = load_runs(tmp_path)
     assert not runset.skipped
     assert runset.runs["dropped"].tolist() == [2] and not runset.runs["partial"].iloc[0]
+    assert runset.runs["note"].iloc[0] == (
+        "eval.csv: 2 rows with a non-finite step or return left out, the last at step 400"
+    )
+    (path / "eval.csv").write_text(HEADER + "100,1,1.0,0,1\nnan,2,2.0,0,1\n400,4,4.0,0,1\n")
+    run = load_runs(tmp_path).runs.iloc[0]  # a non-finite step counts too, with no step to name
+    assert (run["rows"], run["dropped"]) == (2, 1)
+    assert run["note"] == "eval.csv: 1 row with a non-finite step or return left out"
 
 
 @pytest.mark.parametrize(
@@ -216,6 +223,21 @@ def test_of_duplicates_the_run_that_trained_further_is_kept(tmp_path: Path) -> N
     (skipped,) = runset.skipped
     assert skipped.path == "a/runs/tac/Hopper-v4/q1.5-a0.2/seed0"
     assert skipped.reason.startswith("duplicate of b/runs/tac/Hopper-v4/q1.5-a0.2/seed0")
+
+    # of two partial copies the one that reached more steps; a complete copy before a partial
+    # one that reached more (planned longer)
+    def kept(*copies: tuple[str, dict[str, object]]) -> str:
+        root = tmp_path / "-".join(name for name, _ in copies)
+        for name, settings in copies:
+            _tac(root / name, **settings)
+        (path,) = load_runs(root).runs["path"]
+        return str(path).split("/")[0]
+
+    partial = {"state": "interrupted", "total_steps": 300, "returns": [1.0, 2.0]}
+    fewer = {**partial, "status_step": 100, "steps": [50, 100]}
+    assert kept(("f", fewer), ("g", {**partial, "status_step": 200, "steps": [100, 200]})) == "g"
+    longer = {"state": "interrupted", "status_step": 400, "total_steps": 500}
+    assert kept(("h", longer), ("i", {"status_step": 300, "total_steps": 300})) == "i"
 
 
 def test_no_runs_is_a_clear_error(tmp_path: Path) -> None:

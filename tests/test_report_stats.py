@@ -179,6 +179,11 @@ def test_baseline_comparison_pairs_each_method_with_each_baseline_on_shared_task
     # together are enough (10 x 10 rankings)
     assert table["verdict"].tolist()[:3] == [TOO_FEW_RUNS, TOO_FEW_RUNS, "larger"]
     assert table["difference"].iloc[0] == pytest.approx(6.0 - 1.5)
+    # two runs against one on two tasks are too few even together (3 x 3 rankings)
+    few = _finals({(env, m): fs for env in "AB" for m, fs in (("T", [5.0, 6.0]), ("D", [1.0]))})
+    table = improvement_over_baselines(few, ["T"], ["D"], 200, 0)
+    assert table["env"].tolist() == ["A", "B", ALL_TASKS]
+    assert table["verdict"].tolist() == [TOO_FEW_RUNS] * 3
 
 
 @pytest.mark.parametrize(
@@ -193,6 +198,7 @@ def test_baseline_comparison_pairs_each_method_with_each_baseline_on_shared_task
         ([(5, 5)], True),
         ([(3, 3), (3, 3)], True),  # over two tasks: 2 in 400
         ([(1, 5), (1, 5)], False),  # 2 in 36
+        ([(1, 3), (2, 3)], True),  # 2 in 40: exactly 5 %
     ],
 )
 def test_a_verdict_needs_runs_enough_for_any_ranking_to_be_evidence(

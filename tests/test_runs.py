@@ -5,6 +5,7 @@ from __future__ import annotations
 import hashlib
 import io
 import json
+import shutil
 from pathlib import Path
 
 import pytest
@@ -132,6 +133,12 @@ def test_a_run_written_before_a_setting_existed_reads_it_as_its_default(tmp_path
         runs.plan_run(directory, config.to_dict(), resume=True, force=False)
     plan = runs.plan_run(directory, config.to_dict(), resume=True, force=False, read_as=config)
     assert plan.action == "resume"
+    # as tacbench run plans it (the command path the published studies failed on)
+    out = tmp_path / "out"
+    in_place = runs.run_directory(out, config.algo, config.env, config.variant, config.seed)
+    shutil.copytree(directory, in_place)
+    skipped, active = runs.plan_runs([config], out, resume=True, force=False)
+    assert not skipped and active == [(config, in_place)]
     # a value other than the default is another run, named so
     bf16 = RunConfig(env="Hopper-v4", q=1.5, alpha=0.2, seed=0, density_cap="off")
     with pytest.raises(TacbenchError, match=r"density_cap: 'paper' -> 'off'"):

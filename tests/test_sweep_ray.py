@@ -4,6 +4,7 @@ driver writes into --out; checkpoints stay in the scratch folder."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
@@ -12,6 +13,7 @@ import socket
 import subprocess
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import pandas as pd
 import pytest
@@ -82,13 +84,15 @@ def test_ray_executor_returns_small_files_and_keeps_checkpoints_on_the_node(
     assert _ray_processes() <= before  # ray.shutdown() stopped the local Ray
 
 
-def _task_processes() -> list[int]:
-    """Ids of the Ray worker processes running a sweep task (titled ``ray::ray_main``)."""
+def _task_processes(session: int) -> list[int]:
+    """Ids of the Ray worker processes running a sweep task (titled ``ray::ray_main``) in the
+    session ``session`` (the driver's: another Ray on this machine is not counted)."""
     found = []
     for cmdline in Path("/proc").glob("[0-9]*/cmdline"):
         try:
-            if cmdline.read_bytes().startswith(b"ray::ray_main"):
-                found.append(int(cmdline.parent.name))
+            pid = int(cmdline.parent.name)
+            if cmdline.read_bytes().startswith(b"ray::ray_main") and os.getsid(pid) == session:
+                found.append(pid)
         except OSError:
             continue
     return found
@@ -106,15 +110,17 @@ def test_a_task_killed_on_its_node_is_recorded_with_its_node_and_host(tmp_path: 
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,
+        start_new_session=True,  # its Ray's processes in a session of their own
     )
     try:
         started = lambda: any(scratch.glob("*/runs/tac/*/*/seed0/status.json"))  # noqa: E731
         wait_for(started, timeout=180, proc=driver, poll=0.1, what="the task to start training")
-        (task,) = _task_processes()
+        (task,) = _task_processes(os.getsid(driver.pid))
         os.kill(task, signal.SIGKILL)
         output, _ = driver.communicate(timeout=180)
-    finally:
-        driver.kill()
+    finally:  # the driver and its Ray's processes, should the test fail half-way
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(driver.pid, signal.SIGKILL)
     assert driver.returncode == 1, output
     assert "Ray task failed" in output
     (entry,) = json.loads((out / "sweep" / "state.json").read_text())["runs"].values()
@@ -123,12 +129,29 @@ def test_a_task_killed_on_its_node_is_recorded_with_its_node_and_host(tmp_path: 
     assert failure["host"] == socket.gethostname() and "Ray task failed" in failure["reason"]
 
 
-def test_the_board_forgets_where_a_unit_ran_when_it_is_submitted_again() -> None:
-    """A retry that dies before it reports was recorded on the last attempt's node and host."""
-    from tacbench.sweep.executors import _Board
+class _Actor:
+    """A Ray actor handle whose methods run at once: ``handle.name.remote(...)``."""
 
-    board = _Board()
-    board.started("unit", "node-a", "host-a")
-    assert board.where("unit") == ("node-a", "host-a")
-    board.forget("unit")
-    assert board.where("unit") == ("", "")
+    def __init__(self, target: object) -> None:
+        self.target = target
+
+    def __getattr__(self, name: str) -> SimpleNamespace:
+        return SimpleNamespace(remote=getattr(self.target, name))
+
+
+def test_a_unit_submitted_again_forgets_where_its_last_attempt_ran(tmp_path: Path) -> None:
+    """A retry that died before it reported was recorded on the last attempt's node and host
+    (the board is keyed by unit)."""
+    from tacbench.sweep import executors, plan, presets
+
+    board = executors._Board()
+    executor = object.__new__(executors.RayExecutor)
+    executor.ray = SimpleNamespace(get=lambda value: value)
+    executor._board, executor._refs = _Actor(board), {}
+    executor._task = SimpleNamespace(remote=lambda job, board: object())
+    executor.root, executor.command, executor.cpus, executor.shared_fs = tmp_path, "", 1, True
+    unit = plan.Unit((plan.build_runs(presets.get_preset("smoke"))[0],))
+    board.started(unit.key, "node-a", "host-a")
+    executor.submit(unit, "node-a")
+    assert board.where(unit.key) == ("", "")
+    assert len(executor._refs) == 1

@@ -233,12 +233,13 @@ def test_a_job_slurm_will_not_start_is_told_once_with_what_to_do(
             },
             {"7_0": "JobHeldAdmin", "7_1": "PartitionTimeLimit", "7_2": "QOSMaxCpuPerJobLimit"},
             {"7_0": "", "7_1": "PartitionTimeLimit", "7_2": "QOSMaxCpuPerJobLimit"},  # released
-            {"7_0": "launch failed requeued held", "7_1": "PartitionTimeLimit", "7_2": ""},
+            {"7_0": "JobHeldAdmin", "7_1": "PartitionTimeLimit", "7_2": ""},  # held again
+            {"7_0": "launch failed requeued held", "7_1": "PartitionTimeLimit"},
         ]
     )
     monkeypatch.setattr(slurm, "_queued", lambda ids: next(listings))
     told = []
-    for now in (1000.0, 1010.0, 1020.0, 1030.0):
+    for now in (1000.0, 1010.0, 1020.0, 1030.0, 1040.0):
         clock[0] = now
         assert executor.wait(1.0) == []
         told.append(executor.notices())
@@ -252,7 +253,8 @@ def test_a_job_slurm_will_not_start_is_told_once_with_what_to_do(
     assert [[n.split(":")[0] for n in notes] for notes in told[1:]] == [
         ["Slurm will not start job 7_2 (QOSMaxCpuPerJobLimit)"],  # news only, once
         [],
-        ["Slurm will not start job 7_0 (launch failed requeued held)"],  # held again
+        ["Slurm will not start job 7_0 (JobHeldAdmin)"],  # released, then held again
+        ["Slurm will not start job 7_0 (launch failed requeued held)"],  # another reason
     ]
 
 
