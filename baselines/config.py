@@ -114,6 +114,11 @@ def _check_combination(algo: str, effective: Mapping[str, Any]) -> None:
             f"alpha aims at, and sac-sb3's alpha is fixed here (ent_coef={effective['ent_coef']}); "
             "add --alpha auto (or --alpha-mode auto), or leave the target entropy out."
         )
+    if int(effective.get("gradient_steps", 1)) == 0:  # SB3 trains only for a count above 0
+        raise TacbenchError(
+            f"--hp gradient_steps=0: {algo} would make no gradient step, and its networks would "
+            "never be updated; give a count of at least 1, or -1 (one per step collected)."
+        )
     normalised = algo == "ppo" and effective.get("normalize_advantage", True)
     if normalised and int(effective.get("batch_size", 64)) < 2:  # SB3's PPO default: 64
         raise TacbenchError(

@@ -113,6 +113,10 @@ def test_cli_trains_two_seeds_then_skips_refuses_and_forces(tmp_path: Path) -> N
             "--alpha auto learns alpha; it does not mix with --alpha-mode fixed",
         ),
         (["--algo", "ppo", "--hp", "batch_size=1"], "PPO normalises the advantages"),
+        (  # used to train without a single update, and no warning
+            ["--algo", "td3", "--hp", "gradient_steps=0"],
+            "td3 would make no gradient step, and its networks would never be updated",
+        ),
         (  # used to say that --hp learning_starts was given twice
             ["--algo", "td3", "--learning-starts", "100", "--hp", "learning_starts=200"],
             "--hp learning_starts=200 sets learning_starts, which --learning-starts 100 sets "
