@@ -28,7 +28,9 @@ values_st = arrays(
     st.integers(1, 12),
     elements=st.floats(-50, 50, allow_nan=False, allow_infinity=False),
 )
-q_st = st.sampled_from(Q_VALUES) | st.floats(0.1, 50.0)
+# up to q = 5,000 (q -> infinity is plain RL): above about 100 the q > 2 solver's
+# s**(q - 1) underflowed, and the probabilities summed to up to 1.47
+q_st = st.sampled_from(Q_VALUES) | st.floats(0.1, 50.0) | st.floats(100.0, 5000.0)
 alpha_st = st.floats(0.05, 5.0)
 
 
@@ -74,6 +76,15 @@ def test_entropy_special_cases() -> None:
         uniform = np.full(5, 0.2)
         assert np.isclose(tsallis_entropy(uniform, q), -log_q(0.2, q))  # maximum (appendix A)
         assert tsallis_entropy(np.array([0.0, 1.0, 0.0]), q) == 0.0
+
+
+def test_a_large_q_keeps_the_maximiser_normalised_and_the_bound() -> None:
+    """The paper's q -> infinity end: exact values from a 50-digit solver of the same
+    equations (mpmath)."""
+    assert np.allclose(q_softmax([0.0, -0.1], 1000.0), [0.99769677, 0.00230323], atol=1e-8)
+    assert q_max([0.0, -0.1], 1000.0) == pytest.approx(0.00067091, abs=1e-8)
+    bandit = [2.0, 2.0, 2.0, 2.0, 4.0, 4.0, 4.5, 5.0]
+    assert q_max(bandit, 300.0) == pytest.approx(5.00052, abs=1e-5)
 
 
 @settings(max_examples=200, deadline=None)

@@ -195,18 +195,30 @@ def _steep_solution(y: Array, q: float) -> tuple[Array, Array]:
         s = 0.5 * (s_lo + s_hi)
         if np.all(s_hi - s_lo <= np.finfo(np.float64).eps):
             break
-        total = np.sum(
-            np.where(in_support, (d + s ** (q - 1.0)) ** expo, 0.0), axis=-1, keepdims=True
-        )
+        total = np.sum(np.where(in_support, _root(d, s, q), 0.0), axis=-1, keepdims=True)
         s_lo = np.where(total < 1.0, s, s_lo)
         s_hi = np.where(total < 1.0, s_hi, s)
     s = 0.5 * (s_lo + s_hi)
-    pi_sorted = np.where(in_support, (d + s ** (q - 1.0)) ** expo, 0.0)
+    pi_sorted = np.where(in_support, _root(d, s, q), 0.0)
     psi = (1.0 + c_last - s ** (q - 1.0)) / (q - 1.0)
     order = np.argsort(-y, axis=-1, kind="stable")
     pi = np.empty_like(pi_sorted)
     np.put_along_axis(pi, order, pi_sorted, axis=-1)
     return psi, pi
+
+
+def _root(d: Array, s: Array, q: float) -> Array:
+    """``(d + s**(q - 1)) ** (1 / (q - 1))``, a supported arm's probability in
+    :func:`_steep_solution`. For a large q, ``s**(q - 1)`` underflows (below 1e-308 once s is
+    under ``10**(-308 / (q - 1))``): the last supported arm's probability, ``s`` itself, then
+    came out 0, the bisection stopped at that jump, and the probabilities no longer summed to 1
+    (1.47 at q = 1,000). There the same root is taken through logarithms; elsewhere as written,
+    so every value of a q up to about 100 is unchanged to the last bit."""
+    power = s ** (q - 1.0)
+    with np.errstate(divide="ignore"):  # log 0 = -inf: an arm at the threshold, or s = 0
+        through_logs = np.exp(np.logaddexp(np.log(d), (q - 1.0) * np.log(s)) / (q - 1.0))
+    normal = power >= np.finfo(np.float64).tiny
+    return np.where(normal, (d + power) ** (1.0 / (q - 1.0)), through_logs)
 
 
 def _solve(f: ArrayLike, q: float, alpha: float, what: str) -> tuple[Array, Array, Array, Array]:
