@@ -116,6 +116,14 @@ def test_a_group_resumes_from_the_newest_step_all_its_members_have(tmp_path: Pat
     assert f"{c} has no checkpoint, and the other members have" in str(refused.value)
     assert "--force" not in str(refused.value)
     assert "resume the others in a command without the new members" in str(refused.value)
+    # when the others could not resume either (their checkpoint damaged), that is what it says
+    damaged = tmp_path / "e"
+    _generation(damaged, 100)
+    (damaged / "state-100.bin").write_bytes(b"")
+    with pytest.raises(TacbenchError) as refused:
+        checkpoints.choose([damaged, c / "checkpoint"])
+    assert f"{damaged}: the checkpoint at step 100 is damaged" in str(refused.value)
+    assert "resume the others" not in str(refused.value)
 
 
 def test_a_damaged_generation_is_passed_over_and_later_ones_forgotten(tmp_path: Path) -> None:

@@ -151,6 +151,25 @@ def test_a_resume_without_a_checkpoint_says_it_trains_again_from_step_0(tmp_path
     assert again.exit_code == 0 and "no checkpoint yet" not in again.output
 
 
+def test_a_new_member_beside_one_to_resume_is_refused_without_a_contrary_note(
+    tmp_path: Path,
+) -> None:
+    """--resume said the new seed would start afresh, then refused the whole group; the
+    refusal used to advise --force, which deletes the trained member's steps."""
+    args = [*CLI_TINY, "--checkpoint-every", "100", "--out", str(tmp_path)]
+    runner = CliRunner()
+    assert runner.invoke(cli, ["run", *args]).exit_code == 0
+    run = tmp_path / "runs" / "tac" / "Hopper-v4" / "q2-a0.2-ls200" / "seed0"
+    (run / "checkpoint" / "manifest-000000000300.json").unlink()  # as if stopped at 200
+    (run / "status.json").write_text('{"state": "interrupted", "step": 200}')
+    both = runner.invoke(cli, ["run", *args, "--seed", "0", "--seed", "10", "--resume"])
+    assert both.exit_code == 2, both.output
+    assert "seed10 has no checkpoint, and the other members have" in both.output
+    assert "nothing to resume" not in both.output and "--force" not in both.output
+    alone = runner.invoke(cli, ["run", *args, "--resume"])  # as the refusal advises
+    assert alone.exit_code == 0 and "seed 0: complete" in alone.output
+
+
 def test_cli_user_errors_and_failed_run(tmp_path: Path) -> None:
     runner = CliRunner()
     for env, message in [("Hoper-v4", "Closest registered names"), ("CartPole-v1", "Discrete")]:

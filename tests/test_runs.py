@@ -211,3 +211,19 @@ def test_check_writable_probes_without_creating_anything(tmp_path: Path) -> None
     (tmp_path / "afile").write_text("")
     with pytest.raises(TacbenchError, match=r"cannot create or write the output folder .*--json"):
         runs.check_writable(tmp_path / "afile" / "sub", "--json")
+
+
+def test_a_group_change_is_told_whatever_the_members_recorded() -> None:
+    """A member resuming in another group than it trained in: its products round otherwise.
+    An older config.json lists the seeds alone, and a damaged one anything: neither may stop
+    a resume (a list of seeds was an AttributeError traceback)."""
+    a, b = {"q": 1.5, "alpha": 0.2, "seed": 0}, {"q": 1.5, "alpha": 0.2, "seed": 10}
+    changed = "the members resume in another group than they trained in"
+    assert runs.group_changes([a, b], [a, b]) == []
+    assert runs.group_changes([b, a], [a, b]) == []  # the order is not the group
+    assert changed in runs.group_changes([a, b], [a])[0]  # one failed
+    assert changed in runs.group_changes([a], [a, b])[0]  # a solo run resumed in a group
+    assert runs.group_changes([0, 10], [a, b]) == []  # an older config.json: seeds alone
+    assert changed in runs.group_changes([0], [a, b])[0]
+    assert changed in runs.group_changes([{"seed": 0}, "x"], [a, b])[0]  # damaged: told
+    assert runs.group_changes(None, [a]) == [] and runs.group_changes([a], []) == []

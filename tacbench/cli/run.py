@@ -184,15 +184,20 @@ def _say_what_starts_afresh(configs: Sequence[Any], out: Path) -> None:
     """Under --resume, name each run that has nothing to resume: no config.json in its
     directory (a mistyped setting, another variant, or --out would otherwise start it silently),
     or no checkpoint yet (killed before its first: it trains again from step 0, and the rows it
-    had logged are written again, the same ones for its seed)."""
-    for config in configs:
-        directory = runs.run_directory(out, config.algo, config.env, config.variant, config.seed)
+    had logged are written again, the same ones for its seed). Not for a TAC group that has
+    members to resume beside such ones: it is refused, saying what to do."""
+    directories = [runs.run_directory(out, c.algo, c.env, c.variant, c.seed) for c in configs]
+    checkpointed = [any((d / "checkpoint").glob("manifest-*.json")) for d in directories]
+    trained = [c for c, d in zip(checkpointed, directories, strict=True) if _unfinished(d)]
+    if configs[0].algo == "tac" and any(trained) and not all(trained):
+        return
+    for config, directory, has_checkpoint in zip(configs, directories, checkpointed, strict=True):
         if not (directory / "config.json").exists():
             click.echo(
                 f"seed {config.seed}: nothing to resume at {directory} (no run there); starting "
                 "afresh (check --out and the settings if you meant another run)"
             )
-        elif not any((directory / "checkpoint").glob("manifest-*.json")) and _unfinished(directory):
+        elif not has_checkpoint and _unfinished(directory):
             every = config.checkpoint_every
             when = f"due every {every:,} steps" if every else "--checkpoint-every 0: at the end"
             click.echo(

@@ -44,9 +44,9 @@ def how_to_read(report: Report) -> list[str]:
         "two-sided permutation test at 5 % finds in 80 % of resamples of the observed runs "
         "(docs/sequential.md), so the verdict reads 'no difference larger than that'. Where "
         "even every run of one side above every run of the other would be no evidence (that "
-        "ranking's chance when both are alike, 2 / C(n + m, n) for n and m runs, multiplied "
-        "over the tasks of an 'all tasks' row, is above 5 %: three runs a side on one task "
-        "give 2 in 20), the verdict is 'too few runs', whatever the interval.",
+        "ranking's chance when both are alike, 2 / C(n + m, n) for n and m runs, on an 'all "
+        "tasks' row 2 over the product of the tasks' C(n + m, n), is above 5 %: three runs a "
+        "side on one task give 2 in 20), the verdict is 'too few runs', whatever the interval.",
         *(
             [
                 f"On an '{ALL_TASKS}' row, 'detectable' is a shift of every task's mean final "

@@ -23,6 +23,7 @@ from tacbench.runs.files import (
     atomic_write_json,
     check_writable,
     ensure_writable,
+    group_changes,
     now_iso,
     read_json,
 )
@@ -58,6 +59,7 @@ __all__ = [
     "differing_fields",
     "ensure_writable",
     "git_commit",
+    "group_changes",
     "now_iso",
     "package_versions",
     "plan_run",

@@ -231,13 +231,19 @@ def choose(folders: Sequence[Path]) -> tuple[int | None, list[str]]:
     if not any_checkpoint:
         return None, []
     common = set.intersection(*usable) if usable else set()
-    if not common and without:  # a new member beside partial ones: --force would lose theirs
+    having = [
+        steps for folder, steps in zip(folders, usable, strict=True) if folder.parent not in without
+    ]
+    if not common and without and having and set.intersection(*having):
+        # new members beside partial ones that could resume: --force would lose their steps
         named = ", ".join(str(d) for d in without[:3]) + (", ..." if len(without) > 3 else "")
         raise NoCommonCheckpoint(
             f"{named} {'have' if len(without) > 1 else 'has'} no checkpoint, and the other "
             "members have: a group resumes only from a checkpoint all its members share. "
             "Nothing was deleted; resume the others in a command without the new members (their "
-            "seeds, q or alpha), then train those in a command of their own."
+            "seeds, q or alpha), then train those in a command of their own"
+            + "".join(f"; {note}" for note in notes)
+            + "."
         )
     if not common:
         raise NoCommonCheckpoint(

@@ -175,19 +175,24 @@ def rounding_changes(stored: Mapping[str, Any], config: Mapping[str, Any]) -> li
 
 
 def group_changes(recorded: Any, members: Sequence[Mapping[str, Any]]) -> list[str]:
-    """A note when a group resumes with other members than config.json records (``recorded``)
-    it trained with: one failed, or the command leaves some out. The maths per member is the
-    same, but the members' products are batched together, so from here on the numbers round
-    otherwise than in an uninterrupted run."""
-    if not members or not isinstance(recorded, list) or len(recorded) <= 1:
+    """A note when a run resumes in another group than config.json records (``recorded``) it
+    trained in: a member failed, or the command adds or leaves some out. The maths per member
+    is the same, but the members' products are batched together, so from here on the numbers
+    round otherwise than in an uninterrupted run. (The note is the same for every member of
+    the group, which shares it.)"""
+    if not members or not isinstance(recorded, list):
         return []
-    key = lambda m: (m.get("q"), m.get("alpha"), m.get("seed"))  # noqa: E731
-    if sorted(map(key, recorded)) == sorted(map(key, members)):
+    if all(isinstance(m, Mapping) for m in recorded):
+        key = lambda m: json.dumps([m.get("q"), m.get("alpha"), m.get("seed")])  # noqa: E731
+        before, now = sorted(map(key, recorded)), sorted(map(key, members))
+    else:  # an older config.json lists the members' seeds alone
+        before, now = sorted(map(str, recorded)), sorted(str(m.get("seed")) for m in members)
+    if before == now:
         return []
     return [
-        f"it trained in a group of {len(recorded)} members and resumes in one of "
-        f"{len(members)} (a member failed, or this command leaves some out): the same maths, "
-        "but from here the numbers round otherwise than had the group trained on uninterrupted"
+        "the members resume in another group than they trained in (config.json lists each "
+        "one's: a member failed, or this command adds or leaves some out): the same maths, but "
+        "from here the numbers round otherwise than in an uninterrupted run"
     ]
 
 
