@@ -5,9 +5,17 @@ Anything a user can fix (an unknown env, q <= 0, a run directory from another co
 a traceback and exits with status 2; library callers catch it like any exception.
 """
 
+from collections.abc import Sequence
+
 
 class TacbenchError(Exception):
     """A mistake the user can fix; the message says how."""
+
+
+def listing(items: Sequence[str], shown: int = 5, sep: str = ", ") -> str:
+    """The first ``shown`` of ``items`` for a message, and how many more: ``a, b and 3 more``."""
+    more = f" and {len(items) - shown} more" if len(items) > shown else ""
+    return sep.join(items[:shown]) + more
 
 
 def one_line(err: BaseException) -> str:

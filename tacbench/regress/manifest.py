@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from tacbench import runs
-from tacbench.errors import TacbenchError
+from tacbench.errors import TacbenchError, listing
 from tacbench.hardware import cpu_class
 from tacbench.interrupts import STOP_SIGNALS
 
@@ -196,12 +196,9 @@ def require_files(paths: Sequence[Path], tier: str, reference: Path) -> None:
     manifest lists are missing or cannot be read as text."""
     missing = [str(path) for path in paths if not path.is_file()]
     if missing:
-        shown = ", ".join(missing[:3]) + (
-            f" and {len(missing) - 3} more" if len(missing) > 3 else ""
-        )
         raise TacbenchError(
-            f"the {tier} references lack {shown}, which their manifest lists; restore them from "
-            f"git, or regenerate them with: {regenerate_command(tier, reference)}"
+            f"the {tier} references lack {listing(missing, 3)}, which their manifest lists; "
+            f"restore them from git, or regenerate them with: {regenerate_command(tier, reference)}"
         )
     for path in paths:
         try:

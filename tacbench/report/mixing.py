@@ -9,6 +9,8 @@ import re
 
 import pandas as pd
 
+from tacbench.errors import listing
+
 # a TAC variant's q and alpha part: q1.5-a0.2, qauto-aauto0.2, q1e-05-a0.2 (numbers in %g form)
 _Q_ALPHA = re.compile(r"^q(?:auto|[0-9.]+(?:e[+-]\d+)?)-a(?:auto)?[0-9.]+(?:e[+-]\d+)?")
 
@@ -52,11 +54,10 @@ def cautions(runs: pd.DataFrame, last: int) -> list[str]:
         )
     dropped = runs[runs["dropped"] > 0]
     if len(dropped):
-        paths = list(dropped["path"])
-        shown = ", ".join(paths[:3]) + (f" and {len(paths) - 3} more" if len(paths) > 3 else "")
         found.append(
             f"{len(dropped)} of {len(runs)} runs logged rows with a non-finite step or return "
-            f"({shown}; {int(dropped['dropped'].sum()):,} rows in all), which are left out: a "
-            "diverged evaluation or episode is in none of their scores."
+            f"({listing(list(dropped['path']), 3)}; {int(dropped['dropped'].sum()):,} rows in "
+            "all), which are left out: a diverged evaluation or episode is in none of their "
+            "scores."
         )
     return found

@@ -8,15 +8,8 @@ from collections.abc import Sequence
 
 import pandas as pd
 
+from tacbench.errors import listing
 from tacbench.report.load import Skipped
-
-SHOWN = 5  # runs named in one caution; the rest are counted
-
-
-def listing(items: Sequence[str]) -> str:
-    """The first :data:`SHOWN` of ``items``, and how many more."""
-    more = f" and {len(items) - SHOWN} more" if len(items) > SHOWN else ""
-    return ", ".join(items[:SHOWN]) + more
 
 
 def plural(count: int, noun: str, nouns: str = "") -> str:

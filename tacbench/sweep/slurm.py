@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from tacbench import runs
-from tacbench.errors import TacbenchError
+from tacbench.errors import TacbenchError, listing
 from tacbench.sweep import state, worker
 from tacbench.sweep.executors import Finished
 from tacbench.sweep.plan import Unit
@@ -204,11 +204,10 @@ class SlurmExecutor:
         ]  # a job with a result has ended, though squeue may list it a moment (completing)
         still = sorted(set(earlier) & _queued(earlier).keys()) if earlier else []
         if still:
-            shown = ", ".join(still[:5]) + (f" and {len(still) - 5} more" if len(still) > 5 else "")
             raise TacbenchError(
                 f"Slurm jobs of an earlier sweep of {self.out} are still queued or running "
-                f"({shown}); wait for them to end (squeue), or cancel them (scancel), then run "
-                "the same command again."
+                f"({listing(still)}); wait for them to end (squeue), or cancel them (scancel), "
+                "then run the same command again."
             )
 
     def capacity(self) -> int:
@@ -299,7 +298,7 @@ class SlurmExecutor:
             else:
                 self._told.pop(job_id, None)
         for reason, ids in news.items():
-            shown = " ".join(ids[:5]) + (f" and {len(ids) - 5} more" if len(ids) > 5 else "")
+            shown = listing(ids, sep=" ")
             if HELD.search(reason):
                 advice = f"release {'them' if len(ids) > 1 else 'it'} (scontrol release "
                 advice += (
