@@ -18,6 +18,7 @@ from tacbench.cli.common import command_line, report_outcomes
 from tacbench.cli.options import NumberOrAuto, ResultsFolder, cli_settings, setting_options
 from tacbench.config import RunConfig
 from tacbench.errors import TacbenchError
+from tacbench.runs.checkpoints import newest_step
 from tacbench.runs.files import CRASHED
 from tacbench.settings import RunSettings, settings_of
 
@@ -187,17 +188,20 @@ def _say_what_starts_afresh(configs: Sequence[Any], out: Path) -> None:
     had logged are written again, the same ones for its seed). Not for a TAC group that has
     members to resume beside such ones: it is refused, saying what to do."""
     directories = [runs.run_directory(out, c.algo, c.env, c.variant, c.seed) for c in configs]
-    checkpointed = [any((d / "checkpoint").glob("manifest-*.json")) for d in directories]
-    trained = [c for c, d in zip(checkpointed, directories, strict=True) if _unfinished(d)]
+    checkpointed = [newest_step(d / "checkpoint") is not None for d in directories]
+    unfinished = [_unfinished(d) for d in directories]
+    trained = [c for c, u in zip(checkpointed, unfinished, strict=True) if u]
     if configs[0].algo == "tac" and any(trained) and not all(trained):
         return
-    for config, directory, has_checkpoint in zip(configs, directories, checkpointed, strict=True):
+    for config, directory, has_checkpoint, resumes in zip(
+        configs, directories, checkpointed, unfinished, strict=True
+    ):
         if not (directory / "config.json").exists():
             click.echo(
                 f"seed {config.seed}: nothing to resume at {directory} (no run there); starting "
                 "afresh (check --out and the settings if you meant another run)"
             )
-        elif not has_checkpoint and _unfinished(directory):
+        elif not has_checkpoint and resumes:
             every = config.checkpoint_every
             when = f"due every {every:,} steps" if every else "--checkpoint-every 0: at the end"
             click.echo(

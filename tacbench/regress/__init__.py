@@ -28,7 +28,7 @@ from tacbench.regress.exact import (
     update_exact,
     update_theory,
 )
-from tacbench.regress.manifest import Runner, check_replaceable, subprocess_runner
+from tacbench.regress.manifest import Runner, subprocess_runner
 from tacbench.regress.outcome import Row, TierResult, format_result
 from tacbench.regress.stat import check_stat, update_stat
 from tacbench.runs import locks
@@ -110,8 +110,7 @@ def update(
     reference = Path(reference)
     runs.check_writable(reference, "--against")  # before minutes of training, not after
     with locks.writing([reference], hint=""), _scratch(work) as scratch:
-        for replaced in ("theory", "exact") if tier == "exact" else (tier,):
-            check_replaceable(reference, replaced)
+        # each tier's staged() refuses a folder that is not references, before any training
         if tier == "stat":
             return [update_stat(reference, scratch / "stat", log=log, runner=runner)]
         if tier == "theory":

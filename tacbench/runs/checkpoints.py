@@ -208,7 +208,7 @@ def choose(folders: Sequence[Path]) -> tuple[int | None, list[str]]:
     no member has a checkpoint, so training starts afresh), and a note on each damaged
     generation passed over. A TacbenchError (exit status 2) when a member has checkpoints but
     none that every member can use; nothing is deleted."""
-    usable, notes, any_checkpoint, without = [], [], False, []
+    usable, notes, without, having = [], [], [], []  # having: the steps of members with some
     for folder in folders:
         if folder.exists() and not folder.is_dir():
             raise TacbenchError(
@@ -222,19 +222,17 @@ def choose(folders: Sequence[Path]) -> tuple[int | None, list[str]]:
                 f"that wrote it, or {START_OVER}."
             )
         good, bad = usable_steps(folder)
-        any_checkpoint |= bool(good or bad)
         usable.append(set(good))
-        if not (good or bad):
+        if good or bad:
+            having.append(set(good))
+        else:
             without.append(folder.parent)
         for step, found in bad.items():
             notes.append(f"{folder}: the checkpoint at step {step} is damaged ({'; '.join(found)})")
-    if not any_checkpoint:
+    if not having:
         return None, []
-    common = set.intersection(*usable) if usable else set()
-    having = [
-        steps for folder, steps in zip(folders, usable, strict=True) if folder.parent not in without
-    ]
-    if not common and without and having and set.intersection(*having):
+    common = set.intersection(*usable)
+    if not common and without and set.intersection(*having):
         # new members beside partial ones that could resume: --force would lose their steps
         named = ", ".join(str(d) for d in without[:3]) + (", ..." if len(without) > 3 else "")
         raise NoCommonCheckpoint(

@@ -203,7 +203,7 @@ def make_plan(
         else:
             action = "retry" if status.state == "failed" else "train"
         planned.append(PlannedRun(run, status, n_failed, action))
-    return SweepPlan(preset, out, planned, make_units(planned, group, unit_size, nodes or {}))
+    return SweepPlan(preset, out, planned, make_units(planned, group, unit_size, nodes))
 
 
 def make_units(

@@ -215,10 +215,13 @@ def _root(d: Array, s: Array, q: float) -> Array:
     (1.47 at q = 1,000). There the same root is taken through logarithms; elsewhere as written,
     so every value of a q up to about 100 is unchanged to the last bit."""
     power = s ** (q - 1.0)
+    direct = (d + power) ** (1.0 / (q - 1.0))
+    normal = power >= np.finfo(np.float64).tiny
+    if np.all(normal):  # every q up to about 100: no logarithms in the bisection's loop
+        return direct
     with np.errstate(divide="ignore"):  # log 0 = -inf: an arm at the threshold, or s = 0
         through_logs = np.exp(np.logaddexp(np.log(d), (q - 1.0) * np.log(s)) / (q - 1.0))
-    normal = power >= np.finfo(np.float64).tiny
-    return np.where(normal, (d + power) ** (1.0 / (q - 1.0)), through_logs)
+    return np.where(normal, direct, through_logs)
 
 
 def _solve(f: ArrayLike, q: float, alpha: float, what: str) -> tuple[Array, Array, Array, Array]:
