@@ -101,6 +101,20 @@ def test_a_folder_without_config_json_is_kept_unless_it_holds_only_a_cut_write(
     assert active == [(config, directory)] and not directory.exists()
 
 
+def test_a_folder_without_config_json_names_its_first_files_and_counts_the_rest(
+    tmp_path: Path,
+) -> None:
+    (config,) = _configs(0)
+    directory = runs.run_directory(tmp_path, config.algo, config.env, config.variant, 0)
+    directory.mkdir(parents=True)
+    for name in ("train.csv", "eval.csv", "status.json", "notes.txt", "losses.csv"):
+        (directory / name).write_text("")
+    with pytest.raises(
+        TacbenchError, match=r"holds eval.csv, losses.csv, notes.txt and 2 more but no config"
+    ):
+        plan_runs([config], tmp_path, resume=True, force=False)
+
+
 @pytest.mark.parametrize("kind", ["file", "link"])
 def test_a_file_or_link_where_the_run_directory_goes_is_refused_and_kept(
     tmp_path: Path, kind: str

@@ -64,6 +64,7 @@ def report(
     results: Path, out: Path, metric: str, fmt: str, reps: int, last: int, grid_points: int
 ) -> None:
     """Figures, tables and rliable statistics from the run directories under --results."""
+    from tacbench.errors import listing
     from tacbench.report import ReportOptions, analyse, write_report  # pandas etc. only here
     from tacbench.report.mixing import cautions
     from tacbench.report.write import check_out, leftovers
@@ -89,7 +90,7 @@ def report(
     older = leftovers(out, written)
     if older:
         click.echo(
-            f"caution: {out} also holds {', '.join(older[:5])}{', ...' if len(older) > 5 else ''}"
+            f"caution: {out} also holds {listing(older)}"
             ", which this report did not write (an earlier one's?); delete them, or use an "
             "empty --out",
             err=True,

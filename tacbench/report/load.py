@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from tacbench.errors import TacbenchError
+from tacbench.errors import TacbenchError, listing
 from tacbench.report.series import METRIC_SOURCES, Metric, Unreadable, read_series
 from tacbench.report.tables import run_scores
 
@@ -260,10 +260,10 @@ def load_runs(results: Path | str, metric: Metric = "eval") -> RunSet:
             rel, kept = kept["path"], rows[at]
         skipped.append(Skipped(rel, f"duplicate of {kept['path']} (same algo, env, variant, seed)"))
     if not rows:
-        reasons = "; ".join(f"{s.path}: {s.reason}" for s in skipped[:5])
+        reasons = listing([f"{s.path}: {s.reason}" for s in skipped], sep="; ")
         raise TacbenchError(
             f"none of the {len(skipped)} run directories under {root} could be used ({reasons}"
-            f"{'; ...' if len(skipped) > 5 else ''}); fix or remove them"
+            "); fix or remove them"
         )
     runs = pd.DataFrame(rows, columns=list(RUN_COLUMNS))
     # a run planned shorter than others of its method is partial beside them: included, and

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from tacbench.errors import TacbenchError
+from tacbench.errors import TacbenchError, listing
 from tacbench.report import plots
 from tacbench.report.build import Report
 from tacbench.report.page import (
@@ -73,7 +73,7 @@ def check_out(out: Path) -> None:
         return
     found = sorted(p.name for p in out.iterdir() if p.is_file() and p.suffix in REPORT_SUFFIXES)
     if found:
-        shown = ", ".join(found[:5]) + (", ..." if len(found) > 5 else "")
+        shown = listing(found)
         raise TacbenchError(
             f"--out {out} holds {shown}, which a report could overwrite, and no earlier report "
             "(report.md); give a new or empty --out, or the folder of an earlier report."

@@ -31,7 +31,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import IO, Any
 
-from tacbench.errors import TacbenchError
+from tacbench.errors import TacbenchError, listing
 from tacbench.runs.resume_checks import START_OVER, LogDigest
 
 GENERATIONS = 2  # kept after each commit: the new one and the previous one
@@ -234,7 +234,7 @@ def choose(folders: Sequence[Path]) -> tuple[int | None, list[str]]:
     common = set.intersection(*usable)
     if not common and without and set.intersection(*having):
         # new members beside partial ones that could resume: --force would lose their steps
-        named = ", ".join(str(d) for d in without[:3]) + (", ..." if len(without) > 3 else "")
+        named = listing([str(d) for d in without], shown=3)
         raise NoCommonCheckpoint(
             f"{named} {'have' if len(without) > 1 else 'has'} no checkpoint, and the other "
             "members have: a group resumes only from a checkpoint all its members share. "

@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any, Literal, TypeVar
 
 from tacbench.config import RESULT_NEUTRAL_FIELDS
-from tacbench.errors import TacbenchError
+from tacbench.errors import TacbenchError, listing
 from tacbench.runs import checkpoints
 from tacbench.runs.files import CRASHED, RESTORE_OR_FORCE, ensure_writable, read_json
 from tacbench.runs.locks import writing
@@ -169,7 +169,7 @@ def check_nothing_to_lose(directory: Path) -> None:
         return
     found = sorted(p.name for p in directory.iterdir() if not p.name.endswith(".tmp"))
     if found:
-        listed = ", ".join(found[:3]) + (", ..." if len(found) > 3 else "")
+        listed = listing(found, shown=3)
         raise TacbenchError(
             f"{directory} holds {listed} but no config.json, so it is not a run this command "
             f"can resume or replace; nothing was changed. Restore its config.json, or "
