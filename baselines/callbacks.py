@@ -194,6 +194,7 @@ class RunCallback(BaseCallback):
         if due:
             self._checkpoint(step)
         if not last and self._stop(step):
-            if not due and step:  # at step 0 there is nothing to keep: resume starts afresh
+            # nothing to keep at step 0, nor at the step resumed from: its generation is on disk
+            if not due and step != previous:
                 self._checkpoint(step)
             raise Interrupted(step)

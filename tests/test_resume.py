@@ -56,6 +56,28 @@ def test_stop_and_resume_equals_an_uninterrupted_run(
     assert_tensorboard_matches_csvs(outcome.directory)
 
 
+def _files(folder: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(folder)): p.read_bytes() for p in folder.rglob("*") if p.is_file()}
+
+
+@pytest.mark.parametrize("learner", LEARNERS)
+def test_a_stop_at_the_step_resumed_from_leaves_its_checkpoint_as_it_was(
+    tmp_path: Path, uninterrupted: Callable[[str], Path], learner: str
+) -> None:
+    """A resumed run stopped before its first step rewrote the generation it resumed from, so
+    a kill during that write left no intact checkpoint; now it writes nothing."""
+    configs = tiny_configs(learner)
+    (stopped,) = train(tmp_path, configs, resume=True, stop=lambda s: s >= 730)
+    checkpoint = stopped.directory / "checkpoint"
+    before = _files(checkpoint)
+    (again,) = train(tmp_path, configs, resume=True, stop=lambda s: True)
+    assert (again.state, again.step) == ("interrupted", stopped.step)
+    assert _files(checkpoint) == before
+    (outcome,) = train(tmp_path, configs, resume=True)
+    assert outcome.state == "complete"
+    assert_same_results(uninterrupted(learner), outcome.directory)
+
+
 @pytest.mark.parametrize("learner", ["tac", "ddpg"])
 def test_resume_after_a_crash_drops_rows_past_the_last_checkpoint(
     tmp_path: Path, uninterrupted: Callable[[str], Path], learner: str

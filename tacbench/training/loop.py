@@ -167,7 +167,7 @@ class GroupTrainer:
         try:
             while self.step < self.config.total_steps and self.alive:
                 if stop(self.step):
-                    if self.step:  # at step 0 there is nothing to keep: resume starts afresh
+                    if self.step > self.chunk_added:  # new steps since the newest generation
                         self._checkpoint()
                     return outcomes + self._finish("interrupted")
                 outcomes += self.advance()
