@@ -30,6 +30,13 @@ def _ci(point: float, low: float, high: float, digits: int = 2) -> str:
     return f"{_num(point, digits)} [{_num(low, digits)}, {_num(high, digits)}]"
 
 
+def _p_value(value: float) -> str:
+    """A test's p-value: three decimals, below 0.001 as such ("" where there is no test)."""
+    if value is None or math.isnan(value):
+        return ""
+    return "< 0.001" if value < 0.001 else f"{value:.3f}"
+
+
 def _steps(value: float) -> str:
     return "n/a" if math.isnan(value) else f"{int(value):,}"
 
@@ -115,6 +122,8 @@ def q_ranges_display(report: Report) -> pd.DataFrame:
                 "" if math.isnan(p) else _ci(p, lo, hi)
                 for p, lo, hi in zip(r["p_middle"], r["p_low"], r["p_high"], strict=True)
             ],
+            "p-value": [_p_value(v) for v in r["p_value"]],
+            "verdict": r["verdict"].fillna(""),
         }
     )
 
@@ -134,11 +143,13 @@ def _estimates_display(frame: pd.DataFrame, first: list[str]) -> pd.DataFrame:
 
 def _probability_display(frame: pd.DataFrame, identity: list[str], label: str) -> pd.DataFrame:
     """A table of P(X > Y): ``identity`` columns (``env`` shown as task), then ``label``'s
-    interval, the verdict, the mean difference and, if not distinguishable, the detectable one."""
+    interval, its test's p-value, the verdict, the mean difference and, if not distinguishable,
+    the detectable one."""
     shown = frame[identity].rename(columns={"env": "task"})
     shown[f"{label} [95 % CI]"] = [
         _ci(p, lo, hi) for p, lo, hi in zip(frame["p"], frame["low"], frame["high"], strict=True)
     ]
+    shown["p-value"] = [_p_value(v) for v in frame["p_value"]]
     shown["verdict"] = frame["verdict"]
     shown["mean difference"] = [_num(v) for v in frame["difference"]]
     shown["detectable (80 % power)"] = _detectable(
@@ -296,8 +307,10 @@ def sections(report: Report) -> list[Section]:
                     q_ranges_display(report),
                     "The paper's claim by range of q (section 7.1: 1 <= q < 2 better than "
                     "0 < q < 1 and q >= 2 in stable convergence and final return): TAC's runs "
-                    "pooled per range; spread = mean within-run std of the last logged returns "
-                    "(lower is steadier); 'all tasks' pools normalised scores",
+                    "with a fixed alpha pooled per range; spread = mean within-run std of the "
+                    "last logged returns (lower is steadier); the verdict is the permutation "
+                    "test of P(1 <= q < 2 > this range), as the improvement table's; 'all tasks' "
+                    "pools normalised scores",
                 )
                 if not report.q_ranges.empty
                 else Text(

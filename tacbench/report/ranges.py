@@ -6,9 +6,11 @@ runs of each range of :data:`Q_RANGES` are pooled; each range gets the IQM of it
 returns with a 95 % bootstrap interval, its *spread* (the mean over its runs of the standard
 deviation of a run's last logged returns: how steadily a run holds its level, the "stable
 convergence" part) and, for the two outer ranges, P(a run of 1 <= q < 2 beats a run of this
-range) with its interval (:func:`tacbench.report.stats.probability_of_improvement`). Over
+range) with its interval (:func:`tacbench.report.stats.probability_of_improvement`), the
+p-value of its permutation test and its verdict (:mod:`tacbench.report.verdicts`). Over
 several tasks an "all tasks" row pools the normalised scores for the IQM and averages the
-per-task probabilities.
+per-task probabilities. The claim is of a fixed alpha: runs that learn theirs (``--alpha
+auto``) are left out, as their own comparisons are in the improvement table.
 """
 
 from __future__ import annotations
@@ -18,7 +20,13 @@ import math
 import numpy as np
 import pandas as pd
 
-from tacbench.report.stats import ALL_TASKS, interval_estimates, probability_of_improvement
+from tacbench.report.stats import (
+    ALL_TASKS,
+    interval_estimates,
+    learns_alpha,
+    probability_of_improvement,
+)
+from tacbench.report.verdicts import improvement_verdict
 
 Q_RANGES: tuple[tuple[str, float, float], ...] = (
     ("0 < q < 1", 0.0, 1.0),
@@ -28,7 +36,7 @@ Q_RANGES: tuple[tuple[str, float, float], ...] = (
 MIDDLE = "1 <= q < 2"
 COLUMNS = [
     "env", "alpha", "range", "qs", "runs", "iqm", "iqm_low", "iqm_high", "spread",
-    "p_middle", "p_low", "p_high",
+    "p_middle", "p_low", "p_high", "p_value", "verdict",
 ]  # fmt: skip
 
 
@@ -52,13 +60,13 @@ def q_range_table(
 ) -> pd.DataFrame:
     """The table of the module docstring from the report's per-run ``scores`` (TAC runs have a
     q; ``final`` and the normalised ``score``) and its tidy ``data`` (for the spread)."""
-    tac = scores[scores["q"].notna()].copy()
+    tac = scores[scores["q"].notna() & ~learns_alpha(scores["variant"])].copy()
     tac["range"] = [_range_of(float(q)) for q in tac["q"]]
     tac = tac[tac["range"].notna()]
     tac = tac.join(within_run_spread(data, last).rename("spread"), on="run")
     rows: list[dict[str, object]] = []
     pooled: dict[str, dict[str, list[np.ndarray]]] = {}
-    for (env, _), task in tac.groupby(["env", "alpha"], sort=False):
+    for (env, _), task in tac.groupby(["env", "alpha"], sort=False, dropna=False):
         ranges = {name: group for name, group in task.groupby("range", sort=False)}
         if MIDDLE not in ranges or len(ranges) < 2:
             continue
@@ -73,7 +81,9 @@ def q_range_table(
             row.update(iqm=iqm, iqm_low=low, iqm_high=high, spread=group["spread"].mean())
             if name != MIDDLE:
                 p, p_low, p_high = probability_of_improvement([middle], [finals], reps, seed)
-                row.update(p_middle=p, p_low=p_low, p_high=p_high)
+                p_value, verdict = improvement_verdict([middle], [finals], seed)
+                row.update(p_middle=p, p_low=p_low, p_high=p_high, p_value=p_value)
+                row.update(verdict=verdict)
             rows.append(row)
             pooled.setdefault(name, {"score": [], "final": [], "middle": []})
             pooled[name]["score"].append(group["score"].to_numpy())
@@ -101,6 +111,8 @@ def q_range_table(
                 p, p_low, p_high = probability_of_improvement(
                     parts["middle"], parts["final"], reps, seed
                 )
-                row.update(p_middle=p, p_low=p_low, p_high=p_high)
+                p_value, verdict = improvement_verdict(parts["middle"], parts["final"], seed)
+                row.update(p_middle=p, p_low=p_low, p_high=p_high, p_value=p_value)
+                row.update(verdict=verdict)
             rows.append(row)
     return pd.DataFrame(rows, columns=COLUMNS)

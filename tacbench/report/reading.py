@@ -5,6 +5,7 @@ from __future__ import annotations
 from tacbench.bootstrap import CONFIDENCE
 from tacbench.report.build import Report
 from tacbench.report.stats import ALL_TASKS
+from tacbench.report.verdicts import EXACT_LABELLINGS, PERMUTATIONS
 
 
 def how_to_read(report: Report) -> list[str]:
@@ -35,18 +36,23 @@ def how_to_read(report: Report) -> list[str]:
         "resamples from a seed drawn from its own runs, so runs of other methods or tasks "
         "added to the report leave it unchanged.",
         "P(method > q = 1) is the chance that a random run of the method beats a random run of "
-        "TAC q = 1 with the same alpha on the same task (0.5 = no difference); an interval "
-        "that excludes 0.5 is evidence of a difference (verdict larger or smaller; each "
-        "comparison on its own, not corrected for the table's many comparisons, unlike the "
-        "family-wise sequential decisions), else the "
-        "verdict is 'not distinguishable' and 'detectable (80 % power)' says how large a "
-        "difference of mean final returns these run counts would have found: the smallest one a "
-        "two-sided permutation test at 5 % finds in 80 % of resamples of the observed runs "
-        "(docs/sequential.md), so the verdict reads 'no difference larger than that'. Where "
+        "TAC q = 1 with the same alpha on the same task (0.5 = no difference), shown with its "
+        "bootstrap interval. The verdict (larger or smaller) is a two-sided permutation test "
+        "at 5 % of P(X > Y), with the runs relabelled within each task (exactly over every "
+        f"labelling up to {EXACT_LABELLINGS:,} of them, else {PERMUTATIONS:,} random ones: "
+        "'p-value'): with few runs the "
+        "bootstrap interval is too narrow to be that test, so an interval that excludes 0.5 can "
+        "still read 'not distinguishable'. Each comparison stands on its own, not corrected "
+        "for the table's many comparisons, unlike the family-wise sequential decisions. Where "
+        "it is 'not distinguishable', 'detectable (80 % power)' says how large a difference of "
+        "mean final returns these run counts would have found: the smallest one a two-sided "
+        "permutation test at 5 % finds in 80 % of normal samples with the runs' pooled "
+        "standard deviation (docs/sequential.md), so the verdict reads 'no difference larger "
+        "than that'. Where "
         "even every run of one side above every run of the other would be no evidence (that "
         "ranking's chance when both are alike, 2 / C(n + m, n) for n and m runs, on an 'all "
         "tasks' row 2 over the product of the tasks' C(n + m, n), is above 5 %: three runs a "
-        "side on one task give 2 in 20), the verdict is 'too few runs', whatever the interval.",
+        "side on one task give 2 in 20), the verdict is 'too few runs'.",
         *(
             [
                 f"On an '{ALL_TASKS}' row, 'detectable' is a shift of every task's mean final "

@@ -19,7 +19,6 @@ leaves every other interval unchanged.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -28,10 +27,8 @@ from rliable import metrics
 
 from tacbench.bootstrap import interval, scalar_interval, strata_seed
 from tacbench.detectable import detectable_difference, detectable_shift
+from tacbench.report.verdicts import improvement_verdict
 from tacbench.sequential import NOT_DISTINGUISHABLE
-
-TOO_FEW_RUNS = "too few runs"
-"""The verdict where no interval of these run counts could be evidence (:func:`decidable`)."""
 
 DEFAULT_REPS = 2000
 """Bootstrap replications. With 2,000 the Monte-Carlo standard deviation of each interval endpoint
@@ -47,11 +44,13 @@ IMPROVEMENT_COLUMNS = [
     "p",
     "low",
     "high",
+    "p_value",
     "verdict",
     "difference",
     "detectable",
 ]
-"""The improvement table: P(method > q = 1) [low, high], its verdict, and per task the
+"""The improvement table: P(method > q = 1) [low, high], the p-value of its permutation test
+and its verdict (:mod:`tacbench.report.verdicts`), and per task the
 difference of mean final returns and, where not distinguishable, the smallest difference these
 run counts detect with 80 % power (two-sided permutation test at 5 %)."""
 BASELINE_COLUMNS = ["method", "baseline", *IMPROVEMENT_COLUMNS[1:]]
@@ -194,7 +193,7 @@ def _flat(estimates: dict[str, Estimate]) -> dict[str, float]:
     return flat
 
 
-def _learns_alpha(variants: pd.Series) -> pd.Series:
+def learns_alpha(variants: pd.Series) -> pd.Series:
     """Whether each run learned its alpha (--alpha auto: ``-aauto`` in the variant)."""
     return variants.astype(str).str.contains("-aauto", regex=False)
 
@@ -204,7 +203,7 @@ def _reference_runs(scores: pd.DataFrame, env: str, alpha: float, learned: bool)
     the same alpha mode (a learned alpha is compared with a learned alpha from the same start)."""
     same = scores[(scores["env"] == env) & (scores["q"] == 1.0)]
     same = same[same["alpha"].isna()] if np.isnan(alpha) else same[same["alpha"] == alpha]
-    same = same[_learns_alpha(same["variant"]) == learned]
+    same = same[learns_alpha(same["variant"]) == learned]
     return same["final"].to_numpy()
 
 
@@ -223,7 +222,7 @@ def improvement_over_q1(
         mine = scores[scores["method"] == method]
         for env, group in mine.groupby("env", sort=False):
             alphas = group["alpha"].unique()
-            modes = _learns_alpha(group["variant"]).unique()
+            modes = learns_alpha(group["variant"]).unique()
             reference = _reference_runs(scores, str(env), float(alphas[0]), bool(modes[0]))
             if len(alphas) != 1 or len(modes) != 1 or len(reference) == 0:
                 continue
@@ -271,14 +270,15 @@ def _comparison_rows(
     reps: int,
     seed: int,
 ) -> list[dict[str, object]]:
-    """P(X > Y) on each task (``xs[i]`` against ``ys[i]`` on ``envs[i]``) with its verdict, the
+    """P(X > Y) on each task (``xs[i]`` against ``ys[i]`` on ``envs[i]``) with its test's
+    p-value and verdict (:func:`tacbench.report.verdicts.improvement_verdict`), the
     difference of mean final returns and, where not distinguishable, the smallest difference
     these run counts detect; then, over two or more tasks, the same averaged over tasks, where
     the detectable difference is a shift of every task in its runs' standard deviations."""
     rows: list[dict[str, object]] = []
     for env, x, y in zip(envs, xs, ys, strict=True):
         p, low, high = probability_of_improvement([x], [y], reps, seed)
-        verdict = improvement_verdict(low, high) if decidable([x], [y]) else TOO_FEW_RUNS
+        p_value, verdict = improvement_verdict([x], [y], seed)
         rows.append(
             {
                 "env": env,
@@ -286,6 +286,7 @@ def _comparison_rows(
                 "p": p,
                 "low": low,
                 "high": high,
+                "p_value": p_value,
                 "verdict": verdict,
                 "difference": float(np.mean(x) - np.mean(y)),
                 "detectable": detectable_runs(y, x) if verdict == NOT_DISTINGUISHABLE else np.nan,
@@ -293,7 +294,7 @@ def _comparison_rows(
         )
     if len(xs) > 1:
         p, low, high = probability_of_improvement(xs, ys, reps, seed)
-        verdict = improvement_verdict(low, high) if decidable(xs, ys) else TOO_FEW_RUNS
+        p_value, verdict = improvement_verdict(xs, ys, seed)
         rows.append(
             {
                 "env": ALL_TASKS,
@@ -301,6 +302,7 @@ def _comparison_rows(
                 "p": p,
                 "low": low,
                 "high": high,
+                "p_value": p_value,
                 "verdict": verdict,
                 "difference": np.nan,  # returns of different tasks do not add up
                 "detectable": detectable_shift_runs(ys, xs)
@@ -309,29 +311,6 @@ def _comparison_rows(
             }
         )
     return rows
-
-
-def decidable(xs: Sequence[np.ndarray], ys: Sequence[np.ndarray]) -> bool:
-    """Whether these run counts (``xs[t]`` against ``ys[t]`` on each task t) could give a
-    verdict at all. P(X > Y) compares ranks: its interval can be evidence at the two-sided 5 %
-    level only if even the most extreme ranking, every run of one side above every run of the
-    other, is rarer than that when both are alike, 2 / prod_t C(n_t + m_t, n_t) <= 0.05. Three
-    runs a side are too few (2 / 20), four are enough (2 / 70). Below that the bootstrap's
-    interval shrinks to a point ([0, 0] at two runs a side, all below) that is no evidence."""
-    arrangements = math.prod(
-        math.comb(len(x) + len(y), len(x)) for x, y in zip(xs, ys, strict=True)
-    )
-    return 2 / arrangements <= 0.05
-
-
-def improvement_verdict(low: float, high: float) -> str:
-    """``larger`` or ``smaller`` where the 95 % interval of P(X > Y) excludes 0.5, else
-    :data:`~tacbench.sequential.NOT_DISTINGUISHABLE`."""
-    if low > 0.5:
-        return "larger"
-    if high < 0.5:
-        return "smaller"
-    return NOT_DISTINGUISHABLE
 
 
 def detectable_runs(reference: np.ndarray, runs: np.ndarray) -> float:
