@@ -126,6 +126,15 @@ def _check_combination(algo: str, effective: Mapping[str, Any]) -> None:
             "needs at least 2 samples; give batch_size of 2 or more (or "
             "normalize_advantage=false)."
         )
+    if algo == "trpo" and effective.get("normalize_advantage", True):
+        n_steps = int(effective.get("n_steps", SB3_N_STEPS))
+        factor = int(effective.get("sub_sampling_factor", 1))
+        if factor >= n_steps:  # its policy step takes every factor-th sample of the rollout
+            raise TacbenchError(
+                f"--hp sub_sampling_factor={factor}: TRPO's policy step would take 1 sample of "
+                f"its {n_steps}-step rollout, and normalising the advantages needs at least 2; "
+                f"give a factor below n_steps ({n_steps}), or normalize_advantage=false."
+            )
 
 
 # TAC's `tacbench run` flags that a baseline understands, as the hyperparameter they set.

@@ -111,7 +111,6 @@ SPECS: dict[str, Spec] = {
     "normalize_advantage": Spec("bool"),
     "vf_coef": Spec("float", low=0.0),
     "max_grad_norm": _positive(),
-    "target_kl": _positive("optional-float"),
     "cg_max_steps": Spec("int", low=1),
     "cg_damping": Spec("float", low=0.0),
     "line_search_shrinking_factor": Spec("float", low=0.0, high=1.0, low_open=True),
@@ -119,8 +118,12 @@ SPECS: dict[str, Spec] = {
     "n_critic_updates": Spec("int", low=1),
     "sub_sampling_factor": Spec("int", low=1),
 }
-# ent_coef differs in kind: a constant for PPO, a constant or "auto" for SAC.
-_ENT_COEF = {"ppo": Spec("float", low=0.0), "sac-sb3": Spec("ent-coef", low=0.0)}
+# Keys whose kind differs by algorithm: ent_coef a constant for PPO, a constant or "auto" for
+# SAC; target_kl null (no limit) or a number for PPO, a number for TRPO (its line search's step)
+_BY_ALGO = {
+    "ent_coef": {"ppo": Spec("float", low=0.0), "sac-sb3": Spec("ent-coef", low=0.0)},
+    "target_kl": {"ppo": _positive("optional-float"), "trpo": _positive()},
+}
 
 _OFF_POLICY_KEYS = (
     "net_arch",
@@ -190,7 +193,7 @@ def spec(algo: str, key: str) -> Spec:
             f"unknown hyperparameter {key!r} for {algo}.{hint} Valid keys: "
             f"{', '.join(sorted(ALGO_KEYS[algo]))}."
         )
-    return _ENT_COEF[algo] if key == "ent_coef" else SPECS[key]
+    return _BY_ALGO[key][algo] if key in _BY_ALGO else SPECS[key]
 
 
 def check_algo(algo: str) -> None:
@@ -275,7 +278,16 @@ def _integer(value: Any, low: float | None, error: TacbenchError) -> int:
 
 
 def _text(value: Any) -> str:
-    return json.dumps(value) if not isinstance(value, str) else value
+    return value if isinstance(value, str) else json.dumps(value, default=str)
+
+
+def _plain(value: Any) -> bool:
+    """Whether ``value`` is made of JSON's types only (YAML also reads dates and bytes)."""
+    if isinstance(value, list):
+        return all(_plain(v) for v in value)
+    if isinstance(value, dict):
+        return all(isinstance(k, str) and _plain(v) for k, v in value.items())
+    return value is None or isinstance(value, str | int | float | bool)
 
 
 def parse_overrides(algo: str, items: Sequence[str]) -> dict[str, Any]:
@@ -295,6 +307,8 @@ def parse_overrides(algo: str, items: Sequence[str]) -> dict[str, Any]:
             value = yaml.safe_load(raw) if raw.strip() else None
         except yaml.YAMLError:
             value = raw
+        if not _plain(value) or (isinstance(value, int | float) and ":" in raw):
+            value = raw  # a date, bytes or YAML 1.1's base 60 (12:30 is 750): as written
         overrides[key] = coerce(algo, key, value)
     return overrides
 

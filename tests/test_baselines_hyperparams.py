@@ -150,11 +150,22 @@ def test_a_bad_key_names_the_valid_keys() -> None:
         ("sac-sb3", "ent_coef=auto_inf", '"auto" or "auto_<initial value>"'),
         ("sac-sb3", "ent_coef=auto_nan", '"auto" or "auto_<initial value>"'),
         ("td3", "train_freq=[1, day]", 'an integer >= 1, or [n,"step"]'),
+        # TRPO's line search steps by 2 target_kl: null (PPO's "no limit") crashed its update
+        ("trpo", "target_kl=null", "target_kl for trpo must be a number > 0"),
+        # YAML reads dates, bytes and base 60: a date crashed the message, 12:30:00 ran as 45000
+        ("ddpg", "learning_rate=2020-01-01", "--hp learning_rate=2020-01-01: learning_rate"),
+        ("ddpg", "learning_rate=12:30:00", "learning_rate for ddpg must be a number > 0"),
+        ("ddpg", "noise_type=!!binary aGVsbG8=", "one of normal, none"),
+        ("ddpg", "net_arch=[64, 2020-01-01]", "a list of layer widths"),
     ],
 )
 def test_a_bad_value_says_what_is_expected(algo: str, item: str, expected: str) -> None:
     with pytest.raises(TacbenchError, match=re.escape(expected)):
         hyperparams.parse_overrides(algo, [item])
+
+
+def test_ppo_may_leave_target_kl_unlimited() -> None:
+    assert hyperparams.parse_overrides("ppo", ["target_kl=null"]) == {"target_kl": None}
 
 
 def test_variant_names_what_differs_and_hashes_it() -> None:
@@ -196,6 +207,10 @@ def test_make_configs_applies_overrides_and_run_settings() -> None:
     with pytest.raises(TacbenchError, match="PPO normalises the advantages over each minibatch"):
         make_configs("ppo", "Hopper-v4", "Hopper", [0], ["batch_size=1"])
     make_configs("ppo", "Hopper-v4", "Hopper", [0], ["batch_size=1", "normalize_advantage=false"])
+    # TRPO's policy step takes every factor-th sample: one left made its advantages NaN
+    with pytest.raises(TacbenchError, match=r"take 1 sample of its 256-step rollout"):
+        make_configs("trpo", "Hopper-v4", "Hopper", [0], ["n_steps=256", "sub_sampling_factor=256"])
+    make_configs("trpo", "Hopper-v4", "Hopper", [0], ["n_steps=256", "sub_sampling_factor=255"])
     with pytest.raises(TacbenchError, match="must differ"):
         make_configs("ppo", "Hopper-v4", "Hopper", [0, 0])
     with pytest.raises(TacbenchError, match="total_steps must be an integer >= 1"):
