@@ -235,7 +235,9 @@ class _Run:
             if isinstance(err, ValueError) and "invalid values" not in str(err):
                 raise
             step = self.model.num_timesteps
-            reason = f"{_divergence(err, step)}; the last checkpoint is kept"
+            kept = checkpoints.newest_step(self.writer.checkpoint_dir) is not None
+            left = checkpoints.KEPT if kept else checkpoints.NONE_KEPT
+            reason = f"{_divergence(err, step)}; {left}"
             self.writer.status("failed", step, reason)
             self.progress.message(f"seed {config.seed} failed: {reason}")
             return Outcome(config.seed, directory, "failed", step, reason)

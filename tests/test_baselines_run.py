@@ -42,6 +42,8 @@ def test_non_finite_loss_marks_the_run_failed_and_keeps_the_checkpoint(
     assert checkpoint_state(outcome.directory)["step"] == 1000
     (again,) = train(tmp_path, configs, resume=True)
     assert again.state == "skipped" and "failed at step 1200" in again.message
+    (unkept,) = train(tmp_path / "unkept", tiny_configs("sac-sb3", checkpoint_every=0))
+    assert unkept.message.endswith("; no checkpoint had been written yet")
 
 
 def test_a_model_sb3_refuses_to_build_leaves_no_run_behind(

@@ -69,11 +69,17 @@ def test_non_finite_loss_marks_the_run_failed_and_keeps_the_last_checkpoint(tmp_
     assert (outcome.state, status["state"], status["step"]) == ("failed", "failed", 1000)
     assert status["reason"].startswith("non-finite loss_v")
     assert "--lnq per-dim" in status["reason"]
+    assert status["reason"].endswith("; the last checkpoint is kept")
     checkpoint = checkpoint_state(outcome.directory)
     assert checkpoint["step"] == 500
     assert pd.read_csv(outcome.directory / "eval.csv")["step"].tolist() == [500]
     (again,) = _train(tmp_path, _config("Humanoid-v4", q=1.2, alpha=0.05, lnq="joint"), resume=True)
     assert again.state == "skipped" and "failed at step 1000" in again.message
+    # without a checkpoint before the failure, the reason does not promise one
+    config = _config("Humanoid-v4", q=1.2, alpha=0.05, lnq="joint", checkpoint_every=0)
+    (unkept,) = _train(tmp_path / "unkept", config)
+    assert unkept.state == "failed"
+    assert unkept.message.endswith("; no checkpoint had been written yet")
 
 
 @pytest.mark.parametrize("q", [0.5, 1.0, 1.5, 2.0, 5.0])

@@ -36,6 +36,8 @@ from tacbench.runs.resume_checks import START_OVER, LogDigest
 
 GENERATIONS = 2  # kept after each commit: the new one and the previous one
 MANIFEST = "manifest-{step:012d}.json"
+KEPT = "the last checkpoint is kept"  # a failed run's reason: what is left to inspect
+NONE_KEPT = "no checkpoint had been written yet"
 _PAUSE = "TACBENCH_CHECKPOINT_PAUSE"
 _CHUNK = 1 << 20
 # the errors that mean "this folder cannot take what we write": full, over quota, read-only,

@@ -319,7 +319,7 @@ class GroupTrainer:
                     "; ln_q of a large joint density overflows float32 (docs/tac.md, "
                     "Numerics): --lnq per-dim, the reference code's form, stays finite"
                 )
-            reason += "; the last checkpoint is kept"
+            reason += f"; {checkpoints.KEPT if self.chunk_added else checkpoints.NONE_KEPT}"
             self.writers[k].status("failed", self.step, reason)
             self.progress.message(f"seed {self.seeds[k]} failed: {reason}")
             outcomes.append(
