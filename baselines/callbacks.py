@@ -148,7 +148,7 @@ class RunCallback(BaseCallback):
             self.pending_eval = step  # the progress line follows with its result
         else:
             self.progress.update(step)
-        if self.on_policy and not self.stop_announced and self._stop(step):
+        if not self._every_step() and not self.stop_announced and self._stop(step):
             self.stop_announced = True
             self.progress.message(
                 f"stop requested at step {step}: finishing this rollout, then checkpointing"
@@ -157,6 +157,14 @@ class RunCallback(BaseCallback):
             # a rollout that would run past the budget is cut here (its data is not trained on)
             return self._rollout_ends_here()
         return True
+
+    def _every_step(self) -> bool:
+        """Whether a rollout is one step (off-policy with ``train_freq`` 1 step, the default):
+        then a stop takes effect at once, else at the rollout's end."""
+        if self.on_policy:
+            return False
+        freq = self.locals["train_freq"]
+        return bool(freq.unit == TrainFrequencyUnit.STEP and freq.frequency == 1)
 
     def _rollout_ends_here(self) -> bool:
         """Whether the rollout SB3 is collecting is complete with this step (it trains on it

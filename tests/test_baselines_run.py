@@ -14,8 +14,10 @@ import pytest
 from click.testing import CliRunner
 
 from baselines import algos, callbacks
+from tacbench import trainers
 from tacbench.cli import cli
-from tests.helpers import checkpoint_state, tiny_configs, train
+from tacbench.progress import Progress
+from tests.helpers import TINY_HP, TINY_RUN, checkpoint_state, tiny_configs, train
 
 pytestmark = pytest.mark.smoke
 
@@ -155,3 +157,23 @@ def test_an_off_policy_rollout_is_cut_at_the_budget(tmp_path: Path, train_freq: 
     assert pd.read_csv(run / "train.csv")["step"].max() <= 300
     steps = [int(p.stem.split("-")[1]) for p in (run / "checkpoint").glob("manifest-*.json")]
     assert max(steps) == 300
+
+
+def test_an_off_policy_stop_waits_for_the_rollout_and_says_so(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """With train_freq above one step a stop takes effect at the rollout's end; it used to wait
+    there without a word, as only PPO and TRPO announced it."""
+    said: list[str] = []
+    monkeypatch.setattr(Progress, "message", lambda self, text: said.append(text))
+    configs, _ = trainers.make_configs(
+        "ddpg", "Hopper-v4", "Hopper", [0], TINY_RUN, hp=[*TINY_HP["ddpg"], "train_freq=400"]
+    )
+    (outcome,) = train(tmp_path, configs, resume=True, stop=lambda step: step >= 730)
+    assert (outcome.state, outcome.step) == ("interrupted", 800)
+    assert "stop requested at step 730: finishing this rollout, then checkpointing" in said
+    assert checkpoint_state(outcome.directory)["step"] == 800
+    said.clear()
+    (default,) = train(tmp_path / "every-step", tiny_configs("ddpg"), stop=lambda s: s >= 730)
+    assert (default.state, default.step) == ("interrupted", 730)
+    assert not any(text.startswith("stop requested") for text in said)  # it stops at once
