@@ -90,7 +90,8 @@ def train(
 
 def check_sizes(config: BaselineConfig, info: envs.EnvInfo) -> None:
     """Refuse, before anything is written, a run whose networks, minibatches and buffer (SB3's
-    replay buffer, allocated whole, float64 observations; or the on-policy rollout) would not
+    replay buffer, allocated whole, of float32 observations (:mod:`baselines.algos` casts
+    them) with each transition's s' stored apart; or the on-policy rollout) would not
     fit this machine's memory, or more threads than it has cores (:mod:`tacbench.memory`)."""
     memory.check_threads(config.threads)
     hp = config.hyperparams  # where a table leaves a size out, SB3's default stands in
@@ -101,10 +102,11 @@ def check_sizes(config: BaselineConfig, info: envs.EnvInfo) -> None:
     needs = memory.actor_critic_bytes(
         info.obs_dim, info.act_dim, widths, int(hp.get("batch_size", 256)), value_network=False
     )
-    obs, act = info.obs_dim * 8, info.act_dim * memory.FLOAT32
+    obs, act = info.obs_dim * memory.FLOAT32, info.act_dim * memory.FLOAT32
     if config.off_policy:
         rows = min(int(hp.get("buffer_size", 1_000_000)), config.total_steps)  # as built
-        needs["the replay buffer"] = rows * (2 * obs + act + 2 * memory.FLOAT32)
+        # s, s', the action, and the reward, done and timeout flags (float32 each)
+        needs["the replay buffer"] = rows * (2 * obs + act + 3 * memory.FLOAT32)
     else:
         needs["the rollout"] = int(hp.get("n_steps", SB3_N_STEPS)) * (
             obs + act + 6 * memory.FLOAT32

@@ -60,6 +60,26 @@ def test_a_baselines_buffer_is_counted_as_built_never_above_the_runs_steps() -> 
     check_sizes(configs[0], envs.env_info("Hopper-v4"))  # no error
 
 
+@pytest.mark.parametrize(
+    ("learner", "buffer"), [("ddpg", "replay_buffer"), ("ppo", "rollout_buffer")]
+)
+def test_a_baselines_buffer_is_estimated_as_sb3_allocates_it(
+    monkeypatch: pytest.MonkeyPatch, learner: str, buffer: str
+) -> None:
+    """SB3's replay buffer holds the observations as float32 (as baselines.algos casts them);
+    the estimate counted them as float64 and could refuse a run that fits."""
+    from baselines import algos
+
+    estimated: dict[str, int] = {}
+    monkeypatch.setattr(memory, "check_fits", lambda needs, advice: estimated.update(needs))
+    (config,) = tiny_configs(learner)
+    check_sizes(config, envs.env_info("Hopper-v4"))
+    model = algos.build_model(config, algos.make_training_env(config)[0])
+    arrays = [v for v in vars(getattr(model, buffer)).values() if isinstance(v, np.ndarray)]
+    part = "the replay buffer" if buffer == "replay_buffer" else "the rollout"
+    assert estimated[part] == sum(a.nbytes for a in arrays)
+
+
 @pytest.mark.parametrize("dry_run", [True, False])
 def test_a_sweep_refuses_units_too_big_before_anything_trains(
     tmp_path: Path, dry_run: bool
