@@ -43,6 +43,15 @@ def test_run_scores_by_hand(tmp_path: Path) -> None:
     assert run_scores(data, last=10).loc[0, "final"] == pytest.approx(3.0)
 
 
+def test_a_run_of_huge_returns_leaves_the_next_runs_final_as_it_is() -> None:
+    """The finals were differences of one running sum over every run: 1e17 made 2.5 read 0."""
+    data = pd.DataFrame(
+        {"run": [0, 0, 1, 1], "step": [1, 2, 1, 2], "return": [1e17, 1e17, 2.0, 3.0]}
+    )
+    scores = run_scores(data, last=2)
+    assert scores["final"].tolist() == [1e17, 2.5]
+
+
 def _flat_runs(root: Path, env: str, algo: str, q: float | None, levels: list[float]) -> None:
     for seed, level in enumerate(levels):
         write_run(

@@ -51,9 +51,11 @@ def run_scores(data: pd.DataFrame, last: int) -> pd.DataFrame:
     value = data["return"].to_numpy(dtype=np.float64)
     starts = np.flatnonzero(np.append(True, run[1:] != run[:-1]))
     ends = np.append(starts[1:], len(run))
-    cumulative = np.concatenate([[0.0], np.cumsum(value)])
     tail = np.maximum(starts, ends - last)
-    final = (cumulative[ends] - cumulative[tail]) / (ends - tail)
+    # each run's own sum: a running sum over all runs let one run's huge returns swamp the
+    # finals of the runs after it (1e17 made the next run's 2.5 read 0)
+    in_tail = np.arange(len(run)) >= np.repeat(tail, ends - starts)
+    final = np.add.reduceat(np.where(in_tail, value, 0.0), starts) / (ends - tail)
     trapezoids = np.zeros(len(run))
     trapezoids[1:] = np.where(
         run[1:] == run[:-1], np.diff(step) * (value[1:] + value[:-1]) / 2, 0.0
