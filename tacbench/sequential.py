@@ -213,6 +213,12 @@ class SequentialComparison:
                 + f" (got {', '.join(str(len(scores.get(m, ()))) for m in short)})."
             )
         values = {m: np.asarray(scores[m][: needed[m]], dtype=np.float64) for m in self.methods}
+        unusable = [m for m, v in values.items() if not np.isfinite(v).all()]
+        if unusable:  # one NaN made every comparison of the family "not distinguishable"
+            raise TacbenchError(
+                f"interim {len(self.interims) + 1}: the scores of {', '.join(unusable)} are not "
+                "all finite numbers; leave a failed or diverged run out, or score it."
+            )
         self._comparator.partial_compare(values, verbose=False)
         decisions = {self._keys[key]: state for key, state in self._comparator.decisions.items()}
         if len(self.interims) == self.K - 1:

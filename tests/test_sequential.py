@@ -119,6 +119,14 @@ def test_a_design_it_cannot_run_is_refused(kwargs: dict, message: str) -> None:
         sq.run_sequential({"a": [1.0] * 4}, n=2, K=2)
 
 
+@pytest.mark.parametrize("bad", [math.nan, math.inf])
+def test_a_score_that_is_not_finite_is_refused(bad: float) -> None:
+    """One NaN used to turn every comparison of the family into "not distinguishable"."""
+    scores = {"a": [1.0, 2, 3, 4, 5], "b": [10.0, 11, bad, 13, 14], "c": [20.0, 21, 22, 23, 24]}
+    with pytest.raises(TacbenchError, match="the scores of b are not all finite"):
+        sq.run_sequential(scores, 5, 1, control="a")
+
+
 def test_a_replay_of_a_study_short_of_runs_names_the_task_and_the_q(tmp_path: Path) -> None:
     for q, seeds in ((1.0, range(0, 50, 10)), (2.0, range(0, 40, 10))):
         for seed in seeds:
