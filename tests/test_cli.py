@@ -186,3 +186,20 @@ def test_resume_names_each_run_that_has_nothing_to_resume(tmp_path: Path) -> Non
         ]
         result = CliRunner().invoke(run, [*args, "--out", str(tmp_path)])
         assert "nothing to resume" not in result.output  # without --resume, nothing to say
+
+
+def test_resume_says_a_baseline_seed_after_a_stop_was_not_started(tmp_path: Path) -> None:
+    """A baseline trains its seeds one after another: a seed a Ctrl-C came before has no run
+    yet, which is no reason to check --out and the settings, as the resume used to say."""
+    variant = "learning_starts200-faeb7331"
+    started = tmp_path / "runs" / "ddpg" / "Hopper-v4" / variant / "seed0"
+    started.mkdir(parents=True)
+    (started / "config.json").write_text("{}")
+    args = ["--algo", "ddpg", "--env", "Hopper-v4", "--learning-starts", "200"]
+    args += ["--seed", "0", "--seed", "1", "--out", str(tmp_path), "--resume"]
+    with mock.patch("tacbench.trainers.trainer_for") as trainer_for:
+        trainer_for.return_value.train.return_value = []
+        result = CliRunner().invoke(run, args)
+    assert result.exit_code == 0, result.output
+    assert "seed 1: not started before the stop; starting it" in result.output
+    assert "nothing to resume" not in result.output

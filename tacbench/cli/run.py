@@ -183,9 +183,10 @@ def run(
 
 def _say_what_starts_afresh(configs: Sequence[Any], out: Path) -> None:
     """Under --resume, name each run that has nothing to resume: no config.json in its
-    directory (a mistyped setting, another variant, or --out would otherwise start it silently),
-    or no checkpoint yet (killed before its first: it trains again from step 0, and the rows it
-    had logged are written again, the same ones for its seed). Not for a TAC group that has
+    directory (a mistyped setting, another variant, or --out would otherwise start it silently;
+    a baseline's seed that a stop came before is named as such), or no checkpoint yet (killed
+    before its first: it trains again from step 0, and the rows it had logged are written
+    again, the same ones for its seed). Not for a TAC group that has
     members to resume beside such ones: it is refused, saying what to do."""
     directories = [runs.run_directory(out, c.algo, c.env, c.variant, c.seed) for c in configs]
     checkpointed = [newest_step(d / "checkpoint") is not None for d in directories]
@@ -193,10 +194,14 @@ def _say_what_starts_afresh(configs: Sequence[Any], out: Path) -> None:
     trained = [c for c, u in zip(checkpointed, unfinished, strict=True) if u]
     if configs[0].algo == "tac" and any(trained) and not all(trained):
         return
-    for config, directory, has_checkpoint, resumes in zip(
-        configs, directories, checkpointed, unfinished, strict=True
+    written = [(d / "config.json").exists() for d in directories]
+    one_by_one = configs[0].algo != "tac"  # a baseline's seeds train one after another
+    for config, directory, has_checkpoint, resumes, exists in zip(
+        configs, directories, checkpointed, unfinished, written, strict=True
     ):
-        if not (directory / "config.json").exists():
+        if not exists and one_by_one and any(written):  # a stop came before it
+            click.echo(f"seed {config.seed}: not started before the stop; starting it")
+        elif not exists:
             click.echo(
                 f"seed {config.seed}: nothing to resume at {directory} (no run there); starting "
                 "afresh (check --out and the settings if you meant another run)"
