@@ -71,7 +71,8 @@ def _learned_mode(
     type=NumberOrAuto(),
     multiple=True,
     help="Entropy coefficient; repeatable, like --q; auto: learned per member from the paper's "
-    "alpha (--alpha-mode auto).  [default: the paper's: 0.2, Humanoid 0.05]",
+    "alpha (--alpha-mode auto; sac-sb3 from SB3's 1.0, or from --alpha with --alpha-mode "
+    "auto).  [default: the paper's: 0.2, Humanoid 0.05]",
 )
 @click.option(
     "--seed",
