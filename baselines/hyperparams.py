@@ -55,13 +55,14 @@ class Spec:
             return "a list of layer widths, e.g. [400,300]"
         if self.kind == "train-freq":
             return 'an integer >= 1, or [n,"step"] / [n,"episode"]'
+        if self.kind == "ent-coef":  # the bound is the constant's; a learned one starts above 0
+            return 'a number >= 0, "auto" or "auto_<initial value>" with an initial value > 0'
         text = {
             "float": "a number",
             "int": "an integer",
             "bool": "true or false",
             "optional-float": "a number or null",
             "float-or-auto": 'a number or "auto"',
-            "ent-coef": 'a number, "auto" or "auto_<initial value>"',
         }[self.kind]
         if self.low is not None:
             text += f" {'>' if self.low_open else '>='} {self.low:g}"

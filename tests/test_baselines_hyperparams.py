@@ -149,6 +149,7 @@ def test_a_bad_key_names_the_valid_keys() -> None:
         ("sac-sb3", "ent_coef=automatic", '"auto" or "auto_<initial value>"'),
         ("sac-sb3", "ent_coef=auto_inf", '"auto" or "auto_<initial value>"'),
         ("sac-sb3", "ent_coef=auto_nan", '"auto" or "auto_<initial value>"'),
+        ("sac-sb3", "ent_coef=auto_0", "with an initial value > 0"),  # it said ">= 0"
         ("td3", "train_freq=[1, day]", 'an integer >= 1, or [n,"step"]'),
         # TRPO's line search steps by 2 target_kl: null (PPO's "no limit") crashed its update
         ("trpo", "target_kl=null", "target_kl for trpo must be a number > 0"),
