@@ -282,6 +282,11 @@ def _text(value: Any) -> str:
     return value if isinstance(value, str) else json.dumps(value, default=str)
 
 
+YAML_ONLY_NUMBER = re.compile(r"(?<![\w.])0[0-9xob]|\d:\d|\d_\d", re.IGNORECASE)
+"""Numbers YAML 1.1 reads otherwise than they are written: octal 010 (8), hex 0x10, binary
+0b10, base 60 (1:30 is 90) and digit groups (1_000)."""
+
+
 def _plain(value: Any) -> bool:
     """Whether ``value`` is made of JSON's types only (YAML also reads dates and bytes)."""
     if isinstance(value, list):
@@ -308,8 +313,8 @@ def parse_overrides(algo: str, items: Sequence[str]) -> dict[str, Any]:
             value = yaml.safe_load(raw) if raw.strip() else None
         except yaml.YAMLError:
             value = raw
-        if not _plain(value) or (isinstance(value, int | float) and ":" in raw):
-            value = raw  # a date, bytes or YAML 1.1's base 60 (12:30 is 750): as written
+        if not _plain(value) or YAML_ONLY_NUMBER.search(raw):
+            value = raw  # a date, bytes or a YAML 1.1 number (12:30 is 750): as written
         overrides[key] = coerce(algo, key, value)
     return overrides
 

@@ -158,11 +158,18 @@ def test_a_bad_key_names_the_valid_keys() -> None:
         ("ddpg", "learning_rate=12:30:00", "learning_rate for ddpg must be a number > 0"),
         ("ddpg", "noise_type=!!binary aGVsbG8=", "one of normal, none"),
         ("ddpg", "net_arch=[64, 2020-01-01]", "a list of layer widths"),
+        ("ddpg", "net_arch=[1:30, 300]", "a list of layer widths"),  # it ran [90, 300]
+        ("ppo", "n_steps=0x800", "an integer >= 2"),  # it ran 2048
+        ("ddpg", "net_arch=[010, 300]", "a list of layer widths"),
     ],
 )
 def test_a_bad_value_says_what_is_expected(algo: str, item: str, expected: str) -> None:
     with pytest.raises(TacbenchError, match=re.escape(expected)):
         hyperparams.parse_overrides(algo, [item])
+
+
+def test_a_number_yaml_1_1_reads_as_octal_is_read_as_written() -> None:
+    assert hyperparams.parse_overrides("ppo", ["n_steps=010"]) == {"n_steps": 10}  # it ran 8
 
 
 def test_ppo_may_leave_target_kl_unlimited() -> None:
