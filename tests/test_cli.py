@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import json
+import shlex
 import subprocess
 import sys
 from pathlib import Path
@@ -194,12 +196,14 @@ def test_resume_says_a_baseline_seed_after_a_stop_was_not_started(tmp_path: Path
     variant = "learning_starts200-faeb7331"
     started = tmp_path / "runs" / "ddpg" / "Hopper-v4" / variant / "seed0"
     started.mkdir(parents=True)
-    (started / "config.json").write_text("{}")
     args = ["--algo", "ddpg", "--env", "Hopper-v4", "--learning-starts", "200"]
-    args += ["--seed", "0", "--seed", "1", "--out", str(tmp_path), "--resume"]
+    args += ["--seed", "0", "--seed", "1", "--out", str(tmp_path)]
+    command = shlex.join(["tacbench", "run", *args])
+    (started / "config.json").write_text(json.dumps({"command": command}))
     with mock.patch("tacbench.trainers.trainer_for") as trainer_for:
         trainer_for.return_value.train.return_value = []
-        result = CliRunner().invoke(run, args)
+        result = CliRunner().invoke(run, [*args, "--seed", "99", "--resume"])
     assert result.exit_code == 0, result.output
     assert "seed 1: not started before the stop; starting it" in result.output
-    assert "nothing to resume" not in result.output
+    # a seed the first command did not name is not one a stop came before
+    assert "seed 99: nothing to resume" in result.output

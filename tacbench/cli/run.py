@@ -7,7 +7,9 @@ algorithm, the repeatable seeds, q and alpha with their per-task defaults, where
 
 from __future__ import annotations
 
+import shlex
 from collections.abc import Sequence
+from itertools import pairwise
 from pathlib import Path
 from typing import Any
 
@@ -196,11 +198,13 @@ def _say_what_starts_afresh(configs: Sequence[Any], out: Path) -> None:
     if configs[0].algo == "tac" and any(trained) and not all(trained):
         return
     written = [(d / "config.json").exists() for d in directories]
-    one_by_one = configs[0].algo != "tac"  # a baseline's seeds train one after another
+    # a baseline's seeds train one after another: those its earlier command named had a stop
+    # come before them
+    named = set().union(*(_seeds_named(d) for d, w in zip(directories, written, strict=True) if w))
     for config, directory, has_checkpoint, resumes, exists in zip(
         configs, directories, checkpointed, unfinished, written, strict=True
     ):
-        if not exists and one_by_one and any(written):  # a stop came before it
+        if not exists and config.algo != "tac" and config.seed in named:
             click.echo(f"seed {config.seed}: not started before the stop; starting it")
         elif not exists:
             click.echo(
@@ -214,6 +218,15 @@ def _say_what_starts_afresh(configs: Sequence[Any], out: Path) -> None:
                 f"seed {config.seed}: {directory} has no checkpoint yet (it stopped before its "
                 f"first, {when}); it trains again from step 0, writing its rows again"
             )
+
+
+def _seeds_named(directory: Path) -> set[int]:
+    """The seeds of the command recorded in the run's config.json (none where unreadable)."""
+    try:
+        words = shlex.split(str(runs.read_json(directory / "config.json").get("command", "")))
+    except (TacbenchError, OSError, ValueError):
+        return set()
+    return {int(s) for flag, s in pairwise(words) if flag == "--seed" and s.isdigit()}
 
 
 def _unfinished(directory: Path) -> bool:
