@@ -1,18 +1,19 @@
-"""What a "not distinguishable" verdict could have detected: the smallest difference a
-permutation test at the verdict's level finds with 80 % power on samples of the runs' sizes,
-drawn from normal distributions with the runs' pooled standard deviation, so that "not
-distinguishable" reads as "no difference larger than X" (Colas et al. 2018, who take the
-runs as normal too; docs/sequential.md). Drawing the samples from the observed runs instead,
-with replacement, overstated the power: resamples of four or five runs spread less than fresh
-runs, and at five runs a side the difference it called detectable was found in 71 % of fresh
-normal samples, at four in 46 %.
+"""What a "not distinguishable" verdict could have detected: the smallest difference that the
+verdict's own test (:mod:`tacbench.verdicts`, the permutation test of P(X > Y) at its level)
+finds with 80 % power on samples of the runs' sizes, drawn from normal distributions with the
+runs' pooled standard deviation, so that "not distinguishable" reads as "no difference larger
+than X" (Colas et al. 2018, who take the runs as normal too; docs/sequential.md). Drawing the
+samples from the observed runs instead, with replacement, overstated the power: resamples of
+four or five runs spread less than fresh runs, and at five runs a side the difference it
+called detectable was found in 71 % of fresh normal samples, at four in 46 %; so did taking a
+test of the difference of means, which has more power than the rank test that decides.
 
 :func:`detectable_difference` answers it for one task, in the task's return units;
 :func:`detectable_shift` for several tasks at once, in standard deviations of each task's runs
-(the tasks' returns are on different scales). Both are one computation,
-:func:`_smallest_detectable`: a stratified permutation test of the mean over tasks of each
-task's scaled difference of means, with a shift of the same size in every task's units. In
-those units the answer depends only on the run counts (and the level, power and seed).
+(the tasks' returns are on different scales): every task's other runs shifted by the same
+number of its standard deviations, the statistic P(X > Y) averaged over the tasks, the runs
+permuted within each task. Both are one computation, :func:`_smallest_detectable`; in those
+units the answer depends only on the run counts (and the level, power and seed).
 """
 
 from __future__ import annotations
@@ -23,50 +24,46 @@ from collections.abc import Sequence
 import numpy as np
 
 from tacbench.errors import TacbenchError
+from tacbench.verdicts import LEVEL, labellings, null_improvements, p_values
 
-DEFAULT_ALPHA = 0.05  # the usual 5% level, as the report's verdicts
 Samples = Sequence[float] | np.ndarray
 
 
 def detectable_difference(
     control: Samples,
     other: Samples,
-    alpha: float = DEFAULT_ALPHA,
+    alpha: float = LEVEL,
     power: float = 0.8,
-    resamples: int = 400,
-    permutations: int = 400,
+    samples: int = 1000,
     seed: int = 0,
 ) -> float:
-    """The smallest difference of means that a two-sided permutation test of the mean
-    difference, at level ``alpha``, finds with probability ``power`` on samples of these
-    sizes drawn from normal distributions with the runs' pooled standard deviation (the
-    second shifted by the difference tried). Bisection over the difference with common
-    random numbers; ``inf`` when the test cannot reach ``alpha`` at these sizes."""
+    """The smallest difference of means that the verdict's two-sided test, at level ``alpha``,
+    finds with probability ``power`` on ``samples`` samples of these sizes drawn from normal
+    distributions with the runs' pooled standard deviation (``other``'s shifted by the
+    difference tried). Bisection over the difference with common random numbers; ``inf`` when
+    the test cannot reach ``alpha`` at these sizes."""
     a, b = _two_groups(control, other)
-    spread = _spread(a, b)
-    shift = _smallest_detectable([(len(a), len(b))], alpha, power, resamples, permutations, seed)
-    return shift * spread
+    return _smallest_detectable([(len(a), len(b))], alpha, power, samples, seed) * _spread(a, b)
 
 
 def detectable_shift(
     controls: Sequence[Samples],
     others: Sequence[Samples],
-    alpha: float = DEFAULT_ALPHA,
+    alpha: float = LEVEL,
     power: float = 0.8,
-    resamples: int = 400,
-    permutations: int = 400,
+    samples: int = 1000,
     seed: int = 0,
 ) -> float:
     """Over several tasks (``controls[i]`` against ``others[i]`` on task i): the smallest shift,
-    in standard deviations of each task's runs (pooled within the two groups), that a
-    stratified two-sided permutation test of the tasks' mean scaled difference of means, at
-    level ``alpha``, finds with probability ``power`` when every task's ``other`` is shifted by
-    it; each task's samples drawn as :func:`detectable_difference` draws them."""
+    in standard deviations of each task's runs (pooled within the two groups), that the
+    verdict's test over the tasks, at level ``alpha``, finds with probability ``power`` when
+    every task's ``other`` is shifted by it; each task's samples drawn as
+    :func:`detectable_difference` draws them."""
     if len(controls) != len(others) or not controls:
         raise TacbenchError("a detectable shift needs the same tasks, at least one, on each side.")
     pairs = [_two_groups(a, b) for a, b in zip(controls, others, strict=True)]
     sizes = [(len(a), len(b)) for a, b in pairs]
-    return _smallest_detectable(sizes, alpha, power, resamples, permutations, seed)
+    return _smallest_detectable(sizes, alpha, power, samples, seed)
 
 
 def _two_groups(control: Samples, other: Samples) -> tuple[np.ndarray, np.ndarray]:
@@ -85,39 +82,26 @@ def _spread(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def _smallest_detectable(
-    sizes: Sequence[tuple[int, int]],
-    alpha: float,
-    power: float,
-    resamples: int,
-    permutations: int,
-    seed: int,
+    sizes: Sequence[tuple[int, int]], alpha: float, power: float, samples: int, seed: int
 ) -> float:
-    """The smallest d such that the test rejects with probability ``power`` when each task's
-    (``sizes[i]``: n control and m other runs) samples are standard normal and its other runs
-    are shifted by ``d``; the statistic is the mean over tasks of each task's difference of
-    means, its runs permuted within each task."""
-    labellings = math.prod(math.comb(n + m, n) for n, m in sizes)
-    if 2.0 / labellings > alpha:
+    """The smallest d such that the verdict's test rejects with probability ``power`` when
+    each task's (``sizes[i]``: n control and m other runs) samples are standard normal and its
+    other runs are shifted by ``d``."""
+    if 2.0 / labellings(sizes) > alpha:
         return math.inf  # no labelling of these sizes reaches the level
+    # untied runs rank 1, ..., n + m whatever their values: one null serves every sample
+    others = [np.arange(m, dtype=np.float64) for _, m in sizes]
+    controls = [np.arange(m, m + n, dtype=np.float64) for n, m in sizes]
+    _, null, exact = null_improvements(others, controls, seed)
     rng = np.random.default_rng(seed)
-    strata = []
-    for n, m in sizes:
-        samples = rng.standard_normal((resamples, n + m))
-        order = np.argsort(rng.random((permutations, n + m)), axis=1)
-        strata.append((n, samples, order))
+    draws = [(n, rng.standard_normal((samples, n + m))) for n, m in sizes]
 
     def power_at(d: float) -> float:
-        observed = np.zeros(resamples)
-        null = np.zeros((resamples, permutations))
-        for n, samples, order in strata:
-            both = samples.copy()
-            both[:, n:] += d  # (resamples, pooled)
-            observed += both[:, n:].mean(1) - both[:, :n].mean(1)
-            shuffled = both[:, order]  # (resamples, permutations, pooled)
-            null += shuffled[:, :, n:].mean(2) - shuffled[:, :, :n].mean(2)
-        observed, null = np.abs(observed / len(strata)), np.abs(null / len(strata))
-        p = (1 + (null >= observed[:, None]).sum(1)) / (permutations + 1)
-        return float((p <= alpha).mean())
+        observed = np.zeros(samples)
+        for n, drawn in draws:  # P(other > control) of each sample, on its task
+            control, other = drawn[:, :n], drawn[:, n:] + d
+            observed += (other[:, :, None] > control[:, None, :]).mean(axis=(1, 2))
+        return float((p_values(observed / len(draws), null, exact) <= alpha).mean())
 
     low, high = 0.0, 1.0
     while power_at(high) < power:

@@ -101,12 +101,9 @@ def _comparator_class() -> type:
     absolute values to ``partial_compare``, which is all that reads them there.
 
     Those values are raised by a relative :data:`TIE_TOLERANCE`: ``partial_compare`` rejects
-    where the observed statistic, ``(k + 1) |mean a - mean b|``, is strictly above the boundary,
-    but the permuted values are sums of blockwise differences, so the observed labelling's own
-    value can differ from the observed statistic by a rounding error. Without the tolerance a
-    change in the last digit of the scores turned such a tie into a rejection (at one run per
-    interim, whose smallest p-value, 2 / 32, is above 0.05); with it a tie counts as one, as in
-    ``scipy.stats.permutation_test``.
+    where the observed statistic is strictly above the boundary, but computes it from means and
+    the permuted values from blockwise sums, so the observed labelling's own value could fall a
+    rounding error below it and a tie read as a rejection (docs/sequential.md).
     """
     from adastop import MultipleAgentsComparator
 

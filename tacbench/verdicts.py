@@ -1,4 +1,5 @@
-"""The verdict on P(X > Y): a stratified permutation test of the probability of improvement.
+"""The report's verdict on P(X > Y): a stratified permutation test of the probability of
+improvement.
 
 The report shows P(X > Y) with a bootstrap interval (:mod:`tacbench.report.stats`), but with the
 few runs of RL studies a percentile-bootstrap interval of a rank statistic is too narrow: at five
@@ -11,19 +12,20 @@ tasks (each task's Mann-Whitney U / (n m), ties counting a half), and the p-valu
 of labellings at least as far from 0.5 as the observed: exactly, over every labelling, where
 there are at most :data:`EXACT_LABELLINGS`; else from :data:`PERMUTATIONS` random ones (a
 Monte-Carlo p-value ``(1 + k) / (1 + B)``, whose test keeps its level too), drawn from a seed
-derived from the scores as the intervals' are.
+derived from the pooled runs of each task, so that the order of the tasks does not change it,
+nor, with as many runs a side, which side is X.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from hashlib import blake2b
 from itertools import combinations
 
 import numpy as np
 from scipy.stats import rankdata
 
-from tacbench.bootstrap import strata_seed
 from tacbench.sequential import NOT_DISTINGUISHABLE
 
 LEVEL = 0.05
@@ -40,17 +42,21 @@ standard deviation of a p-value near 0.05 is then about 0.002."""
 _TOLERANCE = 1e-9  # labellings as far from 0.5 as the observed one, up to float rounding
 
 
+def labellings(sizes: Sequence[tuple[int, int]]) -> int:
+    """How many labellings the test permutes over: prod_t C(n_t + m_t, n_t)."""
+    return math.prod(math.comb(n + m, n) for n, m in sizes)
+
+
 def decidable(xs: Sequence[np.ndarray], ys: Sequence[np.ndarray]) -> bool:
     """Whether these run counts (``xs[t]`` against ``ys[t]`` on each task t) could give a
     verdict at all: the most extreme rankings, every run of one side above every run of the
     other on every task, have probability 2 / prod_t C(n_t + m_t, n_t) when both are alike, the
     smallest p-value the test can give. Three runs a side are too few (2 / 20), four are enough
     (2 / 70)."""
-    labellings = math.prod(math.comb(len(x) + len(y), len(x)) for x, y in zip(xs, ys, strict=True))
-    return 2 / labellings <= LEVEL
+    return 2 / labellings([(len(x), len(y)) for x, y in zip(xs, ys, strict=True)]) <= LEVEL
 
 
-def _improvement_of_labellings(
+def _task_improvements(
     x: np.ndarray, y: np.ndarray, rng: np.random.Generator | None
 ) -> tuple[float, np.ndarray]:
     """P(X > Y) on one task, and the same for every labelling of its pooled runs as ``len(x)``
@@ -61,8 +67,49 @@ def _improvement_of_labellings(
         chosen = np.array(list(combinations(range(n + m), n)), dtype=np.intp).reshape(-1, n)
     else:
         chosen = rng.permuted(np.tile(np.arange(n + m), (PERMUTATIONS, 1)), axis=1)[:, :n]
+    pooled = np.sort(ranks)  # labellings of the pooled runs, whichever side they came from
     offset, pairs = n * (n + 1) / 2, n * m
-    return (ranks[:n].sum() - offset) / pairs, (ranks[chosen].sum(axis=1) - offset) / pairs
+    return (ranks[:n].sum() - offset) / pairs, (pooled[chosen].sum(axis=1) - offset) / pairs
+
+
+def _pooled(x: np.ndarray, y: np.ndarray) -> bytes:
+    return np.sort(np.concatenate([x, y])).tobytes()
+
+
+def _seed(xs: Sequence[np.ndarray], ys: Sequence[np.ndarray], seed: int) -> int:
+    """A seed from ``seed`` and each task's pooled runs, the same whichever side is X and in
+    whatever order the tasks come."""
+    digest = blake2b(str(seed).encode(), digest_size=8)
+    for task in sorted(_pooled(x, y) for x, y in zip(xs, ys, strict=True)):
+        digest.update(task)
+    return int.from_bytes(digest.digest(), "little")
+
+
+def null_improvements(
+    xs: Sequence[np.ndarray], ys: Sequence[np.ndarray], seed: int
+) -> tuple[float, np.ndarray, bool]:
+    """The observed P(X > Y) averaged over tasks, the same for every labelling (or for
+    :data:`PERMUTATIONS` random ones, beyond :data:`EXACT_LABELLINGS`), and whether those are
+    every labelling."""
+    exact = labellings([(len(x), len(y)) for x, y in zip(xs, ys, strict=True)]) <= EXACT_LABELLINGS
+    rng = None if exact else np.random.default_rng(_seed(xs, ys, seed))
+    observed, null = 0.0, np.zeros(1)
+    # tasks in the order of their pooled runs: the random labellings do not follow their order
+    for x, y in sorted(zip(xs, ys, strict=True), key=lambda task: _pooled(*task)):
+        task_observed, task_null = _task_improvements(x, y, rng)
+        observed += task_observed
+        # every combination of the tasks' labellings (exact), or the i-th draw of each task
+        null = (null[:, None] + task_null[None, :]).ravel() if exact else null + task_null
+    return observed / len(xs), null / len(xs), exact
+
+
+def p_values(observed: np.ndarray, null: np.ndarray, exact: bool) -> np.ndarray:
+    """The two-sided p-value of each ``observed`` P(X > Y) against the labellings' ``null``:
+    the share at least as far from 0.5 (exact), or ``(1 + k) / (1 + B)``."""
+    distances = np.sort(np.abs(null - 0.5))
+    below = np.searchsorted(distances, np.abs(np.asarray(observed) - 0.5) - _TOLERANCE)
+    extreme = len(distances) - below
+    return extreme / len(distances) if exact else (1 + extreme) / (1 + len(distances))
 
 
 def improvement_test(
@@ -77,18 +124,8 @@ def improvement_test(
         raise ValueError("X and Y need runs on the same tasks, at least one each")
     if not all(np.isfinite(s).all() for s in (*xs, *ys)):
         raise ValueError("a test of P(X > Y) needs finite scores")
-    labellings = math.prod(math.comb(len(x) + len(y), len(x)) for x, y in zip(xs, ys, strict=True))
-    exact = labellings <= EXACT_LABELLINGS
-    rng = None if exact else np.random.default_rng(strata_seed(seed, [*xs, *ys]))
-    observed, null = 0.0, np.zeros(1)
-    for x, y in zip(xs, ys, strict=True):
-        task_observed, task_null = _improvement_of_labellings(x, y, rng)
-        observed += task_observed
-        # every combination of the tasks' labellings (exact), or the i-th draw of each task
-        null = (null[:, None] + task_null[None, :]).ravel() if exact else null + task_null
-    observed, null = observed / len(xs), null / len(xs)
-    extreme = int((np.abs(null - 0.5) >= abs(observed - 0.5) - _TOLERANCE).sum())
-    return observed, extreme / len(null) if exact else (1 + extreme) / (1 + PERMUTATIONS)
+    observed, null, exact = null_improvements(xs, ys, seed)
+    return observed, float(p_values(np.array([observed]), null, exact)[0])
 
 
 def improvement_verdict(

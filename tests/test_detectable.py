@@ -9,6 +9,7 @@ import pytest
 
 from tacbench.detectable import detectable_difference, detectable_shift
 from tacbench.errors import TacbenchError
+from tacbench.verdicts import improvement_verdict
 
 pytestmark = pytest.mark.unit
 
@@ -21,30 +22,29 @@ def _pooled_sd(a: np.ndarray, b: np.ndarray) -> float:
 @pytest.mark.parametrize("n", [5, 8])
 def test_the_detectable_difference_has_the_power_it_states_on_fresh_runs(n: int) -> None:
     """Fresh normal runs with the observed runs' pooled standard deviation, the second shifted
-    by the detectable difference: the test rejects in about 80 % of them. Resampling the
-    observed runs instead found its difference in 71 % of fresh runs at five a side."""
+    by the detectable difference: the verdict decides in about 80 % of them. Resampling the
+    observed runs, with a test of the difference of means, named a difference the verdict found
+    in 70 % of fresh runs at five a side."""
     rng = np.random.default_rng(3)
     control, other = rng.normal(0.0, 3.0, n), rng.normal(1.0, 3.0, n)
-    delta = detectable_difference(control, other, alpha=0.05, power=0.8, seed=4)
+    delta = detectable_difference(control, other, power=0.8, seed=4)
     sd = _pooled_sd(control, other)
     check = np.random.default_rng(5)
-    rejected, repeats, labellings = 0, 300, 300
-    for _ in range(repeats):
-        both = np.concatenate([check.normal(0.0, sd, n), check.normal(delta, sd, n)])
-        observed = abs(both[n:].mean() - both[:n].mean())
-        shuffled = np.array([check.permutation(both) for _ in range(labellings)])
-        null = np.abs(shuffled[:, n:].mean(1) - shuffled[:, :n].mean(1))
-        rejected += (1 + (null >= observed).sum()) / (labellings + 1) <= 0.05
-    assert abs(rejected / repeats - 0.8) < 0.08
+    verdicts = [
+        improvement_verdict([check.normal(delta, sd, n)], [check.normal(0.0, sd, n)], seed=0)[1]
+        for _ in range(400)
+    ]
+    assert abs(verdicts.count("larger") / len(verdicts) - 0.8) < 0.06
 
 
 def test_the_detectable_difference_is_a_multiple_of_the_pooled_sd_set_by_the_run_counts() -> None:
-    """Ten runs a side: about the two-sample t-test's 1.32 SD at 80 % power; five: about 2.0."""
+    """The rank test has a little less power than a t-test, whose 80 % lie at 2.02 SD (five
+    runs a side) and 1.32 (ten)."""
     rng = np.random.default_rng(6)
-    for n, expected in ((10, 1.32), (5, 2.02)):
+    for n, low, high in ((5, 2.15, 2.45), (10, 1.33, 1.5)):
         control, other = rng.normal(0.0, 50.0, n), rng.normal(0.0, 80.0, n)
         ratio = detectable_difference(control, other) / _pooled_sd(control, other)
-        assert ratio == pytest.approx(expected, abs=0.1)
+        assert low < ratio < high
     assert detectable_difference([0.0, 1.0], [0.5, 0.7]) == math.inf  # 2 vs 2: p >= 1/3
 
 

@@ -11,7 +11,7 @@ import pytest
 
 from tacbench.report import ReportOptions, analyse, write_report
 from tacbench.report.load import load_runs
-from tacbench.report.ranges import within_run_spread
+from tacbench.report.ranges import q_range_table, within_run_spread
 from tests.report_fixtures import synthetic_tree
 
 pytestmark = pytest.mark.unit
@@ -34,6 +34,8 @@ def test_each_task_pools_its_runs_by_range_and_compares_the_outer_ranges(tmp_pat
         row = hopper.loc[outer]
         assert row["p_middle"] == 1.0 and row["p_low"] == 1.0  # every middle run is higher
         assert row["iqm_low"] <= row["iqm"] <= row["iqm_high"]
+        # the exact test: 2 of the C(9, 3) = 84 labellings are as far from 0.5
+        assert (row["p_value"], row["verdict"]) == (pytest.approx(2 / 84), "larger")
     assert hopper.loc["1 <= q < 2", "iqm"] > hopper.loc["q >= 2", "iqm"]
     runset = load_runs(tmp_path, "eval")  # each range's spread: its runs' mean
     spread = within_run_spread(runset.data, ReportOptions(tmp_path, tmp_path).last)
@@ -47,6 +49,39 @@ def test_each_task_pools_its_runs_by_range_and_compares_the_outer_ranges(tmp_pat
     assert (everything["iqm"].between(0.0, 1.0)).all()  # normalised scores
     assert everything["spread"].isna().all()
     assert (everything.loc[["0 < q < 1", "q >= 2"], "p_middle"] == 1.0).all()
+    outer = everything.loc[["0 < q < 1", "q >= 2"], "p_value"].tolist()
+    assert outer == pytest.approx([2 / 84**2] * 2)
+
+
+def test_the_claim_is_of_a_fixed_alpha_learned_ones_are_left_out(tmp_path: Path) -> None:
+    """Learned-alpha runs (-aauto) were pooled with the fixed ones, and runs without an alpha
+    dropped by the grouping."""
+    rows = []
+    for run, (q, variant, alpha) in enumerate(
+        [(q, f"q{q:g}-a0.2", 0.2) for q in (1.0, 1.5, 3.0) for _ in range(4)]
+        + [(q, f"q{q:g}-aauto0.2", 0.2) for q in (1.0, 3.0) for _ in range(4)]
+        + [(q, f"q{q:g}", math.nan) for q in (1.0, 3.0) for _ in range(4)]
+    ):
+        final = 100.0 * (q < 2 and variant != f"q{q:g}") + run  # no alpha: q = 3 ahead
+        rows.append(
+            dict(
+                run=run,
+                env="Hopper-v4",
+                q=q,
+                variant=variant,
+                alpha=alpha,
+                final=final,
+                score=final / 200,
+            )
+        )
+    scores = pd.DataFrame(rows)
+    data = pd.DataFrame({"run": scores["run"].repeat(2), "return": 1.0})
+    table = q_range_table(scores, data, last=2, reps=100, seed=0)
+    fixed = table[table["alpha"] == 0.2].set_index("range")
+    assert fixed["runs"].tolist() == [8, 4]  # the learned alpha's 8 runs are not among them
+    assert table["alpha"].isna().sum() == 2  # the runs without an alpha have rows of their own
+    verdicts = table.dropna(subset=["p_value"]).set_index("alpha", drop=False)["verdict"]
+    assert verdicts.tolist() == ["larger", "smaller"]  # 1 <= q < 2 ahead, then behind q = 3
 
 
 def test_a_sweep_inside_one_range_has_no_comparison(tmp_path: Path) -> None:

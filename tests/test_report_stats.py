@@ -20,7 +20,7 @@ from tacbench.report.stats import (
     performance_profile,
     probability_of_improvement,
 )
-from tacbench.report.verdicts import TOO_FEW_RUNS
+from tacbench.verdicts import TOO_FEW_RUNS
 
 pytestmark = pytest.mark.unit
 

@@ -9,7 +9,8 @@ import pytest
 from scipy.stats import mannwhitneyu, permutation_test
 
 from tacbench.report.stats import pairwise_improvement
-from tacbench.report.verdicts import (
+from tacbench.sequential import NOT_DISTINGUISHABLE
+from tacbench.verdicts import (
     LEVEL,
     PERMUTATIONS,
     TOO_FEW_RUNS,
@@ -17,7 +18,6 @@ from tacbench.report.verdicts import (
     improvement_test,
     improvement_verdict,
 )
-from tacbench.sequential import NOT_DISTINGUISHABLE
 
 pytestmark = pytest.mark.unit
 
@@ -111,6 +111,10 @@ def test_beyond_the_exact_count_random_labellings_keep_the_level() -> None:
     observed, p_value = improvement_test([x], [y], seed=0)
     assert p_value == pytest.approx(mannwhitneyu(x, y, method="exact").pvalue, abs=0.01)
     assert improvement_test([x[::-1]], [y[::-1]], seed=0) == (observed, p_value)
+    # nor, with as many runs a side, which side is X, nor the order of the tasks
+    assert improvement_test([y], [x], seed=0) == (pytest.approx(1 - observed), p_value)
+    z, w = rng.normal(size=8), rng.normal(size=8)
+    assert improvement_test([x, z], [y, w], seed=0)[1] == improvement_test([z, x], [w, y], 0)[1]
     assert p_value >= 1 / (1 + PERMUTATIONS)
     verdicts = [
         improvement_verdict([rng.normal(size=10)], [rng.normal(size=10)], seed=0)[1]

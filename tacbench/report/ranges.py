@@ -7,7 +7,7 @@ returns with a 95 % bootstrap interval, its *spread* (the mean over its runs of 
 deviation of a run's last logged returns: how steadily a run holds its level, the "stable
 convergence" part) and, for the two outer ranges, P(a run of 1 <= q < 2 beats a run of this
 range) with its interval (:func:`tacbench.report.stats.probability_of_improvement`), the
-p-value of its permutation test and its verdict (:mod:`tacbench.report.verdicts`). Over
+p-value of its permutation test and its verdict (:mod:`tacbench.verdicts`). Over
 several tasks an "all tasks" row pools the normalised scores for the IQM and averages the
 per-task probabilities. The claim is of a fixed alpha: runs that learn theirs (``--alpha
 auto``) are left out, as their own comparisons are in the improvement table.
@@ -26,7 +26,7 @@ from tacbench.report.stats import (
     learns_alpha,
     probability_of_improvement,
 )
-from tacbench.report.verdicts import improvement_verdict
+from tacbench.verdicts import improvement_verdict
 
 Q_RANGES: tuple[tuple[str, float, float], ...] = (
     ("0 < q < 1", 0.0, 1.0),

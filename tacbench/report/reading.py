@@ -5,7 +5,7 @@ from __future__ import annotations
 from tacbench.bootstrap import CONFIDENCE
 from tacbench.report.build import Report
 from tacbench.report.stats import ALL_TASKS
-from tacbench.report.verdicts import EXACT_LABELLINGS, PERMUTATIONS
+from tacbench.verdicts import EXACT_LABELLINGS, PERMUTATIONS
 
 
 def how_to_read(report: Report) -> list[str]:
@@ -45,9 +45,9 @@ def how_to_read(report: Report) -> list[str]:
         "still read 'not distinguishable'. Each comparison stands on its own, not corrected "
         "for the table's many comparisons, unlike the family-wise sequential decisions. Where "
         "it is 'not distinguishable', 'detectable (80 % power)' says how large a difference of "
-        "mean final returns these run counts would have found: the smallest one a two-sided "
-        "permutation test at 5 % finds in 80 % of normal samples with the runs' pooled "
-        "standard deviation (docs/sequential.md), so the verdict reads 'no difference larger "
+        "mean final returns these run counts would have found: the smallest one this test "
+        "finds in 80 % of normal samples with the runs' pooled standard deviation "
+        "(docs/sequential.md), so the verdict reads 'no difference larger "
         "than that'. Where "
         "even every run of one side above every run of the other would be no evidence (that "
         "ranking's chance when both are alike, 2 / C(n + m, n) for n and m runs, on an 'all "

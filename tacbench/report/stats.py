@@ -27,8 +27,8 @@ from rliable import metrics
 
 from tacbench.bootstrap import interval, scalar_interval, strata_seed
 from tacbench.detectable import detectable_difference, detectable_shift
-from tacbench.report.verdicts import improvement_verdict
 from tacbench.sequential import NOT_DISTINGUISHABLE
+from tacbench.verdicts import improvement_verdict
 
 DEFAULT_REPS = 2000
 """Bootstrap replications. With 2,000 the Monte-Carlo standard deviation of each interval endpoint
@@ -50,7 +50,7 @@ IMPROVEMENT_COLUMNS = [
     "detectable",
 ]
 """The improvement table: P(method > q = 1) [low, high], the p-value of its permutation test
-and its verdict (:mod:`tacbench.report.verdicts`), and per task the
+and its verdict (:mod:`tacbench.verdicts`), and per task the
 difference of mean final returns and, where not distinguishable, the smallest difference these
 run counts detect with 80 % power (two-sided permutation test at 5 %)."""
 BASELINE_COLUMNS = ["method", "baseline", *IMPROVEMENT_COLUMNS[1:]]
@@ -271,7 +271,7 @@ def _comparison_rows(
     seed: int,
 ) -> list[dict[str, object]]:
     """P(X > Y) on each task (``xs[i]`` against ``ys[i]`` on ``envs[i]``) with its test's
-    p-value and verdict (:func:`tacbench.report.verdicts.improvement_verdict`), the
+    p-value and verdict (:func:`tacbench.verdicts.improvement_verdict`), the
     difference of mean final returns and, where not distinguishable, the smallest difference
     these run counts detect; then, over two or more tasks, the same averaged over tasks, where
     the detectable difference is a shift of every task in its runs' standard deviations."""
