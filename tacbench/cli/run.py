@@ -21,7 +21,7 @@ from tacbench.cli.options import NumberOrAuto, ResultsFolder, cli_settings, sett
 from tacbench.config import RunConfig
 from tacbench.errors import TacbenchError
 from tacbench.runs.checkpoints import newest_step
-from tacbench.runs.files import CRASHED
+from tacbench.runs.planning import resumable
 from tacbench.settings import RunSettings, settings_of
 
 _SETTINGS = cli_settings(RunConfig)
@@ -237,8 +237,6 @@ def _unfinished(directory: Path) -> bool:
     if not path.exists():
         return True
     try:
-        status = runs.read_json(path)
+        return resumable(runs.read_json(path))
     except (TacbenchError, OSError):
         return False
-    crashed = str(status.get("reason", "")).startswith(CRASHED)
-    return status.get("state") not in ("complete", "failed") or crashed

@@ -108,7 +108,7 @@ def plan_run(
         return DirectoryPlan("skip", f"already complete ({step} steps); --force retrains it")
     if status.get("state") == "failed":
         reason = str(status.get("reason", ""))
-        crashed = reason.startswith(CRASHED)
+        crashed = resumable(status)
         if crashed and resume:
             check_checkpoint(directory, step)
             return DirectoryPlan("resume", "resuming a crashed run from its last checkpoint")
@@ -121,6 +121,13 @@ def plan_run(
         )
     check_checkpoint(directory, step)
     return DirectoryPlan("resume", "resuming from its last checkpoint")
+
+
+def resumable(status: Mapping[str, Any]) -> bool:
+    """Whether ``--resume`` continues a run whose status.json holds ``status``: neither complete
+    nor failed, or failed by a crash (not by its own numbers, which would fail again)."""
+    crashed = str(status.get("reason", "")).startswith(CRASHED)
+    return status.get("state") not in ("complete", "failed") or crashed
 
 
 def read_status(directory: Path) -> dict[str, Any]:
