@@ -199,12 +199,13 @@ def _say_what_starts_afresh(configs: Sequence[Any], out: Path) -> None:
         return
     written = [(d / "config.json").exists() for d in directories]
     # a baseline's seeds train one after another: those its earlier command named had a stop
-    # come before them
-    named = set().union(*(_seeds_named(d) for d, w in zip(directories, written, strict=True) if w))
+    # come before them (a TAC group's members start together)
+    started = [d for d, w in zip(directories, written, strict=True) if w]
+    named = set().union(*map(_seeds_named, started)) if configs[0].algo != "tac" else set()
     for config, directory, has_checkpoint, resumes, exists in zip(
         configs, directories, checkpointed, unfinished, written, strict=True
     ):
-        if not exists and config.algo != "tac" and config.seed in named:
+        if not exists and config.seed in named:
             click.echo(f"seed {config.seed}: not started before the stop; starting it")
         elif not exists:
             click.echo(
