@@ -12,8 +12,8 @@ tasks (each task's Mann-Whitney U / (n m), ties counting a half), and the p-valu
 of labellings at least as far from 0.5 as the observed: exactly, over every labelling, where
 there are at most :data:`EXACT_LABELLINGS`; else from :data:`PERMUTATIONS` random ones (a
 Monte-Carlo p-value ``(1 + k) / (1 + B)``, whose test keeps its level too), drawn from a seed
-derived from the pooled runs of each task, so that the order of the tasks does not change it,
-nor, with as many runs a side, which side is X.
+derived from the pooled runs of each task and drawn as the runs of each task's smaller side,
+so that neither the order of the tasks nor which side is X changes it.
 """
 
 from __future__ import annotations
@@ -60,16 +60,23 @@ def _task_improvements(
     x: np.ndarray, y: np.ndarray, rng: np.random.Generator | None
 ) -> tuple[float, np.ndarray]:
     """P(X > Y) on one task, and the same for every labelling of its pooled runs as ``len(x)``
-    X runs and the rest Y runs (``rng`` None), or for :data:`PERMUTATIONS` random ones."""
+    X runs and the rest Y runs (``rng`` None), or for :data:`PERMUTATIONS` random ones.
+
+    A labelling is drawn as the runs of the smaller side (of X where both have as many), so
+    that swapping X and Y draws the same partitions of the pooled runs, each with P(X > Y)
+    replaced by 1 - P(X > Y): the p-value does not depend on which side is X."""
     n, m = len(x), len(y)
     ranks = rankdata(np.concatenate([x, y]))  # midranks: a tie counts a half in U
+    k = min(n, m)
     if rng is None:
-        chosen = np.array(list(combinations(range(n + m), n)), dtype=np.intp).reshape(-1, n)
+        chosen = np.array(list(combinations(range(n + m), k)), dtype=np.intp).reshape(-1, k)
     else:
-        chosen = rng.permuted(np.tile(np.arange(n + m), (PERMUTATIONS, 1)), axis=1)[:, :n]
+        chosen = rng.permuted(np.tile(np.arange(n + m), (PERMUTATIONS, 1)), axis=1)[:, :k]
     pooled = np.sort(ranks)  # labellings of the pooled runs, whichever side they came from
-    offset, pairs = n * (n + 1) / 2, n * m
-    return (ranks[:n].sum() - offset) / pairs, (pooled[chosen].sum(axis=1) - offset) / pairs
+    offset, pairs = k * (k + 1) / 2, n * m
+    chosen_above = (pooled[chosen].sum(axis=1) - offset) / pairs  # P(chosen > the others)
+    null = chosen_above if k == n else 1 - chosen_above
+    return (ranks[:n].sum() - n * (n + 1) / 2) / pairs, null
 
 
 def _pooled(x: np.ndarray, y: np.ndarray) -> bytes:

@@ -116,6 +116,16 @@ def test_beyond_the_exact_count_random_labellings_keep_the_level() -> None:
     z, w = rng.normal(size=8), rng.normal(size=8)
     assert improvement_test([x, z], [y, w], seed=0)[1] == improvement_test([z, x], [w, y], 0)[1]
     assert p_value >= 1 / (1 + PERMUTATIONS)
+    # nor, with other counts a side (the smaller side larger on one task), which side is X
+    u, v = rng.normal(size=16) + 0.5, rng.normal(size=5)
+    observed, p_value = improvement_test([u, z[:3]], [y, w], seed=0)
+    assert improvement_test([y, w], [u, z[:3]], seed=0) == (
+        pytest.approx(1 - observed),
+        pytest.approx(p_value, abs=1e-12),
+    )
+    assert improvement_test([v], [u], seed=0)[1] == pytest.approx(
+        improvement_test([u], [v], seed=0)[1], abs=1e-12
+    )
     verdicts = [
         improvement_verdict([rng.normal(size=10)], [rng.normal(size=10)], seed=0)[1]
         for _ in range(200)
