@@ -110,12 +110,13 @@ MIN_POPULATION = 4  # --q auto: the bottom quarter of fewer than four is nobody
 
 
 def initial_qs(n: int, q_range: tuple[float, float]) -> list[float]:
-    """``n`` values spread evenly in log q over ``q_range`` (both ends included): where the
-    members of a ``--q auto`` population start."""
+    """``n`` values spread evenly in log q over ``q_range`` (both ends included, as given:
+    ``low * (high / low)`` can round above ``high``): where the members of a ``--q auto``
+    population start."""
     low, high = q_range
     if n == 1:
         return [math.sqrt(low * high)]
-    return [low * (high / low) ** (i / (n - 1)) for i in range(n)]
+    return [low, *(low * (high / low) ** (i / (n - 1)) for i in range(1, n - 1)), high]
 
 
 def _population(

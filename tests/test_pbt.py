@@ -88,6 +88,12 @@ def test_initial_qs_are_log_spaced_over_the_range() -> None:
     assert qs[0] == pytest.approx(0.5) and qs[-1] == pytest.approx(5.0)
     ratios = np.diff(np.log(qs))
     assert np.allclose(ratios, ratios[0])
+    # 0.1 * (1.7 / 0.1) is 1.7000000000000002, which the range check refused
+    for q_range in [(0.1, 1.7), (0.3, 0.7), (0.6, 0.7)]:
+        assert initial_qs(4, q_range)[::3] == list(q_range)
+        seeds = [0, 1, 2, 3]
+        configs, _ = make_run_configs("Hopper-v4", "Hopper", seeds, q_mode="auto", q_range=q_range)
+        assert [c.q for c in configs][::3] == list(q_range)
     assert population_seed([0, 1]).entropy != population_seed([1, 0]).entropy
 
 
