@@ -5,8 +5,10 @@ as usage errors."""
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -15,8 +17,10 @@ import torch
 
 from tacbench.cli import cli
 from tacbench.config import RunConfig
+from tacbench.errors import TacbenchError
 from tacbench.members import initial_qs, make_run_configs
 from tacbench.tac import TacAgent
+from tacbench.training import loop
 from tacbench.training.pbt import (
     PBT_COLUMNS,
     PERTURB_FACTORS,
@@ -190,6 +194,54 @@ def test_a_population_trains_audits_and_resumes_exactly(tmp_path: Path) -> None:
     for a, b in zip(runs, [o.directory for o in resumed], strict=True):
         assert_same_results(a, b)
         assert (a / "pbt.csv").read_text() == (b / "pbt.csv").read_text()
+
+
+@pytest.mark.smoke
+def test_a_population_resumes_only_as_a_whole(tmp_path: Path) -> None:
+    """A population resumed without live members would rank without them. Seeds 0, 2, 4 and 6
+    of seven start at the q of a population of those four (every other one of seven log-spaced
+    values), so their run directories match the command."""
+    run = {**TINY_RUN, **TINY_TAC, "learning_starts": 500, "pbt_every": 250, "compile": "off"}
+    run |= {"total_steps": 1250, "hidden_sizes": (16,), "eval_every": 0}
+
+    def population(seeds: list[int]) -> list[RunConfig]:
+        return make_run_configs("Hopper-v4", "Hopper", seeds, q_mode="auto", **run)[0]
+
+    stopped = train(tmp_path, population(list(range(7))), stop=lambda step: step >= 600)
+    before = {p: p.read_bytes() for o in stopped for p in o.directory.rglob("*") if p.is_file()}
+    with pytest.raises(TacbenchError, match=r"resumes as a whole.*--seed 1, --seed 3, --seed 5"):
+        train(tmp_path, population([0, 2, 4, 6]), resume=True)
+    after = {p: p.read_bytes() for o in stopped for p in o.directory.rglob("*") if p.is_file()}
+    assert after == before
+
+
+@pytest.mark.smoke
+def test_a_member_that_failed_after_the_checkpoint_is_named_on_resume(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Seed 2's losses turn NaN at step 800, after the checkpoint at 500 and the round at 750;
+    the process crashes at 900. The population resumes from 500 without seed 2 (its run is
+    over), so its round at 750 ranks three members where the uninterrupted one ranked four."""
+    real, calls = loop.update, {"n": 0}
+
+    def failing(*args: Any, **kwargs: Any) -> Any:
+        calls["n"] += 1  # update n is at step 499 + n
+        if calls["n"] == 401:
+            raise RuntimeError("a bug in the update")
+        metrics = real(*args, **kwargs)
+        if calls["n"] == 301:
+            metrics = metrics.clone()
+            metrics[2, 0] = math.nan
+        return metrics
+
+    monkeypatch.setattr(loop, "update", failing)
+    with pytest.raises(RuntimeError, match="a bug in the update"):
+        train(tmp_path, _population_configs())
+    monkeypatch.setattr(loop, "update", real)
+    resumed = train(tmp_path, _population_configs(), resume=True)
+    assert [o.state for o in resumed] == ["complete", "complete", "skipped", "complete"]
+    reason = json.loads((resumed[0].directory / "status.json").read_text())["reason"]
+    assert "seed 2 failed at step 800, after step 500, and cannot rejoin" in reason
 
 
 @pytest.mark.unit

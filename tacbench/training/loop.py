@@ -25,7 +25,7 @@ from tacbench.tac import METRICS, Coefficients, ReplayBuffer, TacAgent, coeffici
 from tacbench.tac.update import update
 from tacbench.training.checkpoint import MemberState, load_replay, read, write_checkpoint
 from tacbench.training.loss_window import LossWindow
-from tacbench.training.pbt import PBT_COLUMNS, Population
+from tacbench.training.pbt import PBT_COLUMNS, Population, check_whole_on_resume
 from tacbench.training.schedule import rounds, updates_due
 
 LOSS_COLUMNS = ("q", "updates", *METRICS)  # with --alpha auto, ALPHA_METRICS follow
@@ -71,11 +71,8 @@ class GroupTrainer:
             for _ in range(k if config.eval_every > 0 else 0)
         ]
         columns = ("q", "updates", *self.metrics)
-        self.population = (
-            Population(self.seeds, [c.q for c in configs], config)
-            if config.q_mode == "auto"
-            else None
-        )
+        qs = [c.q for c in configs]  # --q auto: where the population starts
+        self.population = Population(self.seeds, qs, config) if config.q_mode == "auto" else None
         extra = {"pbt": PBT_COLUMNS} if self.population else {}
         self.writers = [runs.RunWriter(d, columns, config.tensorboard, extra) for d in directories]
         self.step = 0
@@ -105,6 +102,8 @@ class GroupTrainer:
         use (:func:`checkpoints.choose`: a damaged one is passed over, and said so)."""
         folders = [d / "checkpoint" for d in directories]
         step, self.resume_notes = checkpoints.choose(folders)
+        if step is not None and self.population is not None:
+            self.resume_notes += check_whole_on_resume(directories[0], self.seeds, step)
         pairs = zip(self.writers, self.configs, strict=True)
         members = [{"q": c.q, "alpha": c.alpha, "seed": c.seed} for c in self.configs]
         plans = (  # every member's CSVs are checked before anything is written

@@ -33,9 +33,14 @@ import math
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+from tacbench.errors import TacbenchError, listing
+from tacbench.runs import read_json, read_status
+from tacbench.runs.planning import resumable
 
 if TYPE_CHECKING:
     from tacbench.config import RunConfig
@@ -59,6 +64,38 @@ _STREAM = 18  # the PBT generator's spawn key, apart from run_streams' (fixed: s
 def population_seed(seeds: Sequence[int]) -> np.random.SeedSequence:
     """The seed of a population's generator: all its members' seeds, in order."""
     return np.random.SeedSequence([int(s) for s in seeds], spawn_key=(_STREAM,))
+
+
+def check_whole_on_resume(directory: Path, seeds: Sequence[int], step: int) -> list[str]:
+    """Before a population resumes from ``step`` with the members ``seeds`` (``directory`` is
+    one's run): the members config.json records that the command leaves out. Every round ranks
+    all live members, so one left out that was live at ``step`` would change every later round:
+    a TacbenchError names it (a stopped or crashed member; nothing is changed). One that failed
+    by its own numbers after ``step`` cannot rejoin (its run is over), so the rounds it took
+    part in after ``step`` can decide otherwise: a note says so. One that failed by ``step`` was out
+    of every later round anyway."""
+    recorded = read_json(directory / "config.json").get("members") or []
+    # an older config.json lists the members' seeds alone
+    recorded_seeds = [int(m["seed"] if isinstance(m, dict) else m) for m in recorded]
+    notes, live = [], []
+    for seed in (s for s in recorded_seeds if s not in seeds):
+        member = directory.parent / f"seed{seed}"
+        status = read_status(member) if (member / "config.json").exists() else {}
+        if status.get("state") != "failed" or resumable(status):
+            live.append(f"--seed {seed}")
+        elif status["step"] > step:
+            notes.append(
+                f"seed {seed} failed at step {status['step']:,}, after step {step:,}, and cannot "
+                f"rejoin: the rounds up to step {status['step']:,} rank the population without "
+                "it, so they can decide otherwise than in the uninterrupted run"
+            )
+    if live:
+        raise TacbenchError(
+            f"a --q auto population resumes as a whole: this command leaves out "
+            f"{listing(live)}, live at step {step:,} in {directory.parent}, and every round "
+            "ranks all live members. Nothing was changed; add them to the command."
+        )
+    return notes
 
 
 @dataclass(frozen=True)
