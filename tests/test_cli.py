@@ -190,6 +190,43 @@ def test_resume_names_each_run_that_has_nothing_to_resume(tmp_path: Path) -> Non
         assert "nothing to resume" not in result.output  # without --resume, nothing to say
 
 
+def test_resume_with_no_run_of_the_command_is_refused(tmp_path: Path) -> None:
+    """--resume whose settings name no existing run beside runs of other settings would start
+    every run afresh (a million steps by default): it is refused, naming the variants the task
+    has there."""
+    other = tmp_path / "runs" / "tac" / "Hopper-v4" / "q1.5-a0.2-ls300" / "seed0"
+    other.mkdir(parents=True)
+    (other / "config.json").write_text("{}")
+    args = [
+        "--env",
+        "Hopper-v4",
+        "--q",
+        "1.5",
+        "--seed",
+        "0",
+        "--seed",
+        "10",
+        "--out",
+        str(tmp_path),
+    ]
+    with mock.patch("tacbench.trainers.trainer_for") as trainer_for:
+        result = CliRunner().invoke(cli, ["run", *args, "--resume"])
+        assert result.exit_code == 2, result.output
+        assert result.output.startswith(
+            "Error: --resume: nothing to resume: none of its runs exists "
+            f"({other.parent.parent / 'q1.5-a0.2' / 'seed0'}), and {other.parent.parent} holds "
+            "the variants q1.5-a0.2-ls300."
+        )
+        result = CliRunner().invoke(cli, ["run", *args, "--resume", "--force"])
+        assert result.output.startswith("Error: --resume continues a run and --force deletes it")
+        trainer_for.assert_not_called()
+        # with no run of the task there (a first run, or one stopped in its start-up) it starts
+        trainer_for.return_value.train.return_value = []
+        args[-1] = str(tmp_path / "elsewhere")
+        result = CliRunner().invoke(cli, ["run", *args, "--resume"])
+        assert result.exit_code == 0 and "seed 10: nothing to resume" in result.output
+
+
 def test_resume_says_a_baseline_seed_after_a_stop_was_not_started(tmp_path: Path) -> None:
     """A baseline trains its seeds one after another: a seed a Ctrl-C came before has no run
     yet, which is no reason to check --out and the settings, as the resume used to say."""

@@ -19,9 +19,9 @@ from tacbench import paper, runs, trainers
 from tacbench.cli.common import command_line, report_outcomes
 from tacbench.cli.options import NumberOrAuto, ResultsFolder, cli_settings, setting_options
 from tacbench.config import RunConfig
-from tacbench.errors import TacbenchError
+from tacbench.errors import TacbenchError, listing
 from tacbench.runs.checkpoints import newest_step
-from tacbench.runs.planning import resumable
+from tacbench.runs.planning import check_resume_or_force, resumable
 from tacbench.settings import RunSettings, settings_of
 
 _SETTINGS = cli_settings(RunConfig)
@@ -174,10 +174,11 @@ def run(
             tac_settings_given=given,
             hp=hp,
         )
-    for note in notes:
-        click.echo(note)
+    check_resume_or_force(resume, force)
     if resume:
         _say_what_starts_afresh(configs, out)
+    for note in notes:
+        click.echo(note)
     outcomes = trainers.trainer_for(algo).train(
         configs, out, resume=resume, force=force, quiet=quiet, command=command_line(ctx)
     )
@@ -185,13 +186,19 @@ def run(
 
 
 def _say_what_starts_afresh(configs: Sequence[Any], out: Path) -> None:
-    """Under --resume, name each run that has nothing to resume: no config.json in its
-    directory (a mistyped setting, another variant, or --out would otherwise start it silently;
-    a baseline's seed that a stop came before is named as such), or no checkpoint yet (killed
-    before its first: it trains again from step 0, and the rows it had logged are written
-    again, the same ones for its seed). Not for a TAC group that has
-    members to resume beside such ones: it is refused, saying what to do."""
+    """Under --resume, refuse a command none of whose runs exists where the task has runs of
+    other settings under --out (a mistyped or left-out setting makes another variant: it would
+    start every run afresh, up to a million steps each); and name each run that has nothing to
+    resume: no config.json in its directory (a baseline's seed that a stop came before is named
+    as such; a first run, or one stopped in its start-up), or no checkpoint yet (killed before
+    its first: it trains again from step 0, and the rows it had logged are written again, the
+    same ones for its seed). Not for a TAC group that has members to resume beside such ones:
+    it is refused, saying what to do."""
     directories = [runs.run_directory(out, c.algo, c.env, c.variant, c.seed) for c in configs]
+    task = directories[0].parent.parent
+    others = sorted({p.parent.parent.name for p in task.glob("*/seed*/config.json")})
+    if others and not any((d / "config.json").exists() for d in directories):
+        raise TacbenchError(_nothing_to_resume(directories, others))
     checkpointed = [newest_step(d / "checkpoint") is not None for d in directories]
     unfinished = [_unfinished(d) for d in directories]
     trained = [c for c, u in zip(checkpointed, unfinished, strict=True) if u]
@@ -219,6 +226,18 @@ def _say_what_starts_afresh(configs: Sequence[Any], out: Path) -> None:
                 f"seed {config.seed}: {directory} has no checkpoint yet (it stopped before its "
                 f"first, {when}); it trains again from step 0, writing its rows again"
             )
+
+
+def _nothing_to_resume(directories: Sequence[Path], others: Sequence[str]) -> str:
+    """The refusal of a --resume none of whose runs ``directories`` exists, naming the variants
+    ``others`` that the task has beside them."""
+    none = "none of its runs exists" if len(directories) > 1 else "its run does not exist"
+    return (
+        f"--resume: nothing to resume: {none} ({directories[0]}), and "
+        f"{directories[0].parent.parent} holds the variants {listing(others)}. Repeat the "
+        "command that trained the run you mean (its config.json records it), with its settings "
+        "and --out, or drop --resume to start this one."
+    )
 
 
 def _seeds_named(directory: Path) -> set[int]:

@@ -83,7 +83,7 @@ def plan_run(
     touch it. Fields in ``neutral`` may differ between the stored config and the new one; with
     ``read_as`` (the new config object) a stored config's missing fields are read as its
     class's defaults (:func:`as_read_now`)."""
-    _resume_or_force(resume, force)
+    check_resume_or_force(resume, force)
     _check_a_folder(directory)
     config_path = directory / "config.json"
     if force:
@@ -148,7 +148,8 @@ def read_status(directory: Path) -> dict[str, Any]:
     return {**status, "step": step}
 
 
-def _resume_or_force(resume: bool, force: bool) -> None:
+def check_resume_or_force(resume: bool, force: bool) -> None:
+    """Refuse ``--resume`` together with ``--force``, which contradict each other."""
     if resume and force:
         raise TacbenchError(
             "--resume continues a run and --force deletes it to start over: pass one of them."
@@ -256,7 +257,7 @@ def planned_runs(
 ) -> Iterator[tuple[list[Outcome], list[tuple[Config, Path]]]]:
     """:func:`plan_runs`, holding the lock of every run directory (:func:`locks.writing`) from
     before the plan to the end of the block, so that no other process writes them meanwhile."""
-    _resume_or_force(resume, force)
+    check_resume_or_force(resume, force)
     ensure_writable(Path(out))
     directories = [run_directory(out, c.algo, c.env, c.variant, c.seed) for c in configs]
     with writing(directories):
