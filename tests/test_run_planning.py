@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import signal
 from pathlib import Path
@@ -59,6 +60,26 @@ def test_plan_runs_refuses_an_unfinished_run_without_resume_and_touches_nothing(
     assert (directory / "status.json").exists()
     _, active = plan_runs([config], tmp_path, resume=True, force=False)
     assert active == [(config, directory)] and (directory / "status.json").exists()
+
+
+def test_a_resume_with_other_settings_quotes_the_runs_own_command(tmp_path: Path) -> None:
+    """Resuming without a setting the run was started with (--steps) differs from its config:
+    the refusal says how to continue it, not only how to delete it."""
+    (config,) = _configs(0)
+    directory = runs.run_directory(tmp_path, config.algo, config.env, config.variant, 0)
+    short = dataclasses.replace(config, total_steps=30_000)
+    _store(directory, short, "interrupted", 500)
+    command = "tacbench run --env Hopper-v4 --q 1.5 --steps 30000"
+    runs.atomic_write_json(
+        directory / "config.json", {"config": short.to_dict(), "command": command}
+    )
+    with pytest.raises(TacbenchError) as refused:
+        plan_runs([config], tmp_path, resume=True, force=False)
+    assert f"To continue it, repeat its own command: {command} --resume; or pass --force" in str(
+        refused.value
+    )
+    with pytest.raises(TacbenchError, match=r"1000000\)\. Pass --force to replace it"):
+        plan_runs([config], tmp_path, resume=False, force=False)
 
 
 def test_stop_signals_record_then_interrupt_on_the_second_and_restore_the_handlers() -> None:

@@ -13,6 +13,7 @@ from typing import Any, Literal, TypeVar
 
 from tacbench.config import RESULT_NEUTRAL_FIELDS
 from tacbench.errors import TacbenchError, listing
+from tacbench.interrupts import resume_command
 from tacbench.runs import checkpoints
 from tacbench.runs.files import CRASHED, RESTORE_OR_FORCE, ensure_writable, read_json
 from tacbench.runs.locks import writing
@@ -91,16 +92,23 @@ def plan_run(
     if not config_path.exists():
         check_nothing_to_lose(directory)
         return DirectoryPlan("start")
-    stored = read_json(config_path).get("config")
+    metadata = read_json(config_path)
+    stored = metadata.get("config")
     if not isinstance(stored, dict):
         raise TacbenchError(f"{config_path} holds no run config; {RESTORE_OR_FORCE}.")
     if read_as is not None:
         stored = as_read_now(stored, read_as)
     differences = differing_fields(stored, config, neutral)
     if differences:
+        command = metadata.get("command")
+        again = (  # a setting left out of the resume, such as --steps
+            f"To continue it, repeat its own command: {resume_command(command)}; or pass "
+            if resume and isinstance(command, str) and command.startswith("tacbench run ")
+            else "Pass "
+        )
         raise TacbenchError(
             f"{directory} holds a run with another config ({'; '.join(differences)}). "
-            "Pass --force to replace it, or --out to write somewhere else."
+            f"{again}--force to replace it, or --out to write somewhere else."
         )
     status = read_status(directory)
     step = status["step"]
