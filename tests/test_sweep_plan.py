@@ -619,3 +619,18 @@ def test_a_run_given_up_counts_as_failed_whatever_its_status_says(tmp_path: Path
     assert (counts["failed"], counts["given_up"], counts["partial"]) == (1, 1, 0)
     text = summary.describe_plan(work, workers=2, group="none")
     assert "0 partial, 1 failed (0 to retry, 1 given up" in text
+
+
+def test_the_sweep_warns_of_runs_that_never_update(tmp_path: Path) -> None:
+    """`tacbench run` warns of a run whose random steps fill its budget; a sweep of such runs
+    says so too, in its dry run and as it trains (once per algorithm and task)."""
+    args = ["sweep", "--preset", "smoke", "--algo", "td3", "--steps", "300", "--out", str(tmp_path)]
+    warning = "WARNING: td3 Hopper-v4: td3's learning_starts 500 is not below --steps 300"
+    dry = CliRunner().invoke(cli, [*args, "--dry-run"])
+    assert dry.exit_code == 0, dry.output
+    assert dry.output.count(warning) == 1
+    trained = CliRunner().invoke(cli, [*args, "--seed", "0", "--workers", "1"])
+    assert trained.exit_code == 0, trained.output
+    assert trained.output.count(warning) == 1
+    plain = ["sweep", "--preset", "smoke", "--dry-run", "--out", str(tmp_path / "plain")]
+    assert "WARNING" not in CliRunner().invoke(cli, plain).output

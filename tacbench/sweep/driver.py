@@ -63,7 +63,8 @@ def load_plan(
     the runs of those keys (``runs/<algo>/<env>/<variant>/seed<k>``)."""
     device = "cuda" if options.gpus_per_run else "cpu"
     threads = max(1, int(options.cpus_per_run)) if options.executor != "local" else 1
-    all_runs = plan.build_runs(preset, device=device, threads=threads)
+    warnings: list[str] = []
+    all_runs = plan.build_runs(preset, device=device, threads=threads, warnings=warnings)
     if only is not None:
         all_runs = [run for run in all_runs if run.key in only]
     history = state.SweepState(out)
@@ -89,6 +90,7 @@ def load_plan(
         # members resume together only where their checkpoints are: on one node
         nodes={} if checkpoints_here else {k: n for k in statuses if (n := history.node(k))},
     )
+    built.warnings = warnings
     return built, history
 
 
@@ -232,6 +234,8 @@ class _Driver:
         self.progress = SweepProgress(
             len(work.runs), sum(self.total.values()), self._done(), stream
         )
+        for warning in work.warnings:
+            self.progress.message(warning)
         self.stopping = self.forced = False
         self.disk_full = ""  # the unit that found the disk full: the sweep stops
         self.unit_runs: dict[str, list[str]] = {}  # the runs of each submitted unit, by its key

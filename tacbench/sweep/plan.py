@@ -107,6 +107,7 @@ class SweepPlan:
     out: Path
     runs: list[PlannedRun]
     units: list[Unit] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)  # the runs' own (build_runs)
 
     def count(self, **where: Any) -> int:
         """How many runs have the given ``state`` and/or ``action``."""
@@ -122,25 +123,30 @@ class SweepPlan:
         )
 
 
-def build_runs(preset: Preset, *, device: str = "cpu", threads: int = 1) -> list[Run]:
-    """Every run of ``preset`` (narrowed already), in preset order, each directory once."""
+def build_runs(
+    preset: Preset, *, device: str = "cpu", threads: int = 1, warnings: list[str] | None = None
+) -> list[Run]:
+    """Every run of ``preset`` (narrowed already), in preset order, each directory once; the
+    warnings ``tacbench run`` would print for them (a run that never updates its networks) are
+    added to ``warnings``, each once, named by algorithm and task."""
     built: dict[str, Run] = {}
     for entry in preset.entries:
         settings = {**entry.settings, "device": device, "threads": threads}
         for task in entry.tasks:
             env_id = entry.env_id(task)
-            configs = [
-                config
-                for config in trainers.make_configs(
-                    entry.algo,
-                    env_id,
-                    task,
-                    entry.seeds,
-                    settings,
-                    qs=entry.q_values(task),
-                    hp=entry.hp,
-                )[0]
-            ]
+            configs, notes = trainers.make_configs(
+                entry.algo,
+                env_id,
+                task,
+                entry.seeds,
+                settings,
+                qs=entry.q_values(task),
+                hp=entry.hp,
+            )
+            for note in notes:
+                named = f"WARNING: {entry.algo} {env_id}: {note.removeprefix('WARNING: ')}"
+                if note.startswith("WARNING: ") and warnings is not None and named not in warnings:
+                    warnings.append(named)
             for config in configs:
                 run = Run(config, entry.label)
                 built.setdefault(run.key, run)

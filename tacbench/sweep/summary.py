@@ -100,7 +100,8 @@ def describe_plan(plan: SweepPlan, workers: int, group: str, workers_from: str =
     left = plan.steps_left()
     budgets = " or ".join(f"{b:,}" for b in sorted({p.run.total_steps for p in plan.runs}))
     lines = [
-        f"preset {plan.preset.name}: {plan.preset.description}",
+        f"preset {plan.preset.name}, before the command's options: {plan.preset.description}",
+        *plan.warnings,
         f"{c['runs']} runs: {c['complete']} complete, {c['partial']} partial, {c['failed']} "
         f"failed ({c['to_retry']} to retry, {c['given_up']} given up after too many "
         f"failures), {c['new']} not started",
