@@ -168,12 +168,20 @@ def flags_as_overrides(algo: str, given: Mapping[str, Any]) -> list[str]:
     items = []
     for name, value in given.items():
         key = _FLAG_KEYS.get((algo, name))
+        flag, sweep = (
+            f"--{name.replace('_', '-')}",
+            "in tacbench sweep, --algo tac keeps TAC's runs",
+        )
+        if key is None and name in hyperparams.ALGO_KEYS[algo]:  # TAC's, not the baseline's
+            raise TacbenchError(
+                f"{flag} sets TAC's {name}; {algo}'s is set with tacbench run --algo {algo} --hp "
+                f"{name}={value} ({sweep} only)."
+            )
         if key is None:
             raise TacbenchError(
-                f"--{name.replace('_', '-')} is a TAC option that {algo} does not use; leave it "
-                f"out for {algo} (tacbench sweep: --algo tac keeps TAC's runs only) and set "
-                f"{algo}'s hyperparameters with tacbench run --algo {algo} --hp KEY=VALUE, KEY "
-                f"one of {', '.join(sorted(hyperparams.ALGO_KEYS[algo]))}."
+                f"{flag} is a TAC option that {algo} does not use; leave it out for {algo} "
+                f"({sweep} only) and set {algo}'s hyperparameters with tacbench run --algo {algo} "
+                f"--hp KEY=VALUE, KEY one of {', '.join(sorted(hyperparams.ALGO_KEYS[algo]))}."
             )
         items.append(f"{key}={value}")
     return items

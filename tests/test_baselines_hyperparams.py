@@ -259,3 +259,6 @@ def test_tac_flags_map_to_hyperparameters_or_are_refused() -> None:
         flags_as_overrides("ppo", {"learning_starts": 500})
     with pytest.raises(TacbenchError, match="--q is a TAC option that td3 does not use"):
         flags_as_overrides("td3", {"q": 1.5})
+    # a TAC flag named as the baseline's hyperparameter: told the --hp that sets it
+    with pytest.raises(TacbenchError, match="set with tacbench run --algo td3 --hp batch_size=64"):
+        flags_as_overrides("td3", {"batch_size": 64})
