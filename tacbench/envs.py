@@ -51,7 +51,10 @@ def resolve_env_id(name: str) -> str:
         return ENV_IDS[task]
     if name in gym.registry:
         return name
-    close = difflib.get_close_matches(name, [*ENV_IDS, *gym.registry], n=4, cutoff=0.5)
+    # ids registered with a module path: Gymnasium's moved ones (MuJoCo v2 and v3) register a
+    # function that only raises, and are no use as a suggestion
+    usable = [env_id for env_id, spec in gym.registry.items() if isinstance(spec.entry_point, str)]
+    close = difflib.get_close_matches(name, [*ENV_IDS, *usable], n=4, cutoff=0.5)
     suite = ", ".join(f"{task} ({env_id})" for task, env_id in ENV_IDS.items())
     hint = f" Closest registered names: {', '.join(close)}." if close else ""
     raise TacbenchError(
@@ -96,7 +99,7 @@ def make_env(env_id: str, **make_kwargs: Any) -> gym.Env[Any, Any]:
     except (ImportError, gym.error.Error) as err:
         alternative = ENV_IDS.get(paper_task(env_id) or "", "")
         hint = f" Use {alternative} instead." if alternative and alternative != env_id else ""
-        raise TacbenchError(f"cannot create {env_id}: {err}.{hint}") from None
+        raise TacbenchError(f"cannot create {env_id}: {str(err).rstrip('.')}.{hint}") from None
     action_space, obs_space = env.action_space, env.observation_space
     if not isinstance(action_space, gym.spaces.Box):
         env.close()

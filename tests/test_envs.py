@@ -40,6 +40,14 @@ def test_unknown_env_lists_the_suite_and_the_closest_names() -> None:
     assert "Closest registered names: Hopper-v4" in message
     for env_id in paper.ENV_IDS.values():
         assert env_id in message
+    assert "Hopper-v3" not in message  # registered, but moved out of Gymnasium: no suggestion
+
+
+def test_a_moved_env_is_refused_in_one_sentence_with_its_successor() -> None:
+    with pytest.raises(TacbenchError) as err:
+        envs.make_env("Hopper-v3")
+    assert "gymnasium-robotics).. " not in str(err.value)
+    assert str(err.value).endswith("gymnasium-robotics). Use Hopper-v4 instead.")
 
 
 def test_discrete_action_env_is_refused() -> None:

@@ -231,7 +231,11 @@ def test_the_dry_run_counts_what_the_record_has_decided(tmp_path: Path) -> None:
 def test_sequential_flags_need_until_decided() -> None:
     result = CliRunner().invoke(cli, ["sweep", "--preset", "smoke", "--interims", "3"])
     assert result.exit_code == 2
-    assert "--interims only apply with --until-decided" in result.output
+    assert "--interims only applies with --until-decided" in result.output
+    result = CliRunner().invoke(
+        cli, ["sweep", "--preset", "smoke", "--interims", "3", "--fwer", "0.1"]
+    )
+    assert "--interims and --fwer only apply with --until-decided" in result.output
     decided = ["sweep", "--preset", "smoke", "--until-decided", "--dry-run"]
     result = CliRunner().invoke(cli, [*decided, "--seed", "0"])
     assert result.exit_code == 2 and "leave --seed out" in result.output

@@ -73,7 +73,13 @@ def _fixed_q(value: str) -> float:
 )
 @click.option("--seed", "seeds", type=int, multiple=True, help="Repeatable: keep only these seeds.")
 @setting_options(RunConfig, _OVERRIDES, sweep=True)
-@click.option("--executor", type=click.Choice(EXECUTORS), default="local", show_default=True)
+@click.option(
+    "--executor",
+    type=click.Choice(EXECUTORS),
+    default="local",
+    show_default=True,
+    help="Where units train: processes here, a Ray cluster or Slurm jobs (docs/sweep.md).",
+)
 @click.option(
     "--workers",
     type=int,
@@ -210,7 +216,8 @@ def sweep(ctx: click.Context, preset: str, **p: Any) -> None:
         return
     given = [f"--{k.replace('_', '-')}" for k, v in sequential.items() if v is not None]
     if given:
-        raise click.UsageError(f"{', '.join(given)} only apply with --until-decided.")
+        verb = "applies" if len(given) == 1 else "apply"
+        raise click.UsageError(f"{' and '.join(given)} only {verb} with --until-decided.")
     if p["calibrate"] and not p["dry_run"]:
         raise click.UsageError("--calibrate prices a plan: give it with --dry-run.")
     if p["dry_run"]:

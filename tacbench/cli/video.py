@@ -17,7 +17,13 @@ from tacbench.errors import TacbenchError
     required=True,
     help="The video to write: FILE.mp4 or FILE.gif (replaced if it exists).",
 )
-@click.option("--episodes", type=click.IntRange(min=1, max=1000), default=1, show_default=True)
+@click.option(
+    "--episodes",
+    type=click.IntRange(min=1, max=1000),
+    default=1,
+    show_default=True,
+    help="Episodes to render, one after another, on the evaluation seeds of the policy's step.",
+)
 @click.option(
     "--max-steps",
     type=click.IntRange(min=1),
@@ -38,7 +44,9 @@ from tacbench.errors import TacbenchError
     show_default=True,
     help="Frame height in pixels (an MP4's: a multiple of 8).",
 )
-@click.option("--fps", type=click.IntRange(min=1), default=30, show_default=True)
+@click.option(
+    "--fps", type=click.IntRange(min=1), default=30, show_default=True, help="Frames per second."
+)
 def video(
     run_dir: Path,
     out: Path,
