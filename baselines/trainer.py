@@ -27,7 +27,7 @@ from tacbench.errors import TacbenchError
 from tacbench.hardware import configure_process
 from tacbench.interrupts import SecondSignal, StopCheck, resume_command, stop_signals
 from tacbench.progress import Progress
-from tacbench.runs import Outcome, checkpoints, planned_runs
+from tacbench.runs import Outcome, checkpoints, planned_runs, read_status
 from tacbench.runs.checkpoints import disk_errors
 
 
@@ -68,7 +68,7 @@ def train(
         stop_signals() as received,
         planned_runs(configs, out, resume=resume, force=force) as (outcomes, active),
     ):
-        for config, directory in active:
+        for k, (config, directory) in enumerate(active):
             configure_process(config.threads)
             run = _Run(config, directory, command, quiet)
             try:
@@ -84,8 +84,20 @@ def train(
                 raise
             outcomes.append(outcome)
             if outcome.state == "interrupted":
+                outcomes += [  # named, so that the stop's report covers every seed
+                    Outcome(later.seed, path, "interrupted", _step(path), _NOT_REACHED)
+                    for later, path in active[k + 1 :]
+                ]
                 break
     return sorted(outcomes, key=lambda o: o.seed)
+
+
+_NOT_REACHED = "the stop came before this seed's turn; the resume command trains it"
+
+
+def _step(directory: Path) -> int:
+    """Where a run not reached stands: its status.json's step, 0 if it has not started."""
+    return int(read_status(directory)["step"]) if (directory / "config.json").exists() else 0
 
 
 def check_sizes(config: BaselineConfig, info: envs.EnvInfo) -> None:

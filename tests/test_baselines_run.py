@@ -177,3 +177,19 @@ def test_an_off_policy_stop_waits_for_the_rollout_and_says_so(
     (default,) = train(tmp_path / "every-step", tiny_configs("ddpg"), stop=lambda s: s >= 730)
     assert (default.state, default.step) == ("interrupted", 730)
     assert not any(text.startswith("stop requested") for text in said)  # it stops at once
+
+
+def test_a_stop_names_the_seeds_it_came_before(tmp_path: Path) -> None:
+    """A baseline's seeds train one after another: a stop during the first leaves the others
+    untouched, and the stop's report names them too (it used to list the first seed alone)."""
+    configs = tiny_configs("ddpg", seeds=[0, 10, 20])
+    first, *later = train(tmp_path, configs, stop=lambda step: step >= 730)
+    assert (first.state, first.step) == ("interrupted", 730)
+    assert [(o.seed, o.state, o.step) for o in later] == [
+        (10, "interrupted", 0),
+        (20, "interrupted", 0),
+    ]
+    assert all("the stop came before this seed's turn" in o.message for o in later)
+    assert not any(o.directory.exists() for o in later)
+    resumed = train(tmp_path, configs, resume=True)
+    assert [o.state for o in resumed] == ["complete"] * 3
