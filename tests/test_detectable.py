@@ -74,3 +74,19 @@ def test_a_shift_needs_the_same_tasks_and_two_runs_a_side() -> None:
     with pytest.raises(TacbenchError, match="at least two runs"):
         detectable_shift([[0.0, 1.0], [1.0]], [[0.0, 1.0], [2.0, 3.0]])
     assert detectable_shift([[0.0, 1.0]], [[0.5, 0.7]]) == math.inf  # 2 vs 2: p >= 1/3
+
+
+def test_the_shift_is_pinned_where_the_level_is_reachable_exactly() -> None:
+    """Five runs a side: 2.30 standard deviations (docs/report.md's "about 2.3"), with the
+    bisection's precision and the default seed's samples. Tasks of (3, 3) and (2, 3) runs can
+    reach p = 0.05 itself, which counts as a rejection (p <= the level), as in the verdict."""
+    assert detectable_shift([np.arange(5.0)], [np.arange(5.0)]) == pytest.approx(2.2983, abs=1e-4)
+    shift = detectable_shift([[0.0, 1, 2], [0.0, 1, 3]], [[0.0, 1, 2], [0.0, 1]])
+    assert shift == pytest.approx(2.1260, abs=1e-4)
+
+
+def test_constant_runs_still_have_a_detectable_difference() -> None:
+    """Every run alike leaves no spread to scale by: the difference is stated in units of 1,
+    never 0 (which would claim that any difference is detectable)."""
+    constant = detectable_difference([5.0] * 5, [5.0] * 5)
+    assert constant > 0 and constant == detectable_shift([[5.0] * 5], [[5.0] * 5])

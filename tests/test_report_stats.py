@@ -12,6 +12,7 @@ from tacbench.bootstrap import strata_seed
 from tacbench.detectable import detectable_shift
 from tacbench.report.stats import (
     ALL_TASKS,
+    detectable_runs,
     improvement_over_baselines,
     improvement_over_q1,
     interval_estimates,
@@ -115,9 +116,9 @@ def test_improvement_intervals_cover_the_true_probability() -> None:
 
 def test_performance_profile_values_and_bands() -> None:
     tasks = [np.array([0.1, 0.5, 0.9]), np.array([0.2, 0.6])]
-    taus = np.array([0.0, 0.3, 0.55, 1.0])
+    taus = np.array([0.0, 0.3, 0.5, 0.55, 1.0])
     profile, low, high = performance_profile(tasks, taus, 400, seed=0)
-    np.testing.assert_allclose(profile, [1.0, 0.6, 0.4, 0.0])
+    np.testing.assert_allclose(profile, [1.0, 0.6, 0.4, 0.4, 0.0])  # above tau, not at it
     assert np.all(low <= profile) and np.all(profile <= high)
     assert low[0] == high[0] == 1.0 and low[-1] == high[-1] == 0.0
 
@@ -262,3 +263,14 @@ def test_an_open_all_tasks_verdict_states_the_shift_it_could_have_detected() -> 
     mine = [np.array(cells[(env, "TAC (best q)")]) for env in ("A", "B")]
     assert rows.loc[ALL_TASKS, "detectable"] == pytest.approx(detectable_shift(references, mine))
     assert np.isnan(rows.loc[ALL_TASKS, "difference"])  # returns of two tasks do not add up
+
+
+def test_a_decided_comparison_states_no_detectable_difference() -> None:
+    """The detectable difference answers "how large a difference could these runs have missed?",
+    a question only an open verdict asks; it needs two runs a side, however many the other has."""
+    cells = {("A", "TAC (best q)"): [10.0, 11, 12, 13, 14], ("A", "DDPG"): [0.0, 1, 2, 3, 4]}
+    table = improvement_over_baselines(_finals(cells), ["TAC (best q)"], ["DDPG"], 300, 0)
+    (row,) = table.to_dict("records")
+    assert row["verdict"] == "larger" and np.isnan(row["detectable"])
+    assert np.isfinite(detectable_runs(np.arange(2.0), np.arange(20.0)))
+    assert np.isnan(detectable_runs(np.arange(1.0), np.arange(20.0)))

@@ -144,3 +144,24 @@ def test_the_verdict_takes_the_side_of_the_observed_probability() -> None:
 def test_non_finite_scores_are_refused() -> None:
     with pytest.raises(ValueError, match="finite"):
         improvement_test([np.array([1.0, np.nan, 2.0])], [np.arange(3.0)], seed=0)
+
+
+def test_a_p_value_at_the_level_is_a_verdict() -> None:
+    """Tasks of (3, 3) and (2, 3) runs have 20 x 10 labellings, so the exact p-value can be 0.05
+    itself: a rejection at 5 % (p <= LEVEL)."""
+    xs = [np.array([1.5, 4.0, 5.0]), np.array([10.0, 11.0])]
+    ys = [np.array([0.0, 2.0, 3.0]), np.array([0.0, 1.0, 2.0])]
+    assert improvement_verdict(xs, ys, seed=0) == (0.05, "larger")
+
+
+def test_the_monte_carlo_p_value_counts_the_observed_labelling_and_follows_the_seed() -> None:
+    """Beyond the exact count, every run of X above every run of Y has p = 1 / (1 + B): the
+    observed labelling is one of the B + 1. The random labellings come from the report's seed:
+    the same seed, the same p-value; another seed, another draw."""
+    x, y = np.arange(10.0) + 100, np.arange(10.0)
+    assert improvement_test([x], [y], seed=0) == (1.0, 1 / (1 + PERMUTATIONS))
+    rng = np.random.default_rng(5)
+    a, b = rng.normal(size=10), rng.normal(size=10) + 0.5
+    p_value = improvement_test([a], [b], seed=0)[1]
+    assert improvement_test([a], [b], seed=0)[1] == p_value
+    assert improvement_test([a], [b], seed=1)[1] != p_value
