@@ -118,6 +118,24 @@ def test_v_target_and_policy_loss_equal_the_version_port(version: str, q: float)
     assert losses.pi.item() == pytest.approx(np.mean(ALPHA * lnq - Q1), rel=1e-9, abs=1e-12)
 
 
+def test_the_jacobian_clip_passes_the_gradient_through() -> None:
+    """2019-01-07b raises 1 - tanh(u)^2 to at least 1e-3 as Spinning Up's clip_but_pass_gradient
+    does: the value is clipped, the gradient is the unclipped 1 - tanh(u)^2's (over the clipped
+    value + 1e-6), not the zero gradient of a plain clamp."""
+    mu = torch.tensor([4.0], dtype=torch.float64, requires_grad=True)
+    log_std, eps = (
+        torch.tensor([-1.0], dtype=torch.float64),
+        torch.tensor([0.5], dtype=torch.float64),
+    )
+    _, log_dims = squashed_gaussian(mu, log_std, log_std.exp(), eps, jacobian_clip=1e-3)
+    log_dims.sum().backward()
+    u = 4.0 + 0.5 * np.exp(-1.0)
+    jacobian = 1.0 - np.tanh(u) ** 2
+    assert jacobian < 1e-3  # the clip holds the value
+    assert mu.grad is not None
+    assert mu.grad.item() == pytest.approx(2.0 * np.tanh(u) * jacobian / (1e-3 + 1e-6), rel=1e-9)
+
+
 def test_the_versions_differ_where_the_history_says() -> None:
     """The port itself: the four versions agree at q = 1.5 but for the batch-max version and
     the floors, and part at q = 3, where only 2019-01-16 and 2019-01-22 cap."""

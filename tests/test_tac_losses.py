@@ -69,9 +69,10 @@ def _losses(
     gamma: float = 0.99,
     lnq: str = "joint",
     eps_next: torch.Tensor | None = None,
+    action_scale: float = 1.0,
 ) -> TacLosses:
     c = coefficients([q] * nets.k, [alpha] * nets.k, torch.device("cpu"))
-    settings = LossSettings(gamma, lnq, -20.0, 2.0)
+    settings = LossSettings(gamma, lnq, -20.0, 2.0, action_scale)
     return tac_losses(nets.views, nets.target, batch, eps, c, settings, eps_next)
 
 
@@ -164,9 +165,11 @@ def test_q_equal_one_gives_sac_v1_losses() -> None:
             torch.testing.assert_close(ours, theirs, rtol=1e-5, atol=1e-5)
 
 
-def test_twin_q_at_q_equal_one_gives_sac_v2_critic_losses() -> None:
+@pytest.mark.parametrize("action_scale", [1.0, 3.0])
+def test_twin_q_at_q_equal_one_gives_sac_v2_critic_losses(action_scale: float) -> None:
     """critic_target twin-q: SAC v2's Q target (Haarnoja et al. 2018b) from the target critics
-    at a' ~ pi(.|s'), written independently; no V loss."""
+    at a' ~ pi(.|s'), written independently; no V loss. With an action scale (the reference
+    profile) the target critics see a' in the critics' units, as the buffer's actions are."""
     nets = Nets([3, 4], twin_q=True)
     _near_unit_std(nets)
     with torch.no_grad():  # target critics that differ from the critics
@@ -174,10 +177,13 @@ def test_twin_q_at_q_equal_one_gives_sac_v2_critic_losses() -> None:
     batch, eps = _batch(2, 16)
     eps_next = torch.randn(eps.shape, generator=torch.Generator().manual_seed(1))
     alpha, gamma = 0.2, 0.99
-    tac = _losses(nets, batch, eps, q=1.0, alpha=alpha, gamma=gamma, eps_next=eps_next)
+    tac = _losses(
+        nets, batch, eps, q=1.0, alpha=alpha, gamma=gamma, eps_next=eps_next,
+        action_scale=action_scale,
+    )  # fmt: skip
 
     next_action, log_pi = _textbook_log_pi(nets, batch.next_obs, eps_next)
-    pairs = torch.cat([batch.next_obs, next_action], dim=-1)
+    pairs = torch.cat([batch.next_obs, next_action * action_scale], dim=-1)
     targets = [mlp(nets.target.members(slice(i * 2, (i + 1) * 2)), pairs) for i in (0, 1)]
     soft = torch.min(*targets).squeeze(-1) - alpha * log_pi
     y_q = batch.reward + gamma * (1 - batch.terminated) * soft
@@ -313,3 +319,24 @@ def test_q_equal_one_members_get_finite_gradients_from_huge_log_densities() -> N
     out = log_q_of_log(log_p, torch.tensor([[0.0], [-0.5]]))
     out[0].sum().backward()
     assert log_p.grad is not None and log_p.grad.tolist() == [[1.0], [0.0]]
+
+
+def test_the_log_pi_diagnostic_is_the_joint_log_density() -> None:
+    """losses.csv's log_pi is log pi(a|s) summed over the action's dimensions (SAC's), whatever
+    the ln_q form; at q = 1 with the joint form it equals the lnq_pi diagnostic."""
+    nets = Nets([3, 4])
+    _near_unit_std(nets)
+    batch, eps = _batch(2, 16)
+    _, log_pi = _textbook_log_pi(nets, batch.obs, eps)
+    for lnq in ("joint", "per-dim"):
+        diagnostics = _losses(nets, batch, eps, q=1.0, lnq=lnq).diagnostics
+        torch.testing.assert_close(diagnostics[:, 0], log_pi.mean(-1))
+    joint = _losses(nets, batch, eps, q=1.0, lnq="joint").diagnostics
+    torch.testing.assert_close(joint[:, 0], joint[:, 1])
+
+
+def test_q_minus_one_is_the_float32_of_the_exact_difference() -> None:
+    """q - 1 is taken in float64 before the cast: float32(1.2) - 1 would be 0.20000005, and
+    every ln_q of such a q would round otherwise than the recorded runs'."""
+    c = coefficients([1.2, 0.5, 3.0], [0.2] * 3, torch.device("cpu"))
+    assert c.q_minus_one.tolist() == [float(np.float32(d)) for d in (0.2, -0.5, 2.0)]

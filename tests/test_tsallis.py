@@ -133,7 +133,7 @@ def test_support_condition_of_appendix_b(f: np.ndarray, q: float) -> None:
     assert pi[np.argmax(f)] > 0
 
 
-@pytest.mark.parametrize("q", [0.3, 0.8, 1.5, 3.0, 7.0])
+@pytest.mark.parametrize("q", [0.3, 0.8, 1.5, 2.0, 3.0, 7.0])  # 2.0: the sparsemax branch
 def test_closed_form_value_identity_of_appendix_b(q: float) -> None:
     """E[r] + S_q(pi) = (q-1) sum_a (r_a/q) pi_a + psi_q(r/q)."""
     r = np.array([2.0, 2.0, 2.0, 2.0, 4.0, 4.0, 4.5, 5.0])
