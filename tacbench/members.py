@@ -110,13 +110,14 @@ MIN_POPULATION = 4  # --q auto: the bottom quarter of fewer than four is nobody
 
 
 def initial_qs(n: int, q_range: tuple[float, float]) -> list[float]:
-    """``n`` values spread evenly in log q over ``q_range`` (both ends included, as given:
-    ``low * (high / low)`` can round above ``high``): where the members of a ``--q auto``
+    """``n`` values spread evenly in log q over ``q_range`` (both ends included, never beyond
+    ``high``: ``low * (high / low)`` can round above it, as for 0.1,1.7, or below, as for 0.7,3,
+    which populations started before the cap keep): where the members of a ``--q auto``
     population start."""
     low, high = q_range
     if n == 1:
         return [math.sqrt(low * high)]
-    return [low, *(low * (high / low) ** (i / (n - 1)) for i in range(1, n - 1)), high]
+    return [min(low * (high / low) ** (i / (n - 1)), high) for i in range(n)]
 
 
 def _population(

@@ -92,7 +92,9 @@ def test_initial_qs_are_log_spaced_over_the_range() -> None:
     assert qs[0] == pytest.approx(0.5) and qs[-1] == pytest.approx(5.0)
     ratios = np.diff(np.log(qs))
     assert np.allclose(ratios, ratios[0])
-    # 0.1 * (1.7 / 0.1) is 1.7000000000000002, which the range check refused
+    # 0.1 * (1.7 / 0.1) is 1.7000000000000002, which the range check refused; 0.7 * (3 / 0.7)
+    # is 2.9999999999999996, which populations started before the cap keep as their last q
+    assert initial_qs(4, (0.7, 3.0))[-1] == 0.7 * (3.0 / 0.7)
     for q_range in [(0.1, 1.7), (0.3, 0.7), (0.6, 0.7)]:
         assert initial_qs(4, q_range)[::3] == list(q_range)
         seeds = [0, 1, 2, 3]
