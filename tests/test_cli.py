@@ -220,11 +220,17 @@ def test_resume_with_no_run_of_the_command_is_refused(tmp_path: Path) -> None:
         result = CliRunner().invoke(cli, ["run", *args, "--resume", "--force"])
         assert result.output.startswith("Error: --resume continues a run and --force deletes it")
         trainer_for.assert_not_called()
-        # with no run of the task there (a first run, or one stopped in its start-up) it starts
+        # with no run of the task there (a first run) it starts, and so it does where the
+        # command's variant folder exists: its start-up was stopped (a lock file is left), or
+        # its other seeds trained
         trainer_for.return_value.train.return_value = []
-        args[-1] = str(tmp_path / "elsewhere")
-        result = CliRunner().invoke(cli, ["run", *args, "--resume"])
-        assert result.exit_code == 0 and "seed 10: nothing to resume" in result.output
+        for out in (tmp_path / "elsewhere", tmp_path):
+            if out == tmp_path:
+                lock = other.parent.parent / "q1.5-a0.2" / ".seed0.lock"
+                lock.parent.mkdir()
+                lock.touch()
+            result = CliRunner().invoke(cli, ["run", *args[:-1], str(out), "--resume"])
+            assert result.exit_code == 0 and "seed 10: nothing to resume" in result.output
 
 
 def test_resume_says_a_baseline_seed_after_a_stop_was_not_started(tmp_path: Path) -> None:

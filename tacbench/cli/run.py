@@ -186,18 +186,20 @@ def run(
 
 
 def _say_what_starts_afresh(configs: Sequence[Any], out: Path) -> None:
-    """Under --resume, refuse a command none of whose runs exists where the task has runs of
-    other settings under --out (a mistyped or left-out setting makes another variant: it would
-    start every run afresh, up to a million steps each); and name each run that has nothing to
-    resume: no config.json in its directory (a baseline's seed that a stop came before is named
-    as such; a first run, or one stopped in its start-up), or no checkpoint yet (killed before
-    its first: it trains again from step 0, and the rows it had logged are written again, the
-    same ones for its seed). Not for a TAC group that has members to resume beside such ones:
-    it is refused, saying what to do."""
+    """Under --resume, refuse a command that never started (no folder of its variant) where the
+    task has runs of other settings under --out (a mistyped or left-out setting makes another
+    variant: it would start every run afresh, up to a million steps each); and name each run
+    that has nothing to resume: no config.json in its directory (a baseline's seed that a stop
+    came before is named as such; a first run, or one stopped in its start-up), or no
+    checkpoint yet (killed before its first: it trains again from step 0, and the rows it had
+    logged are written again, the same ones for its seed). Not for a TAC group that has members
+    to resume beside such ones: it is refused, saying what to do."""
     directories = [runs.run_directory(out, c.algo, c.env, c.variant, c.seed) for c in configs]
     task = directories[0].parent.parent
     others = sorted({p.parent.parent.name for p in task.glob("*/seed*/config.json")})
-    if others and not any((d / "config.json").exists() for d in directories):
+    # the command's variant folder (its seeds' lock files are there): it started before, if
+    # only to be stopped in its start-up, or trained other seeds
+    if others and not any(d.parent.exists() for d in directories):
         raise TacbenchError(_nothing_to_resume(directories, others))
     checkpointed = [newest_step(d / "checkpoint") is not None for d in directories]
     unfinished = [_unfinished(d) for d in directories]
