@@ -6,6 +6,7 @@ stopped record the state ``interrupted``; docs/results-schema.md tabulates the e
 
 from __future__ import annotations
 
+import shlex
 import signal
 import threading
 from collections.abc import Callable, Iterator
@@ -48,13 +49,16 @@ def exit_status() -> int:
 
 
 def resume_command(command: str) -> str:
-    """``command`` with ``--resume`` (the library call's equivalent when there is none); a
-    sweep's command as it is: a sweep resumes by being run again, and has no ``--resume``."""
-    command = command or "train(..., resume=True)"
-    words = command.split()
-    if "--resume" in words or words[:2] == ["tacbench", "sweep"]:
+    """``command`` with ``--resume`` in place of any ``--force`` (which would delete what the
+    resume continues, and which ``--resume`` refuses beside it); the library call's equivalent
+    when there is no command; a sweep's command as it is: a sweep resumes by being run again,
+    and has no ``--resume``."""
+    if not command:
+        return "train(..., resume=True)"
+    words = shlex.split(command)
+    if words[:2] == ["tacbench", "sweep"]:
         return command
-    return f"{command} --resume"
+    return shlex.join([*(w for w in words if w not in ("--force", "--resume")), "--resume"])
 
 
 @contextmanager

@@ -80,6 +80,10 @@ def test_a_resume_with_other_settings_quotes_the_runs_own_command(tmp_path: Path
     )
     with pytest.raises(TacbenchError, match=r"1000000\)\. Pass --force to replace it"):
         plan_runs([config], tmp_path, resume=False, force=False)
+    # a complete run has nothing to continue: no such advice
+    runs.atomic_write_json(directory / "status.json", {"state": "complete", "step": 30_000})
+    with pytest.raises(TacbenchError, match=r"1000000\)\. Pass --force to replace it"):
+        plan_runs([config], tmp_path, resume=True, force=False)
 
 
 def test_stop_signals_record_then_interrupt_on_the_second_and_restore_the_handlers() -> None:

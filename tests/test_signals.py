@@ -90,7 +90,11 @@ def test_the_resume_command_adds_resume_to_a_run_and_leaves_a_sweep_as_it_is() -
     assert resume_command(f"{run} --resume") == f"{run} --resume"
     sweep = "tacbench sweep --preset smoke --out results"
     assert resume_command(sweep) == sweep
-    assert resume_command("") == "train(..., resume=True) --resume"
+    assert resume_command("") == "train(..., resume=True)"
+    # a run started with --force resumes without it (--resume refuses it beside it)
+    assert (
+        resume_command(f"{run} --force --out 'my results'") == f"{run} --out 'my results' --resume"
+    )
 
 
 @pytest.mark.unit

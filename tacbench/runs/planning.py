@@ -103,7 +103,10 @@ def plan_run(
         command = metadata.get("command")
         again = (  # a setting left out of the resume, such as --steps
             f"To continue it, repeat its own command: {resume_command(command)}; or pass "
-            if resume and isinstance(command, str) and command.startswith("tacbench run ")
+            if resume
+            and isinstance(command, str)
+            and command.startswith("tacbench run ")
+            and _unfinished(directory)
             else "Pass "
         )
         raise TacbenchError(
@@ -129,6 +132,15 @@ def plan_run(
         )
     check_checkpoint(directory, step)
     return DirectoryPlan("resume", "resuming from its last checkpoint")
+
+
+def _unfinished(directory: Path) -> bool:
+    """Whether ``--resume`` would continue the run in ``directory`` (False where its status
+    cannot be read: the refusal that names it says so)."""
+    try:
+        return resumable(read_status(directory))
+    except TacbenchError:
+        return False
 
 
 def resumable(status: Mapping[str, Any]) -> bool:
