@@ -127,8 +127,10 @@ def build_runs(
     preset: Preset, *, device: str = "cpu", threads: int = 1, warnings: list[str] | None = None
 ) -> list[Run]:
     """Every run of ``preset`` (narrowed already), in preset order, each directory once; the
-    warnings ``tacbench run`` would print for them (a run that never updates its networks) are
-    added to ``warnings``, each once, named by algorithm and task."""
+    warnings ``tacbench run`` would print of their budgets (random steps filling it, so that the
+    networks are never updated; a PPO or TRPO rollout longer than it) are added to
+    ``warnings``, each once, named by algorithm and task. (Not the compile note: it describes
+    this machine, not where a unit trains.)"""
     built: dict[str, Run] = {}
     for entry in preset.entries:
         settings = {**entry.settings, "device": device, "threads": threads}
@@ -145,7 +147,8 @@ def build_runs(
             )
             for note in notes:
                 named = f"WARNING: {entry.algo} {env_id}: {note.removeprefix('WARNING: ')}"
-                if note.startswith("WARNING: ") and warnings is not None and named not in warnings:
+                budget = note.startswith("WARNING: ") and "--steps" in note
+                if budget and warnings is not None and named not in warnings:
                     warnings.append(named)
             for config in configs:
                 run = Run(config, entry.label)
