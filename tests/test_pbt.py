@@ -25,6 +25,7 @@ from tacbench.training.pbt import (
     PBT_COLUMNS,
     PERTURB_FACTORS,
     Population,
+    check_whole_on_resume,
     decide,
     population_seed,
 )
@@ -215,6 +216,9 @@ def test_a_population_resumes_only_as_a_whole(tmp_path: Path) -> None:
         train(tmp_path, population([0, 2, 4, 6]), resume=True)
     after = {p: p.read_bytes() for o in stopped for p in o.directory.rglob("*") if p.is_file()}
     assert after == before
+    (stopped[6].directory / "config.json").rename(tmp_path / "moved-away.json")
+    with pytest.raises(TacbenchError, match=r"its member \S+seed6 is gone \(no config.json\)"):
+        check_whole_on_resume(stopped[0].directory, list(range(6)), 600)
 
 
 @pytest.mark.smoke

@@ -70,17 +70,21 @@ def check_whole_on_resume(directory: Path, seeds: Sequence[int], step: int) -> l
     """Before a population resumes from ``step`` with the members ``seeds`` (``directory`` is
     one's run): the members config.json records that the command leaves out. Every round ranks
     all live members, so one left out that was live at ``step`` would change every later round:
-    a TacbenchError names it (a stopped or crashed member; nothing is changed). One that failed
+    a TacbenchError names it (a stopped or crashed member, or one whose run is gone; nothing is
+    changed). One that failed
     by its own numbers after ``step`` cannot rejoin (its run is over), so the rounds it took
     part in after ``step`` can decide otherwise: a note says so. One that failed by ``step`` was out
     of every later round anyway."""
     recorded = read_json(directory / "config.json").get("members") or []
     # an older config.json lists the members' seeds alone
     recorded_seeds = [int(m["seed"] if isinstance(m, dict) else m) for m in recorded]
-    notes, live = [], []
+    notes, live, gone = [], [], []
     for seed in (s for s in recorded_seeds if s not in seeds):
         member = directory.parent / f"seed{seed}"
-        status = read_status(member) if (member / "config.json").exists() else {}
+        if not (member / "config.json").exists():
+            gone.append(str(member))
+            continue
+        status = read_status(member)
         if status.get("state") != "failed" or resumable(status):
             live.append(f"--seed {seed}")
         elif status["step"] > step:
@@ -89,6 +93,12 @@ def check_whole_on_resume(directory: Path, seeds: Sequence[int], step: int) -> l
                 f"rejoin: the rounds up to step {status['step']:,} rank the population without "
                 "it, so they can decide otherwise than in the uninterrupted run"
             )
+    if gone:
+        raise TacbenchError(
+            f"a --q auto population resumes as a whole, and the run of its member "
+            f"{listing(gone)} is gone (no config.json). Nothing was changed; restore it, or "
+            "start the population over with --force."
+        )
     if live:
         raise TacbenchError(
             f"a --q auto population resumes as a whole: this command leaves out "
