@@ -195,12 +195,13 @@ def _say_what_starts_afresh(configs: Sequence[Any], out: Path) -> None:
     logged are written again, the same ones for its seed). Not for a TAC group that has members
     to resume beside such ones: it is refused, saying what to do."""
     directories = [runs.run_directory(out, c.algo, c.env, c.variant, c.seed) for c in configs]
-    task = directories[0].parent.parent
-    others = sorted({p.parent.parent.name for p in task.glob("*/seed*/config.json")})
     # the command's variant folder (its seeds' lock files are there): it started before, if
-    # only to be stopped in its start-up, or trained other seeds
-    if others and not any(d.parent.exists() for d in directories):
-        raise TacbenchError(_nothing_to_resume(directories, others))
+    # only to be stopped in its start-up, or trained other seeds; else look for the task's runs
+    if not any(d.parent.exists() for d in directories):
+        task = directories[0].parent.parent
+        others = sorted({p.parent.parent.name for p in task.glob("*/seed*/config.json")})
+        if others:
+            raise TacbenchError(_nothing_to_resume(directories, others))
     checkpointed = [newest_step(d / "checkpoint") is not None for d in directories]
     unfinished = [_unfinished(d) for d in directories]
     trained = [c for c, u in zip(checkpointed, unfinished, strict=True) if u]
