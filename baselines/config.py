@@ -143,6 +143,9 @@ _FLAG_KEYS = {("sac-sb3", "alpha"): "ent_coef", ("sac-sb3", "target_entropy"): "
 _FLAG_KEYS.update({(algo, "learning_starts"): "learning_starts" for algo in hyperparams.OFF_POLICY})
 
 
+_IN_A_SWEEP = "in tacbench sweep, --algo tac keeps TAC's runs only"
+
+
 def flag_key(algo: str, name: str) -> str | None:
     """The hyperparameter of ``algo`` that the ``tacbench run`` setting ``name`` sets
     (``alpha_mode`` too sets sac-sb3's ent_coef); None if it sets none."""
@@ -167,21 +170,18 @@ def flags_as_overrides(algo: str, given: Mapping[str, Any]) -> list[str]:
             )
     items = []
     for name, value in given.items():
-        key = _FLAG_KEYS.get((algo, name))
-        flag, sweep = (
-            f"--{name.replace('_', '-')}",
-            "in tacbench sweep, --algo tac keeps TAC's runs",
-        )
+        key, flag = _FLAG_KEYS.get((algo, name)), f"--{name.replace('_', '-')}"
         if key is None and name in hyperparams.ALGO_KEYS[algo]:  # TAC's, not the baseline's
             raise TacbenchError(
                 f"{flag} sets TAC's {name}; {algo}'s is set with tacbench run --algo {algo} --hp "
-                f"{name}={value} ({sweep} only)."
+                f"{name}={value} ({_IN_A_SWEEP})."
             )
         if key is None:
             raise TacbenchError(
                 f"{flag} is a TAC option that {algo} does not use; leave it out for {algo} "
-                f"({sweep} only) and set {algo}'s hyperparameters with tacbench run --algo {algo} "
-                f"--hp KEY=VALUE, KEY one of {', '.join(sorted(hyperparams.ALGO_KEYS[algo]))}."
+                f"({_IN_A_SWEEP}) and set {algo}'s hyperparameters with tacbench run --algo "
+                f"{algo} --hp KEY=VALUE, KEY one of "
+                f"{', '.join(sorted(hyperparams.ALGO_KEYS[algo]))}."
             )
         items.append(f"{key}={value}")
     return items

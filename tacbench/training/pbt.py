@@ -71,10 +71,9 @@ def check_whole_on_resume(directory: Path, seeds: Sequence[int], step: int) -> l
     one's run): the members config.json records that the command leaves out. Every round ranks
     all live members, so one left out that was live at ``step`` would change every later round:
     a TacbenchError names it (a stopped or crashed member, or one whose run is gone; nothing is
-    changed). One that failed
-    by its own numbers after ``step`` cannot rejoin (its run is over), so the rounds it took
-    part in after ``step`` can decide otherwise: a note says so. One that failed by ``step`` was out
-    of every later round anyway."""
+    changed). One that failed by its own numbers after ``step`` cannot rejoin (its run is over),
+    so the rounds it took part in after ``step`` can decide otherwise: a note says so. One that
+    failed by ``step`` was out of every later round anyway."""
     recorded = read_json(directory / "config.json").get("members") or []
     # an older config.json lists the members' seeds alone
     recorded_seeds = [int(m["seed"] if isinstance(m, dict) else m) for m in recorded]
