@@ -55,6 +55,16 @@ def _row(env: str, alpha: float, name: str, runs: pd.DataFrame) -> dict[str, obj
     return {"env": env, "alpha": alpha, "range": name, "qs": qs, "runs": len(runs)}
 
 
+def _against_middle(
+    middle: list[np.ndarray], finals: list[np.ndarray], reps: int, seed: int
+) -> dict[str, object]:
+    """P(a run of 1 <= q < 2 beats a run of the range) over the tasks given, its interval, its
+    test's p-value and verdict: the row's columns from ``p_middle`` on."""
+    p, p_low, p_high = probability_of_improvement(middle, finals, reps, seed)
+    p_value, verdict = improvement_verdict(middle, finals, seed)
+    return {"p_middle": p, "p_low": p_low, "p_high": p_high, "p_value": p_value, "verdict": verdict}
+
+
 def q_range_table(
     scores: pd.DataFrame, data: pd.DataFrame, last: int, reps: int, seed: int
 ) -> pd.DataFrame:
@@ -80,10 +90,7 @@ def q_range_table(
             row = _row(str(env), float(group["alpha"].iloc[0]), name, group)
             row.update(iqm=iqm, iqm_low=low, iqm_high=high, spread=group["spread"].mean())
             if name != MIDDLE:
-                p, p_low, p_high = probability_of_improvement([middle], [finals], reps, seed)
-                p_value, verdict = improvement_verdict([middle], [finals], seed)
-                row.update(p_middle=p, p_low=p_low, p_high=p_high, p_value=p_value)
-                row.update(verdict=verdict)
+                row.update(_against_middle([middle], [finals], reps, seed))
             rows.append(row)
             pooled.setdefault(name, {"score": [], "final": [], "middle": []})
             pooled[name]["score"].append(group["score"].to_numpy())
@@ -108,11 +115,6 @@ def q_range_table(
                 "spread": math.nan,  # returns of different tasks do not pool
             }
             if name != MIDDLE:
-                p, p_low, p_high = probability_of_improvement(
-                    parts["middle"], parts["final"], reps, seed
-                )
-                p_value, verdict = improvement_verdict(parts["middle"], parts["final"], seed)
-                row.update(p_middle=p, p_low=p_low, p_high=p_high, p_value=p_value)
-                row.update(verdict=verdict)
+                row.update(_against_middle(parts["middle"], parts["final"], reps, seed))
             rows.append(row)
     return pd.DataFrame(rows, columns=COLUMNS)
