@@ -120,6 +120,9 @@ def test_cli_run_skip_refuse_and_force(tmp_path: Path) -> None:
     assert first.exit_code == 0, first.output
     assert "q = 2: the paper's best q for Hopper" in first.output
     assert "seed 0: complete" in first.output
+    progress = [line for line in first.output.splitlines() if "| ETA " in line]
+    assert progress[0].endswith("ETA - (warm-up)") and "step 100/300" in progress[0]
+    assert not progress[1].endswith("(warm-up)")  # learning from step 200
     run = tmp_path / "runs" / "tac" / "Hopper-v4" / "q2-a0.2-ls200" / "seed0"
     metadata = json.loads((run / "config.json").read_text())
     assert sorted(shlex.split(metadata["command"])) == sorted(["tacbench", "run", *args])

@@ -205,6 +205,39 @@ def test_plain_progress_prints_a_line_per_interval() -> None:
     assert "steps/s | eval 42.5 | ETA" in lines[0]
 
 
+class _Terminal(io.StringIO):
+    def isatty(self) -> bool:
+        return True
+
+
+def _train(progress: Progress, clock: list[float], learning_from: int, steps: int = 3000) -> None:
+    """Steps on a fake clock (in exact binary fractions): warm-up steps take about 1 ms,
+    learning steps 8 times as long."""
+    for step in range(1, steps + 1):
+        clock[0] += 1 / 1024 if step < learning_from else 1 / 128
+        progress.update(step, None, learning=step >= learning_from)
+
+
+def test_the_eta_counts_learning_steps_only(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The warm-up's random steps are many times faster than learning steps: an ETA from a
+    window that mixes them said a tenth of a run's time (2m35s for 24 minutes)."""
+    clock = [0.0]
+    monkeypatch.setattr("tacbench.progress.time.perf_counter", lambda: clock[0])
+    stream = io.StringIO()
+    _train(Progress("TAC", 3000, 0, 1000, quiet=False, stream=stream), clock, 501)
+    etas = [line.split("| ETA ")[1] for line in stream.getvalue().splitlines()]
+    assert etas == ["0m15s", "0m07s", "0m00s"]  # mixed with the warm-up, the first said 0m08s
+
+    stream = io.StringIO()
+    _train(Progress("TAC", 3000, 0, 1000, quiet=False, stream=stream), clock, 1501)
+    assert stream.getvalue().splitlines()[0].endswith("| ETA - (warm-up)")
+
+    bar = Progress("TAC", 3000, 0, 1000, quiet=False, stream=_Terminal())
+    _train(bar, clock, 1501, steps=2000)  # the bar's rate: its last 2,000 steps, 1,500 warm-up
+    bar.close()
+    assert bar._bar.tasks[0].fields["eta"] == "0m07s"
+
+
 def test_check_writable_probes_without_creating_anything(tmp_path: Path) -> None:
     runs.check_writable(tmp_path / "new" / "deeper")  # its nearest existing folder takes files
     assert list(tmp_path.iterdir()) == []

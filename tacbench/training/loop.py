@@ -195,7 +195,7 @@ class GroupTrainer:
         every = config.checkpoint_every
         if (every and self.step % every == 0) or self.step == config.total_steps:
             self._checkpoint()
-        self.progress.update(self.step, eval_mean)
+        self.progress.update(self.step, eval_mean, learning=bool(self.updates_started.any()))
         return outcomes
 
     def close(self) -> None:
