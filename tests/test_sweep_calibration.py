@@ -4,6 +4,8 @@ price, and one short real measurement."""
 from __future__ import annotations
 
 import dataclasses
+import os
+import signal
 from pathlib import Path
 from typing import Any
 
@@ -142,6 +144,42 @@ def test_a_unit_whose_members_all_fail_is_reported_and_the_others_stored(
     assert list(stored) == [calibration.unit_key(other)]
     assert calibration.load() == stored
     assert any("not calibrated" in line and "members failed" in line for line in lines)
+
+
+def test_a_stop_signal_stops_the_calibration_and_keeps_the_units_measured_before(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    """A SIGTERM (or Ctrl-C) stops a measurement's training cleanly: the calibration then called
+    the unit not measurable ("members failed") and went on to the next unit, so a stop signal
+    never stopped it. It now stops, keeps the units measured before, and the command exits with
+    the signal's status."""
+    from tacbench.tac import update as tac_update
+    from tacbench.training import loop
+
+    def signalled(agent: Any, sample: Any, c: Any, subset: Any) -> Any:
+        if agent.config.hidden_sizes == (16,):
+            os.kill(os.getpid(), signal.SIGTERM)
+        return tac_update.update(agent, sample, c, subset)
+
+    monkeypatch.setattr(loop, "update", signalled)
+    monkeypatch.setattr(calibration, "RANDOM_STEPS", 100)
+    monkeypatch.setattr(calibration, "WARMUP_STEPS", 5)
+    monkeypatch.setattr(calibration, "LEARN_STEPS", 100)
+    first, stopped, never = (
+        make_run_configs("Pendulum-v1", None, [0], hidden_sizes=(h,))[0] for h in (32, 16, 8)
+    )
+    lines: list[str] = []
+    with pytest.raises(calibration.Interrupted):
+        calibration.calibrate([first, stopped, never], report=lines.append)
+    assert list(calibration.load()) == [calibration.unit_key(first)]
+    assert lines[-1].startswith("  calibration interrupted; the units measured before it are")
+    assert not any("3/3" in line for line in lines)
+
+    args = ["sweep", "--preset", "smoke", "--algo", "tac", "--hidden-sizes", "16"]
+    result = CliRunner().invoke(cli, [*args, "--dry-run", "--calibrate", "--out", str(tmp_path)])
+    assert result.exit_code == 143, result.output
+    assert "calibration interrupted; nothing was stored" in result.output
+    assert result.output.rstrip().endswith("interrupted by SIGTERM")
 
 
 class _Clock:

@@ -27,6 +27,10 @@ episodes end early. A TAC run that updates during warm-up (``--warmup-updates on
 code) starts at its first episode end, priced at H. The compilation of the first update
 (seconds; the measurement's window starts after it) and the checkpoints are left out.
 
+A stop signal (Ctrl-C, SIGTERM, SIGHUP) during a measurement stops the calibration
+(:class:`Interrupted`): the units measured before it are stored, and the command exits with the
+signal's status.
+
 Calibrations are kept per CPU class (:func:`tacbench.hardware.cpu_class`) in
 ``$TACBENCH_CALIBRATION`` or ``~/.cache/tacbench/calibration/<class>.json``, keyed by what
 decides a unit's cost (:func:`unit_key`) and by :data:`METHOD`, so that a calibration measured
@@ -58,6 +62,14 @@ WARMUP_STEPS = 50
 LEARN_STEPS = 1500
 ON_POLICY_ROLLOUTS = 3
 ENV_STEPS = 2000  # environment steps timed for an evaluation step
+
+
+class Interrupted(KeyboardInterrupt):
+    """A stop signal during a calibration's measurement. The trainer stops the measurement
+    cleanly, so without this the calibration would report the unit as not measurable and go on
+    to the next one."""
+
+
 ON_POLICY = ("ppo", "trpo")
 LOG_EVERY = 50  # the loss log's interval while measuring: the updates counted per 50 steps
 # 3: trainers flush subnormal numbers (hardware.flush_denormals), which makes the authors'
@@ -212,7 +224,11 @@ def measure(configs: Sequence[Any]) -> Calibration:
         return False
 
     with tempfile.TemporaryDirectory() as tmp:
-        trainers.trainer_for(first.algo).train(measured, Path(tmp), quiet=True, stop=stop)
+        outcomes = trainers.trainer_for(first.algo).train(
+            measured, Path(tmp), quiet=True, stop=stop
+        )
+        if any(outcome.state == "interrupted" for outcome in outcomes):
+            raise Interrupted
         updates = _LoggedUpdates.read(Path(tmp)) if tac else None
     members = len(measured)
 
@@ -337,6 +353,10 @@ def calibrate(
         except TacbenchError as err:  # the other units' measurements are still stored
             report(f"  not calibrated: {err}")
             continue
+        except KeyboardInterrupt:  # a stop signal, or a second one: keep what was measured
+            kept = f"the units measured before it are stored in {save(new)}" if new else ""
+            report(f"  calibration interrupted; {kept or 'nothing was stored'}")
+            raise Interrupted from None
         report(
             f"  {new[key].learn * 1e3:.2f} ms per member-step learning, "
             f"{new[key].random * 1e3:.2f} before ({time.perf_counter() - start:.0f} s)"
