@@ -62,14 +62,6 @@ WARMUP_STEPS = 50
 LEARN_STEPS = 1500
 ON_POLICY_ROLLOUTS = 3
 ENV_STEPS = 2000  # environment steps timed for an evaluation step
-
-
-class Interrupted(KeyboardInterrupt):
-    """A stop signal during a calibration's measurement. The trainer stops the measurement
-    cleanly, so without this the calibration would report the unit as not measurable and go on
-    to the next one."""
-
-
 ON_POLICY = ("ppo", "trpo")
 LOG_EVERY = 50  # the loss log's interval while measuring: the updates counted per 50 steps
 # 3: trainers flush subnormal numbers (hardware.flush_denormals), which makes the authors'
@@ -90,6 +82,12 @@ _FREE_FIELDS = (
     "tensorboard",
     "variant",
 )
+
+
+class Interrupted(KeyboardInterrupt):
+    """A stop signal (Ctrl-C, SIGTERM, SIGHUP) during a calibration: its trainer stops the
+    measurement cleanly, and :func:`calibrate` stops with it, storing the units measured
+    before."""
 
 
 @dataclass(frozen=True)
