@@ -20,6 +20,7 @@ leaves every other interval unchanged.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from functools import partial
 
 import numpy as np
 import pandas as pd
@@ -68,22 +69,24 @@ def _sorted_scores(tasks: Sequence[np.ndarray]) -> list[np.ndarray]:
     return [np.sort(np.asarray(scores, dtype=np.float64)) for scores in tasks]
 
 
-def iqm(*tasks: np.ndarray) -> float:
-    """IQM over all runs of all tasks (one 1-D array per task): the mean of the middle runs
-    after cutting ``int(0.25 n)`` from each end, as ``scipy.stats.trim_mean(x, 0.25)`` (which
-    ``rliable.metrics.aggregate_iqm`` calls) at a sixth of its per-call cost."""
-    pooled = np.sort(np.concatenate(tasks))
-    cut = int(0.25 * len(pooled))
-    return float(pooled[cut : len(pooled) - cut].mean())
+def iqm(*tasks: np.ndarray) -> np.ndarray:
+    """IQM over all runs of all tasks (one array per task, runs on the last axis, any leading
+    axes: bootstrap replications): the mean of the middle runs after cutting ``int(0.25 n)``
+    from each end, as ``scipy.stats.trim_mean(x, 0.25)`` (which ``rliable.metrics.aggregate_iqm``
+    calls) at a sixth of its per-call cost. 1-D tasks give a 0-d array."""
+    pooled = np.sort(np.concatenate(tasks, axis=-1), axis=-1)
+    n = pooled.shape[-1]
+    cut = int(0.25 * n)
+    return np.asarray(pooled[..., cut : n - cut].mean(axis=-1))
 
 
-def mean_of_means(*tasks: np.ndarray) -> float:
-    """Mean over tasks of the per-task mean."""
-    return float(np.mean([scores.mean() for scores in tasks]))
+def mean_of_means(*tasks: np.ndarray) -> np.ndarray:
+    """Mean over tasks of the per-task mean (runs on the last axis, as :func:`iqm`)."""
+    return np.asarray(np.stack([scores.mean(axis=-1) for scores in tasks], axis=-1).mean(axis=-1))
 
 
 def _iqm_and_mean(*tasks: np.ndarray) -> np.ndarray:
-    return np.array([iqm(*tasks), mean_of_means(*tasks)])
+    return np.stack([iqm(*tasks), mean_of_means(*tasks)], axis=-1)
 
 
 def interval_estimates(tasks: Sequence[np.ndarray], reps: int, seed: int) -> dict[str, Estimate]:
@@ -95,19 +98,20 @@ def interval_estimates(tasks: Sequence[np.ndarray], reps: int, seed: int) -> dic
     equal = len({len(scores) for scores in tasks}) == 1
     matrix = np.stack(tasks, axis=1) if equal else None
     points = {
-        "iqm": float(metrics.aggregate_iqm(matrix)) if equal else iqm(*tasks),
-        "mean": float(metrics.aggregate_mean(matrix)) if equal else mean_of_means(*tasks),
+        "iqm": float(metrics.aggregate_iqm(matrix) if equal else iqm(*tasks)),
+        "mean": float(metrics.aggregate_mean(matrix) if equal else mean_of_means(*tasks)),
     }
     _, low, high = interval(_iqm_and_mean, tasks, reps, strata_seed(seed, tasks))
     return {name: (points[name], float(low[i]), float(high[i])) for i, name in enumerate(points)}
 
 
-def pairwise_improvement(x: np.ndarray, y: np.ndarray) -> float:
+def pairwise_improvement(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """P(X > Y) + P(X = Y) / 2 over all pairs: Mann-Whitney U / (n_x n_y), as rliable's
-    ``probability_of_improvement`` on one task, without scipy's per-call overhead."""
-    greater = (x[:, None] > y[None, :]).mean()
-    ties = (x[:, None] == y[None, :]).mean()
-    return float(greater + 0.5 * ties)
+    ``probability_of_improvement`` on one task, without scipy's per-call overhead. Runs on the
+    last axis, as :func:`iqm`."""
+    greater = (x[..., :, None] > y[..., None, :]).mean(axis=(-2, -1))
+    ties = (x[..., :, None] == y[..., None, :]).mean(axis=(-2, -1))
+    return np.asarray(greater + 0.5 * ties)
 
 
 def probability_of_improvement(
@@ -121,27 +125,24 @@ def probability_of_improvement(
     xs, ys = _sorted_scores(xs), _sorted_scores(ys)
     if len(xs) != len(ys):
         raise ValueError("X and Y need scores on the same tasks")
-    tasks = len(xs)
-
-    def averaged(*strata: np.ndarray) -> float:
-        return float(
-            np.mean(
-                [
-                    pairwise_improvement(x, y)
-                    for x, y in zip(strata[:tasks], strata[tasks:], strict=True)
-                ]
-            )
-        )
-
+    averaged = partial(_averaged_improvement, len(xs))
     if len({len(a) for a in xs}) == 1 and len({len(b) for b in ys}) == 1:
         point = float(
             metrics.probability_of_improvement(np.stack(xs, axis=1), np.stack(ys, axis=1))
         )
     else:
-        point = averaged(*xs, *ys)
+        point = float(averaged(*xs, *ys))
     strata = [*xs, *ys]
     _, low, high = scalar_interval(averaged, strata, reps, strata_seed(seed, strata))
     return point, low, high
+
+
+def _averaged_improvement(tasks: int, *strata: np.ndarray) -> np.ndarray:
+    """The mean over tasks of P(X > Y): the first ``tasks`` strata are X's, the others Y's."""
+    per_task = [
+        pairwise_improvement(x, y) for x, y in zip(strata[:tasks], strata[tasks:], strict=True)
+    ]
+    return np.asarray(np.stack(per_task, axis=-1).mean(axis=-1))
 
 
 def performance_profile(
@@ -151,13 +152,15 @@ def performance_profile(
 
     As rliable's score distributions: every run weighs the same, runs resampled within tasks.
     """
-
-    def profile(*strata: np.ndarray) -> np.ndarray:
-        pooled = np.concatenate(strata)
-        return np.asarray((pooled[:, None] > taus[None, :]).mean(axis=0))
-
     strata = _sorted_scores(tasks)
-    return interval(profile, strata, reps, strata_seed(seed, strata))
+    return interval(partial(_fractions_above, taus), strata, reps, strata_seed(seed, strata))
+
+
+def _fractions_above(taus: np.ndarray, *strata: np.ndarray) -> np.ndarray:
+    """The fraction of the pooled runs scoring above each tau (runs on the last axis, as
+    :func:`iqm`; one tau at a time, so that replications x runs x taus is never held)."""
+    pooled = np.concatenate(strata, axis=-1)
+    return np.stack([(pooled > tau).mean(axis=-1) for tau in taus], axis=-1)
 
 
 def per_task_estimates(scores: pd.DataFrame, reps: int, seed: int) -> pd.DataFrame:
