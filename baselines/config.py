@@ -43,6 +43,13 @@ class BaselineConfig(RunSettings):
         return self.algo in hyperparams.OFF_POLICY
 
     @property
+    def learning_steps(self) -> int:
+        """Environment steps after the random warm-up (``learning_starts``; on-policy
+        algorithms learn from the first step)."""
+        starts = int(self.hyperparams["learning_starts"]) if self.off_policy else 0
+        return max(0, self.total_steps - starts)
+
+    @property
     def alpha(self) -> float | None:
         """The entropy coefficient when it is a constant (sac-sb3), else None."""
         value = self.hyperparams.get("ent_coef") if self.algo == "sac-sb3" else None

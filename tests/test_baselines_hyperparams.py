@@ -262,3 +262,15 @@ def test_tac_flags_map_to_hyperparameters_or_are_refused() -> None:
     # a TAC flag named as the baseline's hyperparameter: told the --hp that sets it
     with pytest.raises(TacbenchError, match="set with tacbench run --algo td3 --hp batch_size=64"):
         flags_as_overrides("td3", {"batch_size": 64})
+
+
+def test_learning_steps_are_those_after_the_random_warm_up() -> None:
+    """What the sweep's ETA times (tacbench.sweep.progress): on-policy runs learn throughout."""
+    (td3,), _, _ = make_configs("td3", "Hopper-v4", "Hopper", [0], total_steps=25_000)
+    assert td3.learning_steps == 25_000 - 10_000
+    (short,), _, _ = make_configs("td3", "Hopper-v4", "Hopper", [0], ["learning_starts=900"])
+    assert short.learning_steps == short.total_steps - 900
+    (ppo,), _, _ = make_configs("ppo", "Hopper-v4", "Hopper", [0], total_steps=25_000)
+    assert ppo.learning_steps == 25_000
+    (random,), _, _ = make_configs("ddpg", "Hopper-v4", "Hopper", [0], total_steps=5_000)
+    assert random.learning_steps == 0

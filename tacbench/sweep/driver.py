@@ -229,19 +229,14 @@ class _Driver:
         self.plan, self.history, self.executor, self.options = work, history, executor, options
         self.queue = deque(work.units)
         self.step = {p.run.key: p.status.step for p in work.runs}
-        self.total = {p.run.key: p.run.total_steps for p in work.runs}
         self.ended = {p.run.key for p in work.runs if p.action in ("skip", "give-up")}
-        self.progress = SweepProgress(
-            len(work.runs), sum(self.total.values()), self._done(), stream
-        )
+        budgets = {p.run.key: (p.run.total_steps, p.run.config.learning_steps) for p in work.runs}
+        self.progress = SweepProgress(budgets, self.step, self.ended, stream)
         for warning in work.warnings:
             self.progress.message(warning)
         self.stopping = self.forced = False
         self.disk_full = ""  # the unit that found the disk full: the sweep stops
         self.unit_runs: dict[str, list[str]] = {}  # the runs of each submitted unit, by its key
-
-    def _done(self) -> int:
-        return sum(self.total[k] if k in self.ended else s for k, s in self.step.items())
 
     def run(self, received: dict[str, int]) -> bool:
         """Train until the queue is empty or a stop is requested; True if stopped early."""
@@ -267,7 +262,7 @@ class _Driver:
                 for key, step in self.executor.steps().items():
                     for run_key in self.unit_runs.get(key, ()):
                         self.step[run_key] = max(self.step[run_key], step)
-                self.progress.update(len(self.ended), self._done())
+                self.progress.update(self.step, self.ended)
         finally:
             self.executor.close(force=self.forced)
             self.progress.close()
