@@ -12,10 +12,13 @@ the exact regression references (``tacbench.regress``) and the saved benchmark b
 from __future__ import annotations
 
 import ctypes
+import math
 import os
 import platform
 import re
+import statistics
 import sys
+import time
 from functools import cache
 from pathlib import Path
 
@@ -77,6 +80,28 @@ def memory_bytes() -> int:
         return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
     except (ValueError, OSError, AttributeError):
         return 8 << 30
+
+
+class LoadMeter:
+    """This machine's mean load over a stretch of time, as :meth:`sample` reads it (at most
+    every ``every_s`` seconds): the 1-minute load average of ``os.getloadavg``, which counts the
+    processes running or waiting for a core, this program's own included."""
+
+    def __init__(self, every_s: float = 10.0) -> None:
+        self.every_s = every_s
+        self._samples: list[float] = []
+        self._last = -math.inf
+
+    def sample(self) -> None:
+        """Read the load average, if ``every_s`` has passed since the last reading."""
+        now = time.monotonic()
+        if now - self._last >= self.every_s:
+            self._samples.append(os.getloadavg()[0])
+            self._last = now
+
+    def mean(self) -> float | None:
+        """The mean of the readings (None before the first)."""
+        return statistics.fmean(self._samples) if self._samples else None
 
 
 @cache

@@ -77,6 +77,15 @@ def test_a_whole_sweeps_bill_comes_before_its_run_records(tmp_path: Path) -> Non
     shown = CliRunner().invoke(cli, ["study", "bills", str(tmp_path)])
     assert "took 50m00s (bill; some-class; priced at its start 48m20s)" in shown.output
     assert "on 2 workers" in shown.output  # the bill's, not this machine's
+    assert "while it ran" not in shown.output  # this bill records no load
+    bill.update(load_average=4.5, cores=4)
+    (tmp_path / "sweep" / "q1-summary.json").write_text(json.dumps(summary))
+    [took] = bills.sweeps(tmp_path)
+    assert (took.load_average, took.cores) == (4.5, 4)
+    shown = CliRunner().invoke(cli, ["study", "bills", str(tmp_path)])
+    assert "\n  while it ran, the load averaged 4.5 on 4 cores, 2.5 above its workers: other" in (
+        shown.output
+    )
 
 
 def test_the_bill_of_a_sweep_that_resumed_runs_is_not_the_whole_sweeps(tmp_path: Path) -> None:

@@ -75,6 +75,7 @@ def test_local_sweep_with_members_then_rerun_skips_everything(tmp_path: Path) ->
     bill = summary["bill"]  # what it took beside what the dry run's pricing said at the start
     assert bill["cpu_class"] == hardware.cpu_class() and bill["workers"] == 1
     assert bill["wall_s"] > 0 and bill["priced_wall_s"] > 0 and bill["priced_core_hours"] > 0
+    assert bill["cores"] == os.cpu_count() and bill["load_average"] >= 0  # this machine's load
     assert "the price" in first.output and "priced at the start" in first.output
     assert len(list((tmp_path / "sweep" / "logs").glob("*.log"))) == 3  # the TAC unit + 2 PPO
 

@@ -471,6 +471,14 @@ def test_the_summary_compares_the_bill_with_the_price_only_for_a_whole_plan() ->
     stopped = summary.summary_text({**base, "interrupted": True, "bill": bill}, "")
     assert "stopped after 1h09m on 2 workers (x); priced at the start 58m00s" in stopped
     assert "x the price" not in stopped  # a stopped sweep has no whole bill to compare
+    # a local sweep's bill records the machine's load while it ran, and says what was not its own
+    quiet = {**bill, "load_average": 2.1, "cores": 2}
+    text = summary.summary_text({**base, "interrupted": False, "bill": quiet}, "")
+    assert text.endswith("1.19x the price; the load averaged 2.1 on 2 cores")
+    busy = {**bill, "load_average": 3.64, "cores": 2}
+    text = summary.summary_text({**base, "interrupted": False, "bill": busy}, "")
+    expected = "the load averaged 3.6 on 2 cores, 1.6 above its workers: other work shared"
+    assert text.endswith(f"1.19x the price; {expected} the cores")
 
 
 @pytest.mark.parametrize(

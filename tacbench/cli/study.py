@@ -222,6 +222,7 @@ def bills(results: tuple[Path, ...], calibrate: bool) -> None:
     from tacbench.hardware import cpu_class
     from tacbench.progress import duration
     from tacbench.sweep import bills as sweep_bills
+    from tacbench.sweep.summary import load_note
 
     here = cpu_class()
     report = (lambda line: click.echo(line, err=True)) if calibrate else None
@@ -269,4 +270,7 @@ def bills(results: tuple[Path, ...], calibrate: bool) -> None:
             line += f"calibrated): took {ratio:.2f}x the price, the price {verdict} 25 % of it"
             if took.cpu_class not in (None, here):
                 line += " (another class: not the test)"
+        load = load_note(took.load_average, took.cores, took.workers or 0)  # a bill's, or ""
+        if load:
+            line += f"\n  while it ran, {load}"
         click.echo(f"{took.command}\n  {runs}\n{line}")

@@ -53,6 +53,8 @@ class Took:
     priced_at_start_s: float | None = None  # a bill's: the dry run's price when it started
     workers: int | None = None  # a bill's: the workers it ran on
     unfinished: Mapping[str, int] = field(default_factory=dict)  # state -> runs, if not complete
+    load_average: float | None = None  # a local sweep's bill: the machine's mean load meanwhile
+    cores: int | None = None  # and its cores
 
     @property
     def comparable(self) -> bool:
@@ -102,6 +104,8 @@ def sweeps(results: Path) -> list[Took]:
                     bill["priced_wall_s"],
                     bill["workers"],
                     left,
+                    bill.get("load_average"),
+                    bill.get("cores"),
                 )
             )
         else:  # no bill, or one of a sweep that resumed runs another had started

@@ -15,6 +15,7 @@ recorded against its runs, which are retried.
 from __future__ import annotations
 
 import functools
+import os
 import time
 from collections import deque
 from collections.abc import Collection, Sequence
@@ -162,6 +163,9 @@ def run_sweep(
             "priced_wall_s": round(priced.wall_seconds, 1),
             "priced_core_hours": round(priced.core_seconds / 3600, 3),
         }
+        load = driver.load.mean() if driver.load is not None else None
+        if load is not None:  # the machine's, the sweep's own workers included
+            bill.update(load_average=round(load, 2), cores=os.cpu_count())
         if driver.disk_full:
             raise DiskError(
                 f"the sweep stopped: {driver.disk_full} could not write its files because the "
@@ -236,6 +240,8 @@ class _Driver:
             self.progress.message(warning)
         self.stopping = self.forced = False
         self.disk_full = ""  # the unit that found the disk full: the sweep stops
+        # what else this machine ran meanwhile, for the bill (a local sweep's units run here)
+        self.load = hardware.LoadMeter() if options.executor == "local" else None
         self.unit_runs: dict[str, list[str]] = {}  # the runs of each submitted unit, by its key
 
     def run(self, received: dict[str, int]) -> bool:
@@ -243,6 +249,8 @@ class _Driver:
         try:
             while (self.queue and not self.stopping) or self.executor.running():
                 self._stop_if(received)
+                if self.load is not None:
+                    self.load.sample()
                 if received.get("count", 0) > 1:
                     self.forced = True
                     break

@@ -221,6 +221,22 @@ def summarize(plan: SweepPlan, sweep_state: state.SweepState, **fields: Any) -> 
     }
 
 
+OTHER_WORK = 0.5
+"""The load above a sweep's workers that the bill calls other work (the rest is the driver,
+compilation threads and the load average's lag)."""
+
+
+def load_note(load: float | None, cores: int | None, workers: int) -> str:
+    """What a local sweep's bill says of the machine's load while it ran (empty where the bill
+    does not record it): the price assumes a core per worker and nothing else running."""
+    if load is None or cores is None:
+        return ""
+    note = f"the load averaged {load:.1f} on {cores} core{'s' if cores != 1 else ''}"
+    if load - workers >= OTHER_WORK:
+        note += f", {load - workers:.1f} above its workers: other work shared the cores"
+    return note
+
+
 def summary_text(summary: dict[str, Any], command: str) -> str:
     """The summary as printed at the end of the sweep."""
     c = summary["counts"]
@@ -242,7 +258,9 @@ def summary_text(summary: dict[str, Any], command: str) -> str:
             f"({bill['cpu_class']}); priced at the start {duration(bill['priced_wall_s'])}"
         )
         ratio = bill["wall_s"] / bill["priced_wall_s"]  # only a whole plan's bill is compared
-        lines.append(took if summary["interrupted"] else f"{took}: {ratio:.2f}x the price")
+        took = took if summary["interrupted"] else f"{took}: {ratio:.2f}x the price"
+        load = load_note(bill.get("load_average"), bill.get("cores"), bill["workers"])
+        lines.append(f"{took}; {load}" if load else took)
     failed = [u for u in summary["unfinished"] if u["failures"]]
     if failed:
         lines.append("failures:")
