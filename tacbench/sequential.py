@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from tacbench import comparator
 from tacbench.errors import TacbenchError
 
 DEFAULT_ALPHA = 0.05  # the usual 5% family-wise error rate; AdaStop's own default is 0.01
@@ -81,43 +82,6 @@ class SequentialResult:
         return self.n * self.K * len(self.methods)
 
 
-TIE_TOLERANCE = 1e-9
-"""Relative difference below which a permuted statistic ties with the observed one."""
-
-
-def _comparator_class() -> type:
-    """adastop's ``MultipleAgentsComparator`` with its two-sided test's null distribution
-    fixed.
-
-    adastop 0.1.3 (and its repository's head, da3a9d4) compares the statistic
-    ``|mean difference|`` with quantiles of the permutation distribution of the *signed*
-    difference (``max_mean_diffs`` in ``partial_compare``), so with equal group sizes, whose
-    permutation distribution is symmetric, every comparison is tested at level 2 alpha: with
-    n = 3, K = 1 and alpha = 0.1 it rejects when the observed labelling is one of the 2 largest
-    of 20 in absolute value, 4 labellings of 20 (0.2), and on synthetic equal distributions the
-    measured family-wise error is about 2 alpha (tests/test_sequential.py). The fix is the
-    paper's statistic: the comparator takes the maximum of the *absolute* permuted
-    differences. It keeps the signed sums it accumulates across interims and returns their
-    absolute values to ``partial_compare``, which is all that reads them there.
-
-    Those values are raised by a relative :data:`TIE_TOLERANCE`: ``partial_compare`` rejects
-    where the observed statistic is strictly above the boundary, but computes it from means and
-    the permuted values from blockwise sums, so the observed labelling's own value could fall a
-    rounding error below it and a tie read as a rejection (docs/sequential.md).
-    """
-    from adastop import MultipleAgentsComparator
-
-    class TwoSidedComparator(MultipleAgentsComparator):
-        def compute_mean_diffs(self, k: int, Z: list[np.ndarray]) -> dict[str, np.ndarray]:
-            signed = super().compute_mean_diffs(k, Z)
-            return {
-                key: np.abs(np.asarray(values)) * (1 + TIE_TOLERANCE)
-                for key, values in signed.items()
-            }
-
-    return TwoSidedComparator
-
-
 def check_design(n: int, K: int, alpha: float, methods: Sequence[str], control: str | None) -> None:
     """Refuse (TacbenchError) what AdaStop cannot run: n or K below 1, alpha outside (0, 1),
     one method, or a control that is not among the methods."""
@@ -164,11 +128,11 @@ class SequentialComparison:
         self.n, self.K, self.alpha = n, K, alpha
         self.pairs = tuple(comparisons_for(methods, control))
         index = {m: i for i, m in enumerate(methods)}
-        self._comparator = _comparator_class()(
+        self._comparator = comparator.comparator_class()(
             n=n,
             K=K,
             B=B,
-            comparisons=np.array([(index[a], index[b]) for a, b in self.pairs]),
+            comparisons=comparator.pairs_array([(index[a], index[b]) for a, b in self.pairs]),
             alpha=alpha,
             seed=seed,
         )

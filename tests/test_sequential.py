@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
+from tacbench import comparator
 from tacbench import sequential as sq
 from tacbench.cli import cli
 from tacbench.errors import TacbenchError
@@ -45,7 +46,7 @@ def test_the_fixed_comparator_keeps_the_family_wise_error_rate() -> None:
 
     alpha, repeats = 0.1, 200
     mc_error = 3 * math.sqrt(alpha * (1 - alpha) / repeats)  # three standard errors
-    assert _null_rejections(sq._comparator_class(), repeats, alpha) <= alpha + mc_error
+    assert _null_rejections(comparator.comparator_class(), repeats, alpha) <= alpha + mc_error
     # the package's own comparator tests each comparison at about twice the level
     assert _null_rejections(MultipleAgentsComparator, repeats, alpha) > alpha + mc_error
 
@@ -64,7 +65,7 @@ def test_over_every_labelling_the_fixed_test_rejects_alpha_of_them() -> None:
             count += c.decisions["[0 1]"] != "equal"
         return count
 
-    assert rejected(sq._comparator_class()) == 2  # 2 of 20 labellings: alpha = 0.1
+    assert rejected(comparator.comparator_class()) == 2  # 2 of 20 labellings: alpha = 0.1
     assert rejected(MultipleAgentsComparator) == 4  # the package's: 2 alpha
 
 
@@ -203,3 +204,22 @@ def test_analyse_checks_out_before_its_minutes_of_work(tmp_path: Path) -> None:
     result = CliRunner().invoke(cli, [*args, "--out", str(tmp_path / "file" / "sub")])
     assert result.exit_code == 2 and "cannot create or write the output folder" in result.output
     assert "replay:" not in result.output  # nothing was analysed
+
+
+def test_the_pairs_print_as_numpys_and_decide_as_a_plain_array() -> None:
+    """adastop keys its dictionaries by ``str(pair)``: the cached print must be NumPy's own,
+    padding included, and the decisions those of the package given a plain array."""
+    pairs = comparator.pairs_array([(0, 1), (2, 10), (11, 3)])
+    for plain, printed in zip(np.array([(0, 1), (2, 10), (11, 3)]), pairs, strict=True):
+        assert str(printed) == str(plain)
+    assert str(pairs[0]) == "[0 1]" and str(pairs[1]) == "[ 2 10]"
+
+    rng = np.random.default_rng(3)
+    scores = {m: rng.normal(shift, 1.0, 10) for m, shift in (("a", 0.0), ("b", 2.0), ("c", 0.1))}
+    decided = []
+    for comparisons in (np.array([(0, 1), (0, 2)]), comparator.pairs_array([(0, 1), (0, 2)])):
+        c = comparator.comparator_class()(n=5, K=2, B=2000, comparisons=comparisons, seed=0)
+        for k in (1, 2):
+            c.partial_compare({m: v[: 5 * k] for m, v in scores.items()}, verbose=False)
+        decided.append(dict(c.decisions))
+    assert decided[0] == decided[1] and decided[0]["[0 1]"] == "smaller"
