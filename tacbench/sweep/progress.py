@@ -64,10 +64,9 @@ class SweepProgress(Display):
             left += 0 if key in ended else learning_total - taken
         return done, learning, left
 
-    def _eta(self, now: float) -> str:
+    def _eta(self, now: float, rate: float) -> str:
+        """The ETA at ``now``; ``rate``: of all steps since the start, in steps per second."""
         if self._learning_left == 0:  # every run left is random throughout
-            elapsed = now - self._t0
-            rate = (self._steps - self._start_steps) / elapsed if elapsed > 0 else 0.0
             return duration((self.steps_total - self._steps) / rate if rate > 0 else math.inf)
         t_origin, learning_origin = self._learning_origin
         if self._learning == learning_origin or now <= t_origin:
@@ -82,7 +81,7 @@ class SweepProgress(Display):
         rate = (self._steps - self._start_steps) / elapsed if elapsed > 0 else 0.0
         return (
             f"runs {self._runs}/{self.runs_total} | steps {self._steps:,}/{self.steps_total:,} | "
-            f"{rate:,.0f} steps/s | ETA {self._eta(now)}"
+            f"{rate:,.0f} steps/s | ETA {self._eta(now, rate)}"
         )
 
     def update(self, steps: Mapping[str, int], ended: Collection[str]) -> None:
