@@ -273,3 +273,23 @@ def test_the_size_check_counts_the_replay_rows_the_bench_fills(
     bench.check_sizes(BenchOptions(env="HalfCheetah-v4", grid=True, compile=True, eager=False))
     with pytest.raises(TacbenchError, match=r"make --hidden-sizes or --members \(or leave out"):
         bench.check_sizes(BenchOptions(env="HalfCheetah-v4", hidden_sizes=(20_000, 20_000)))
+
+
+def test_the_size_check_counts_every_member_of_the_largest_group(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Every member of the largest TAC row is sized: the grid's 90, --members' own count; one
+    config stands for them all (building 100,000 of them delayed the refusal by 20 s)."""
+    from tacbench import bench, memory
+
+    measured: list[dict[str, int]] = []
+    monkeypatch.setattr(memory, "check_fits", lambda needs, *_: measured.append(dict(needs)))
+    for options in (
+        BenchOptions(env="HalfCheetah-v4", members=1),
+        BenchOptions(env="HalfCheetah-v4", members=1, grid=True, compile=True, eager=False),
+        BenchOptions(env="HalfCheetah-v4", members=100_000),
+    ):
+        bench.check_sizes(options)
+    one, grid, many = measured
+    assert grid == {part: 90 * size for part, size in one.items()}
+    assert many["networks"] == 100_000 * one["networks"]
