@@ -15,7 +15,7 @@ from typing import Any
 
 from baselines import hyperparams
 from tacbench.errors import TacbenchError
-from tacbench.settings import RunSettings, never_updated
+from tacbench.settings import RunSettings, RunWarning, never_updated
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -103,8 +103,10 @@ def make_configs(
     rollout = int(effective.get("n_steps", SB3_N_STEPS))
     if not configs[0].off_policy and rollout > total:
         notes.append(
-            f"WARNING: {algo}'s n_steps {rollout:,} is above --steps {total:,}: the run ends "
-            "before its first rollout is complete, and the networks are never updated"
+            RunWarning(
+                f"WARNING: {algo}'s n_steps {rollout:,} is above --steps {total:,}: the run ends "
+                "before its first rollout is complete, and the networks are never updated"
+            )
         )
     return configs, changed, notes
 

@@ -13,7 +13,7 @@ from tacbench import paper
 from tacbench.config import COMPILE_AUTO_LEARNING_STEPS, RunConfig
 from tacbench.config_checks import check_q_range
 from tacbench.errors import TacbenchError
-from tacbench.settings import never_updated, settings_of
+from tacbench.settings import RunWarning, never_updated, settings_of
 
 
 def paper_defaults(task: str | None) -> tuple[float, float, str, str]:
@@ -96,9 +96,11 @@ def make_run_configs(
                 )
     if learned_q and 0 < first.learning_steps <= first.pbt_every:  # no round at the last step
         notes.append(
-            f"WARNING: --pbt-every {first.pbt_every:,} is not shorter than the run's "
-            f"{first.learning_steps:,} learning steps: no population round happens, so each "
-            "member keeps the q it starts with"
+            RunWarning(
+                f"WARNING: --pbt-every {first.pbt_every:,} is not shorter than the run's "
+                f"{first.learning_steps:,} learning steps: no population round happens, so each "
+                "member keeps the q it starts with"
+            )
         )
     if first.warmup_updates != "on":  # on: updates start at each member's first episode end
         notes += never_updated("--learning-starts", first.learning_starts, first.total_steps)

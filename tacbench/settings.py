@@ -162,14 +162,22 @@ def check_choices(config: object) -> None:
             check_choice(config, name)
 
 
+class RunWarning(str):
+    """A warning among the notes a run prints that is about the run's own settings (its budget,
+    its schedule), not this machine: a sweep of such runs repeats it (tacbench.sweep.plan), where
+    the compile note's warning, which describes the machine that plans, is left out."""
+
+
 def never_updated(learning_starts: str, starts: int, total_steps: int) -> list[str]:
     """A warning, for the notes a run prints, when random steps (``learning_starts``, as the
     user set it) fill the whole run, so that its networks are never updated; else none."""
     if starts < total_steps:
         return []
     return [
-        f"WARNING: {learning_starts} {starts:,} is not below --steps {total_steps:,}: every step "
-        "takes a random action and the networks are never updated"
+        RunWarning(
+            f"WARNING: {learning_starts} {starts:,} is not below --steps {total_steps:,}: every "
+            "step takes a random action and the networks are never updated"
+        )
     ]
 
 

@@ -630,6 +630,33 @@ def test_a_run_given_up_counts_as_failed_whatever_its_status_says(tmp_path: Path
     assert "0 partial, 1 failed (0 to retry, 1 given up" in text
 
 
+def test_the_warnings_of_a_runs_own_settings_are_told_apart_by_type_not_words() -> None:
+    """What a sweep repeats of a run's notes: each warning about its budget or schedule (a
+    RunWarning), whatever its words; not the compile note's warning of this machine."""
+    from tacbench.settings import RunWarning
+    from tacbench.trainers import make_configs
+
+    short = {"total_steps": 300, "compile": "off"}
+    cases = {
+        "--learning-starts": ("tac", {**short, "learning_starts": 500}, {}),
+        "--pbt-every": (
+            "tac",
+            {**short, "learning_starts": 100, "pbt_every": 500},
+            {"q_mode": "auto"},
+        ),
+        "n_steps": ("ppo", {"total_steps": 300}, {}),
+    }
+    for words, (algo, settings, extra) in cases.items():
+        seeds = [0, 10, 20, 30]  # a population of four for --q auto
+        _, notes = make_configs(algo, "Hopper-v4", "Hopper", seeds, {**settings, **extra})
+        (warning,) = [n for n in notes if n.startswith("WARNING")]
+        assert isinstance(warning, RunWarning) and words in warning
+    with mock.patch.object(hardware, "cpp_compiler", lambda: None):
+        _, notes = make_configs("tac", "Hopper-v4", "Hopper", [0], {"total_steps": 100_000})
+    (warning,) = [n for n in notes if n.startswith("WARNING")]
+    assert "compile: off" in warning and not isinstance(warning, RunWarning)
+
+
 def test_the_sweep_warns_of_runs_that_never_update(tmp_path: Path) -> None:
     """`tacbench run` warns of a run whose random steps fill its budget; a sweep of such runs
     says so too, in its dry run and as it trains (once per algorithm and task)."""

@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Any, Literal
 from tacbench import runs, trainers
 from tacbench.config import RESULT_NEUTRAL_FIELDS, RunConfig
 from tacbench.errors import TacbenchError
+from tacbench.settings import RunWarning
 from tacbench.sweep.presets import Preset
 
 if TYPE_CHECKING:
@@ -127,10 +128,10 @@ def build_runs(
     preset: Preset, *, device: str = "cpu", threads: int = 1, warnings: list[str] | None = None
 ) -> list[Run]:
     """Every run of ``preset`` (narrowed already), in preset order, each directory once; the
-    warnings ``tacbench run`` would print of their budgets (random steps filling it, so that the
-    networks are never updated; a PPO or TRPO rollout longer than it) are added to
-    ``warnings``, each once, named by algorithm and task. (Not the compile note: it describes
-    this machine, not where a unit trains.)"""
+    warnings ``tacbench run`` would print of the runs' own settings (:class:`RunWarning`: random
+    steps filling the budget, so that the networks are never updated; a PPO or TRPO rollout
+    longer than it) are added to ``warnings``, each once, named by algorithm and task. (Not the
+    compile note: it describes this machine, not where a unit trains.)"""
     built: dict[str, Run] = {}
     for entry in preset.entries:
         settings = {**entry.settings, "device": device, "threads": threads}
@@ -147,8 +148,7 @@ def build_runs(
             )
             for note in notes:
                 named = f"WARNING: {entry.algo} {env_id}: {note.removeprefix('WARNING: ')}"
-                budget = note.startswith("WARNING: ") and "--steps" in note
-                if budget and warnings is not None and named not in warnings:
+                if isinstance(note, RunWarning) and warnings is not None and named not in warnings:
                     warnings.append(named)
             for config in configs:
                 run = Run(config, entry.label)
