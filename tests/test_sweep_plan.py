@@ -668,6 +668,16 @@ def test_the_sweep_warns_of_runs_that_never_update(tmp_path: Path) -> None:
     trained = CliRunner().invoke(cli, [*args, "--seed", "0", "--workers", "1"])
     assert trained.exit_code == 0, trained.output
     assert trained.output.count(warning) == 1
+    by = Narrowing(algos=("td3",), seeds=(0,), settings={"total_steps": 300})
+    preset = narrow(get_preset("smoke"), by)
+    told: tuple[str, ...] = ()
+    for count in (1, 0):  # then told, as --until-decided's later interims are
+        stream = io.StringIO()
+        result = driver.run_sweep(preset, tmp_path, driver.Options(workers=1), stream, told=told)
+        assert stream.getvalue().count(warning) == count
+        (told_next,) = result.warnings
+        assert told_next.startswith(warning)
+        told = result.warnings
     plain = ["sweep", "--preset", "smoke", "--dry-run", "--out", str(tmp_path / "plain")]
     assert "WARNING" not in CliRunner().invoke(cli, plain).output
     # the compile note describes this machine, not where a unit trains: not a run's warning

@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import os
 import signal
+from collections.abc import Collection
 from pathlib import Path
 from typing import Any
 
@@ -42,13 +43,22 @@ class FakeTrain:
     """Writes every run of the grid that is not complete as complete, with eval returns of
     ``level(q, seed)``; ``stop_after`` runs written, it stops as an interrupted sweep would."""
 
-    def __init__(self, stop_after: int | None = None) -> None:
+    def __init__(self, stop_after: int | None = None, warnings: tuple[str, ...] = ()) -> None:
         self.stop_after = stop_after
+        self.warnings = warnings  # what its plans warn of
         self.trained: list[str] = []
+        self.told: list[Collection[str]] = []  # the warnings it was told, interim by interim
 
     def __call__(
-        self, grid: Preset, out: Path, options: driver.Options, stream: Any
+        self,
+        grid: Preset,
+        out: Path,
+        options: driver.Options,
+        stream: Any,
+        *,
+        told: Collection[str],
     ) -> driver.SweepResult:
+        self.told.append(told)
         for run in plan.build_runs(grid):
             if plan.read_status(out, run).state == "complete":
                 continue
@@ -57,7 +67,8 @@ class FakeTrain:
                 return driver.SweepResult({"counts": counts}, "stopped", interrupted=True)
             _write_complete(out, run, level(run.config.q, run.config.seed))
             self.trained.append(run.key)
-        return driver.SweepResult({"counts": {"given_up": 0, "failed": 0}}, "done", False)
+        counts = {"given_up": 0, "failed": 0}
+        return driver.SweepResult({"counts": counts}, "done", False, self.warnings)
 
 
 def _write_complete(out: Path, run: plan.Run, value: float) -> None:
@@ -161,6 +172,15 @@ def test_a_decided_comparison_stops_spending_runs(tmp_path: Path) -> None:
         "runs": 10,
     }
     assert "25 runs (a fixed design of 5 x 2 seeds: 30)" in outcome.text
+
+
+def test_the_plans_warnings_are_printed_at_the_first_interim_only(tmp_path: Path) -> None:
+    """Each interim's sweep is told what the earlier ones warned of (it printed them every
+    interim before)."""
+    warning = "WARNING: tac Hopper-v4: --learning-starts 500 is not below --steps 300"
+    train = FakeTrain(warnings=(warning,))
+    run_until_decided(HOPPER, tmp_path, driver.Options(), Design(n=5, K=2), train=train)
+    assert train.told == [frozenset(), {warning}]
 
 
 def test_the_report_says_what_an_open_comparison_could_have_detected(tmp_path: Path) -> None:

@@ -40,6 +40,7 @@ class SweepResult:
     summary: dict[str, Any]
     text: str
     interrupted: bool
+    warnings: tuple[str, ...] = ()  # the plan's warnings of its runs' settings (plan.RunWarning)
 
     @property
     def exit_code(self) -> int:
@@ -137,10 +138,17 @@ def _member_bytes(env: str, transitions: int) -> int:
 
 
 def run_sweep(
-    preset: Preset, out: Path, options: Options, stream: IO[str] | None = None
+    preset: Preset,
+    out: Path,
+    options: Options,
+    stream: IO[str] | None = None,
+    *,
+    told: Collection[str] = (),
 ) -> SweepResult:
     """Train every run of ``preset`` into ``out`` that is not complete; see the module doc.
-    A full disk stops the sweep (every unit checkpoints and returns) with a DiskError."""
+    A full disk stops the sweep (every unit checkpoints and returns) with a DiskError. The
+    plan's warnings are printed but for those in ``told`` (printed already by the command:
+    ``--until-decided``'s earlier interims)."""
     runs.ensure_writable(out)
     if options.shares_local_gpu:
         _require_cuda()
@@ -152,7 +160,7 @@ def run_sweep(
         priced = summary.price(work, workers)
         started = time.monotonic()
         executor = _executor(out, options)
-        driver = _Driver(work, history, executor, options, stream)
+        driver = _Driver(work, history, executor, options, stream, told)
         with stop_signals(second_interrupts=False) as received:
             interrupted = driver.run(received)
         bill = {
@@ -179,7 +187,7 @@ def run_sweep(
         )
         text = summary.summary_text(result, options.command)
         summary.write_summary(out, result, text)
-        return SweepResult(result, text, interrupted)
+        return SweepResult(result, text, interrupted, tuple(work.warnings))
 
 
 def _require_cuda() -> None:
@@ -229,6 +237,7 @@ class _Driver:
         executor: executors.Executor,
         options: Options,
         stream: IO[str] | None,
+        told: Collection[str],
     ) -> None:
         self.plan, self.history, self.executor, self.options = work, history, executor, options
         self.queue = deque(work.units)
@@ -237,7 +246,8 @@ class _Driver:
         budgets = {p.run.key: (p.run.total_steps, p.run.config.learning_steps) for p in work.runs}
         self.progress = SweepProgress(budgets, self.step, self.ended, stream)
         for warning in work.warnings:
-            self.progress.message(warning)
+            if warning not in told:
+                self.progress.message(warning)
         self.stopping = self.forced = False
         self.disk_full = ""  # the unit that found the disk full: the sweep stops
         # what else this machine ran meanwhile, for the bill (a local sweep's units run here)

@@ -16,10 +16,10 @@ decisions), then continues with the interim that was cut off; its runs resume li
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Collection, Sequence
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, Protocol
 
 from tacbench import runs
 from tacbench.errors import TacbenchError
@@ -48,7 +48,19 @@ from tacbench.sweep.sequential_design import (
     same_design,
 )
 
-Train = Callable[[Preset, Path, Options, IO[str] | None], driver.SweepResult]
+
+class Train(Protocol):
+    """What trains one interim's grid: :func:`driver.run_sweep` (tests pass their own)."""
+
+    def __call__(
+        self,
+        preset: Preset,
+        out: Path,
+        options: Options,
+        stream: IO[str] | None,
+        *,
+        told: Collection[str],
+    ) -> driver.SweepResult: ...
 
 
 class Record:
@@ -151,11 +163,13 @@ def run_until_decided(
     compared = comparisons(record, controls)
     runs.ensure_writable(out)
     last: driver.SweepResult | None = None
+    told: set[str] = set()  # the plan's warnings, printed at this command's first interim
     while needed := {env: c.runs_needed() for env, c in compared.items() if not c.finished}:
         chosen = [(m, needed[env][m.label]) for env in needed for m in tasks[env]]
         k = max(len(compared[env].interims) for env in needed) + 1
         _echo(stream, f"interim {k} of {design.K}: {_plan_line(needed, compared)}")
-        last = train(_grid(preset, chosen), out, options, stream)
+        last = train(_grid(preset, chosen), out, options, stream, told=frozenset(told))
+        told.update(last.warnings)
         if last.exit_code:
             why = "stopped" if last.interrupted else "could not train every run"
             text = f"{last.text}\ninterim {k} {why}; rerun the same command to continue it."
