@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -51,6 +52,20 @@ def test_each_task_pools_its_runs_by_range_and_compares_the_outer_ranges(tmp_pat
     assert (everything.loc[["0 < q < 1", "q >= 2"], "p_middle"] == 1.0).all()
     outer = everything.loc[["0 < q < 1", "q >= 2"], "p_value"].tolist()
     assert outer == pytest.approx([2 / 84**2] * 2)
+
+
+def test_all_tasks_rows_only_for_the_ranges_every_task_has(tmp_path: Path) -> None:
+    """A range that one task lacks got an "all tasks" row of the other tasks alone, beside rows
+    of every task: all tasks pool the same tasks now, and the range keeps its per-task rows."""
+    synthetic_tree(tmp_path, qs=(0.5, 1.0, 1.5, 3.0), baselines=())
+    (lacking,) = tmp_path.glob("**/Hopper-v4/q0.5-a0.2")
+    shutil.rmtree(lacking)
+    table = analyse(ReportOptions(results=tmp_path, out=tmp_path / "report", reps=200)).q_ranges
+    everything = table[table["env"] == "all tasks"].set_index("range")
+    assert list(everything.index) == ["1 <= q < 2", "q >= 2"]
+    assert list(everything["runs"]) == [12, 6]  # both tasks in each
+    cheetah = table[table["env"] == "HalfCheetah-v4"]
+    assert list(cheetah["range"]) == ["0 < q < 1", "1 <= q < 2", "q >= 2"]
 
 
 def test_the_claim_is_of_a_fixed_alpha_learned_ones_are_left_out(tmp_path: Path) -> None:

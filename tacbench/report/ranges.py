@@ -9,8 +9,10 @@ convergence" part) and, for the two outer ranges, P(a run of 1 <= q < 2 beats a 
 range) with its interval (:func:`tacbench.report.stats.probability_of_improvement`), the
 p-value of its permutation test and its verdict (:mod:`tacbench.verdicts`). Over
 several tasks an "all tasks" row pools the normalised scores for the IQM and averages the
-per-task probabilities. The claim is of a fixed alpha: runs that learn theirs (``--alpha
-auto``) are left out, as their own comparisons are in the improvement table.
+per-task probabilities, for each range that every task has runs in (a range some task lacks
+gets none: its row would pool other tasks than the rest). The claim is of a fixed alpha: runs
+that learn theirs (``--alpha auto``) are left out, as their own comparisons are in the
+improvement table.
 """
 
 from __future__ import annotations
@@ -76,11 +78,13 @@ def q_range_table(
     tac = tac.join(within_run_spread(data, last).rename("spread"), on="run")
     rows: list[dict[str, object]] = []
     pooled: dict[str, dict[str, list[np.ndarray]]] = {}
+    compared = 0  # the (task, alpha) groups with rows
     for (env, _), task in tac.groupby(["env", "alpha"], sort=False, dropna=False):
         ranges = {name: group for name, group in task.groupby("range", sort=False)}
         if MIDDLE not in ranges or len(ranges) < 2:
             continue
         middle = ranges[MIDDLE]["final"].to_numpy()
+        compared += 1
         for name, _, _ in Q_RANGES:
             if name not in ranges:
                 continue
@@ -99,7 +103,7 @@ def q_range_table(
     tasks = {row["env"] for row in rows}
     if len(tasks) > 1:
         for name, _, _ in Q_RANGES:
-            if name not in pooled:
+            if len(pooled.get(name, {}).get("score", [])) < compared:
                 continue
             parts = pooled[name]
             iqm, low, high = interval_estimates(parts["score"], reps, seed)["iqm"]
