@@ -21,7 +21,7 @@ from tacbench.cli.options import NumberOrAuto, ResultsFolder, cli_settings, sett
 from tacbench.config import RunConfig
 from tacbench.errors import TacbenchError, listing
 from tacbench.runs.checkpoints import newest_step
-from tacbench.runs.planning import check_resume_or_force, resumable
+from tacbench.runs.planning import check_resume_or_force, unfinished
 from tacbench.settings import RunSettings, settings_of
 
 _SETTINGS = cli_settings(RunConfig)
@@ -203,8 +203,8 @@ def _say_what_starts_afresh(configs: Sequence[Any], out: Path) -> None:
         if others:
             raise TacbenchError(_nothing_to_resume(directories, others))
     checkpointed = [newest_step(d / "checkpoint") is not None for d in directories]
-    unfinished = [_unfinished(d) for d in directories]
-    trained = [c for c, u in zip(checkpointed, unfinished, strict=True) if u]
+    resuming = [unfinished(d) for d in directories]
+    trained = [c for c, u in zip(checkpointed, resuming, strict=True) if u]
     if configs[0].algo == "tac" and any(trained) and not all(trained):
         return
     written = [(d / "config.json").exists() for d in directories]
@@ -213,7 +213,7 @@ def _say_what_starts_afresh(configs: Sequence[Any], out: Path) -> None:
     started = [d for d, w in zip(directories, written, strict=True) if w]
     named = set().union(*map(_seeds_named, started)) if configs[0].algo != "tac" else set()
     for config, directory, has_checkpoint, resumes, exists in zip(
-        configs, directories, checkpointed, unfinished, written, strict=True
+        configs, directories, checkpointed, resuming, written, strict=True
     ):
         if not exists and config.seed in named:
             click.echo(f"seed {config.seed}: not started before the stop; starting it")
@@ -250,16 +250,3 @@ def _seeds_named(directory: Path) -> set[int]:
     except (TacbenchError, OSError, ValueError):
         return set()
     return {int(s) for flag, s in pairwise(words) if flag == "--seed" and s.isdigit()}
-
-
-def _unfinished(directory: Path) -> bool:
-    """Whether the run in ``directory`` is one --resume continues: neither complete nor failed,
-    or failed by a crash (an unreadable status is left to the planning, which says what to
-    do)."""
-    path = directory / "status.json"
-    if not path.exists():
-        return True
-    try:
-        return resumable(runs.read_json(path))
-    except (TacbenchError, OSError):
-        return False

@@ -106,7 +106,7 @@ def plan_run(
             if resume
             and isinstance(command, str)
             and command.startswith("tacbench run ")
-            and _unfinished(directory)
+            and unfinished(directory)
             else "Pass "
         )
         raise TacbenchError(
@@ -134,12 +134,12 @@ def plan_run(
     return DirectoryPlan("resume", "resuming from its last checkpoint")
 
 
-def _unfinished(directory: Path) -> bool:
+def unfinished(directory: Path) -> bool:
     """Whether ``--resume`` would continue the run in ``directory`` (False where its status
     cannot be read: the refusal that names it says so)."""
     try:
         return resumable(read_status(directory))
-    except TacbenchError:
+    except (TacbenchError, OSError):
         return False
 
 
