@@ -237,7 +237,7 @@ class _Driver:
         executor: executors.Executor,
         options: Options,
         stream: IO[str] | None,
-        told: Collection[str],
+        told: Collection[str] = (),
     ) -> None:
         self.plan, self.history, self.executor, self.options = work, history, executor, options
         self.queue = deque(work.units)
