@@ -630,6 +630,27 @@ def test_a_run_given_up_counts_as_failed_whatever_its_status_says(tmp_path: Path
     assert "0 partial, 1 failed (0 to retry, 1 given up" in text
 
 
+def test_the_dry_run_says_when_tac_units_are_unlike_those_of_the_default(tmp_path: Path) -> None:
+    """TAC's default rate is of compiled units of 45 members: a dry run of one eager member (the
+    smoke preset) said 0m04s for what took 38 s, and now says the estimate is low; the paper's
+    grid, grouped and compiled as the default was measured, says nothing of it."""
+    smoke = ["sweep", "--preset", "smoke", "--algo", "tac", "--q", "1", "--seed", "0"]
+    result = CliRunner().invoke(cli, [*smoke, "--dry-run", "--out", str(tmp_path / "smoke")])
+    assert result.exit_code == 0, result.output
+    assert (
+        "tac Hopper-v4: units of 1 member, not compiled, where the default was measured in "
+        "compiled units of 45" in result.output
+    )
+    grid = ["sweep", "--preset", "paper-q-grid", "--env", "Hopper", "--dry-run"]
+    with mock.patch.object(hardware, "cpp_compiler", lambda: "/usr/bin/c++"):
+        result = CliRunner().invoke(cli, [*grid, "--out", str(tmp_path / "grid")])
+    assert result.exit_code == 0, result.output
+    assert "default*" in result.output and "where the default was measured" not in result.output
+    with mock.patch.object(hardware, "cpp_compiler", lambda: "/usr/bin/c++"):
+        result = CliRunner().invoke(cli, [*grid, "--members", "10", "--out", str(tmp_path / "g")])
+    assert "units of 10 members, where the default was measured" in result.output
+
+
 def test_the_warnings_of_a_runs_own_settings_are_told_apart_by_type_not_words() -> None:
     """What a sweep repeats of a run's notes: each warning about its budget or schedule (a
     RunWarning), whatever its words; not the compile note's warning of this machine."""

@@ -32,13 +32,13 @@ from tacbench import runs
 # CPU, 2026-12-02. The baselines: one
 # run per process (K = 1), 2026-11-22. TD3's table uses a (400, 300) network, DDPG's one of 300.
 DEFAULT_SECONDS_PER_STEP: dict[tuple[str, str], float] = {
-    # tac, grouped and compiled (members per unit in the comment)
-    ("tac", "HalfCheetah-v4"): 0.62e-3,  # 45
-    ("tac", "Ant-v4"): 1.29e-3,  # 30
-    ("tac", "Hopper-v4"): 0.55e-3,  # 45
-    ("tac", "Swimmer-v4"): 0.57e-3,  # 45
-    ("tac", "Pusher-v5"): 0.70e-3,  # 45
-    ("tac", "Humanoid-v4"): 6.12e-3,  # 5
+    # tac, grouped and compiled (members per unit: DEFAULT_TAC_MEMBERS below)
+    ("tac", "HalfCheetah-v4"): 0.62e-3,
+    ("tac", "Ant-v4"): 1.29e-3,
+    ("tac", "Hopper-v4"): 0.55e-3,
+    ("tac", "Swimmer-v4"): 0.57e-3,
+    ("tac", "Pusher-v5"): 0.70e-3,
+    ("tac", "Humanoid-v4"): 6.12e-3,
     # ddpg
     ("ddpg", "HalfCheetah-v4"): 4.19e-3,
     ("ddpg", "Ant-v4"): 6.27e-3,
@@ -87,6 +87,14 @@ DEFAULT_SECONDS_PER_STEP |= {
     (REFERENCE_TAC, "Hopper-v4"): 8.73e-3,
 }
 DEFAULT_SOURCE = "default*"  # the plan explains the asterisk
+# the members per unit in which the TAC defaults above were measured
+DEFAULT_TAC_MEMBERS = {"Ant-v4": 30, "Humanoid-v4": 5}
+DEFAULT_TAC_MEMBERS_ELSEWHERE = 45
+
+
+def default_tac_members(env: str) -> int:
+    """How many members the units held in which TAC's default rate on ``env`` was measured."""
+    return DEFAULT_TAC_MEMBERS.get(env, DEFAULT_TAC_MEMBERS_ELSEWHERE)
 
 
 def cost_algo(algo: str, profile: str | None) -> str:

@@ -10,7 +10,9 @@ from pathlib import Path
 from typing import Any
 
 from tacbench import envs, runs
+from tacbench.config import RunConfig
 from tacbench.hardware import cpu_class
+from tacbench.members import resolve_compile
 from tacbench.progress import duration
 from tacbench.sweep import calibration, cost, state
 from tacbench.sweep.plan import PlannedRun, SweepPlan
@@ -139,6 +141,7 @@ def describe_plan(plan: SweepPlan, workers: int, group: str, workers_from: str =
             "(tacbench/sweep/cost.py); runs under --out with two evaluations replace it, and "
             "--dry-run --calibrate measures the units on this CPU class (a few minutes)."
         )
+        lines += _unlike_the_tac_default(plan, priced)
     if any(p.run.config.device != "cpu" for p in plan.runs):
         lines.append(
             "The runs train on a GPU (--gpus-per-run), and every figure above prices CPU cores: "
@@ -161,6 +164,38 @@ def wall_seconds(plan: SweepPlan, per_step: dict[tuple[str, str], float], worker
 def _priced_as(config: Any) -> tuple[str, str]:
     """The (algo, env) whose rate prices a run: TAC's reference-code profiles have their own."""
     return cost.cost_algo(config.algo, getattr(config, "profile", None)), config.env
+
+
+def _unlike_the_tac_default(plan: SweepPlan, priced: Price) -> list[str]:
+    """A line for each task whose TAC units the default prices but which are smaller than, or
+    not compiled like, those it was measured in: their member-steps cost more (AMD EPYC AVX2
+    class: the smoke preset's one eager Hopper member 4.1 ms a step when calibrated, 7.5x the
+    default; one compiled HalfCheetah member 1.9 ms in tacbench bench, 3x)."""
+    defaulted = {
+        g.env for g in priced.groups if g.algo == "tac" and g.source == cost.DEFAULT_SOURCE
+    }
+    lines = []
+    for env in sorted(defaulted):
+        units = [
+            (len(u.runs), config)
+            for u in plan.units
+            if isinstance(config := u.runs[0].config, RunConfig)
+            and _priced_as(config) == ("tac", env)
+        ]
+        if not units:
+            continue
+        smallest, basis = min(size for size, _ in units), cost.default_tac_members(env)
+        eager = any(resolve_compile(config).compile == "off" for _, config in units)
+        if smallest < basis or eager:
+            held = f"{smallest} member{'s' if smallest != 1 else ''}" + (
+                ", not compiled" if eager else ""
+            )
+            lines.append(
+                f"  tac {env}: units of {held}, where the default was measured in compiled "
+                f"units of {basis}: each member-step costs more than it says (several times for "
+                "one member), so the estimate is low; --calibrate measures these units."
+            )
+    return lines
 
 
 def _units(plan: SweepPlan) -> list[str]:
