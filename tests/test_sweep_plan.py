@@ -633,7 +633,8 @@ def test_a_run_given_up_counts_as_failed_whatever_its_status_says(tmp_path: Path
 def test_the_dry_run_says_when_tac_units_are_unlike_those_of_the_default(tmp_path: Path) -> None:
     """TAC's default rate is of compiled units of 45 members: a dry run of one eager member (the
     smoke preset) said 0m04s for what took 38 s, and now says the estimate is low; the paper's
-    grid, grouped and compiled as the default was measured, says nothing of it."""
+    grid, grouped and compiled as the default was measured, says nothing of it, nor does it
+    guess from this machine whether the workers can compile."""
     smoke = ["sweep", "--preset", "smoke", "--algo", "tac", "--q", "1", "--seed", "0"]
     result = CliRunner().invoke(cli, [*smoke, "--dry-run", "--out", str(tmp_path / "smoke")])
     assert result.exit_code == 0, result.output
@@ -641,14 +642,21 @@ def test_the_dry_run_says_when_tac_units_are_unlike_those_of_the_default(tmp_pat
         "tac Hopper-v4: units of 1 member, not compiled, where the default was measured in "
         "compiled units of 45" in result.output
     )
-    grid = ["sweep", "--preset", "paper-q-grid", "--env", "Hopper", "--dry-run"]
-    with mock.patch.object(hardware, "cpp_compiler", lambda: "/usr/bin/c++"):
+    # two units of 45 members on two workers, whatever this machine's cores and memory, and the
+    # workers' own compilers decide the compilation, not this machine's (here: none)
+    grid = ["sweep", "--preset", "paper-q-grid", "--env", "Hopper", "--dry-run", "--workers", "2"]
+    with (
+        mock.patch.object(hardware, "cpp_compiler", lambda: None),
+        mock.patch.object(hardware, "memory_bytes", lambda: 64 << 30),
+    ):
         result = CliRunner().invoke(cli, [*grid, "--out", str(tmp_path / "grid")])
-    assert result.exit_code == 0, result.output
-    assert "default*" in result.output and "where the default was measured" not in result.output
-    with mock.patch.object(hardware, "cpp_compiler", lambda: "/usr/bin/c++"):
+        assert result.exit_code == 0, result.output
+        assert "2 units of 45 members" in result.output and "default*" in result.output
+        assert "where the default was measured" not in result.output
         result = CliRunner().invoke(cli, [*grid, "--members", "10", "--out", str(tmp_path / "g")])
     assert "units of 10 members, where the default was measured" in result.output
+    compiled_off = [*grid, "--compile", "off", "--out", str(tmp_path / "off")]
+    assert "units of 45 members, not compiled" in CliRunner().invoke(cli, compiled_off).output
 
 
 def test_the_warnings_of_a_runs_own_settings_are_told_apart_by_type_not_words() -> None:

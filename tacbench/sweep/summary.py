@@ -10,9 +10,8 @@ from pathlib import Path
 from typing import Any
 
 from tacbench import envs, runs
-from tacbench.config import RunConfig
+from tacbench.config import COMPILE_AUTO_LEARNING_STEPS, RunConfig
 from tacbench.hardware import cpu_class
-from tacbench.members import resolve_compile
 from tacbench.progress import duration
 from tacbench.sweep import calibration, cost, state
 from tacbench.sweep.plan import PlannedRun, SweepPlan
@@ -185,7 +184,7 @@ def _unlike_the_tac_default(plan: SweepPlan, priced: Price) -> list[str]:
         if not units:
             continue
         smallest, basis = min(size for size, _ in units), cost.default_tac_members(env)
-        eager = any(resolve_compile(config).compile == "off" for _, config in units)
+        eager = any(_never_compiled(config) for _, config in units)
         if smallest < basis or eager:
             held = f"{smallest} member{'s' if smallest != 1 else ''}" + (
                 ", not compiled" if eager else ""
@@ -196,6 +195,14 @@ def _unlike_the_tac_default(plan: SweepPlan, priced: Price) -> list[str]:
                 "one member), so the estimate is low; --calibrate measures these units."
             )
     return lines
+
+
+def _never_compiled(config: RunConfig) -> bool:
+    """Whether ``config`` trains uncompiled wherever it runs: ``--compile off``, or ``auto`` for
+    too few learning steps (``auto`` for more is decided by the worker's C++ compiler, which the
+    machine that plans cannot see)."""
+    short = config.learning_steps < COMPILE_AUTO_LEARNING_STEPS
+    return config.compile == "off" or (config.compile == "auto" and short)
 
 
 def _units(plan: SweepPlan) -> list[str]:
