@@ -58,6 +58,7 @@ class Train(Protocol):
         out: Path,
         options: Options,
         stream: IO[str] | None,
+        /,
         *,
         told: Collection[str],
     ) -> driver.SweepResult: ...
