@@ -9,10 +9,10 @@ convergence" part) and, for the two outer ranges, P(a run of 1 <= q < 2 beats a 
 range) with its interval (:func:`tacbench.report.stats.probability_of_improvement`), the
 p-value of its permutation test and its verdict (:mod:`tacbench.verdicts`). Over
 several tasks an "all tasks" row pools the normalised scores for the IQM and averages the
-per-task probabilities, for each range that every task has runs in (a range some task lacks
-gets none: its row would pool other tasks than the rest). The claim is of a fixed alpha: runs
-that learn theirs (``--alpha auto``) are left out, as their own comparisons are in the
-improvement table.
+per-task probabilities, for each range that every task (and alpha) has runs in (a range that
+one lacks gets none: its row would pool other tasks than the rest). The claim is of a fixed
+alpha: runs that learn theirs (``--alpha auto``) are left out, as their own comparisons are in
+the improvement table.
 """
 
 from __future__ import annotations

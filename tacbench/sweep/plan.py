@@ -130,8 +130,9 @@ def build_runs(
     """Every run of ``preset`` (narrowed already), in preset order, each directory once; the
     warnings ``tacbench run`` would print of the runs' own settings (:class:`RunWarning`: random
     steps filling the budget, so that the networks are never updated; a PPO or TRPO rollout
-    longer than it) are added to ``warnings``, each once, named by algorithm and task. (Not the
-    compile note: it describes this machine, not where a unit trains.)"""
+    longer than it; a ``--pbt-every`` that leaves no population round) are added to
+    ``warnings``, each once, named by algorithm and task. (Not the compile note: it describes
+    this machine, not where a unit trains.)"""
     built: dict[str, Run] = {}
     for entry in preset.entries:
         settings = {**entry.settings, "device": device, "threads": threads}
