@@ -43,11 +43,15 @@ class BaselineConfig(RunSettings):
         return self.algo in hyperparams.OFF_POLICY
 
     @property
+    def learning_starts(self) -> int:
+        """The step from which the algorithm learns: its table's ``learning_starts`` off-policy,
+        0 for PPO and TRPO, which have no random phase (as TAC's config field of that name)."""
+        return int(self.hyperparams["learning_starts"]) if self.off_policy else 0
+
+    @property
     def learning_steps(self) -> int:
-        """Environment steps after the random warm-up (``learning_starts``; on-policy
-        algorithms learn from the first step)."""
-        starts = int(self.hyperparams["learning_starts"]) if self.off_policy else 0
-        return max(0, self.total_steps - starts)
+        """Environment steps after the random warm-up."""
+        return max(0, self.total_steps - self.learning_starts)
 
     @property
     def alpha(self) -> float | None:

@@ -163,22 +163,13 @@ def unit_key(configs: Sequence[Any]) -> str:
     return f"m{METHOD} {data['algo']} {data['env']} K={members} {settings}"
 
 
-def _learning_starts(config: Any) -> int:
-    """The step from which ``config`` learns (0 for PPO and TRPO, which have no random phase)."""
-    if config.algo in ON_POLICY:
-        return 0
-    if config.algo == "tac":
-        return int(config.learning_starts)
-    return int(config.hyperparams["learning_starts"])
-
-
 def run_pricing(config: Any) -> tuple[int, int, int, int]:
     """(the step its updates start, evaluation interval, evaluation episodes, episode limit) of
     a run. Updates during warm-up start at the first episode end, whatever learning_starts,
     priced at the episode limit."""
     limit = envs.env_info(config.env).max_episode_steps
     warmup = config.algo == "tac" and config.warmup_updates == "on"
-    starts = limit if warmup else _learning_starts(config)
+    starts = limit if warmup else int(config.learning_starts)
     return starts, int(config.eval_every), int(config.eval_episodes), limit
 
 
@@ -209,7 +200,7 @@ def measure(configs: Sequence[Any]) -> Calibration:
         rollout = int(first.hyperparams["n_steps"])
         starts, total = 0, max(LEARN_STEPS, ON_POLICY_ROLLOUTS * rollout) + rollout
     else:  # a window longer than an episode holds at least one episode end's updates
-        starts = min(_learning_starts(first), RANDOM_STEPS)
+        starts = min(int(first.learning_starts), RANDOM_STEPS)
         limit = envs.env_info(first.env).max_episode_steps
         total = starts + WARMUP_STEPS + max(LEARN_STEPS, limit + LOG_EVERY)
         total = -(-total // LOG_EVERY) * LOG_EVERY  # the last step of a loss-log window
