@@ -159,16 +159,20 @@ def resolve_compile(config: RunConfig, recorded: str | None = None) -> RunConfig
         return dataclasses.replace(config, compile=recorded)
     from tacbench.hardware import cpp_compiler  # torch's Inductor: only when it matters
 
-    long_enough = config.learning_steps >= COMPILE_AUTO_LEARNING_STEPS
-    chosen = "on" if long_enough and cpp_compiler() is not None else "off"
+    chosen = "on" if repays_compilation(config) and cpp_compiler() is not None else "off"
     return dataclasses.replace(config, compile=chosen)
+
+
+def repays_compilation(config: RunConfig) -> bool:
+    """Whether ``config`` has the learning steps that ``--compile auto`` compiles for."""
+    return config.learning_steps >= COMPILE_AUTO_LEARNING_STEPS
 
 
 def compile_note(config: RunConfig, asked: str) -> str:
     """What ``--compile`` resolved to for ``config``, and why."""
     if asked != "auto":
         return f"compile: {config.compile} (--compile {asked})"
-    if config.learning_steps < COMPILE_AUTO_LEARNING_STEPS:
+    if not repays_compilation(config):
         return (
             f"compile: off (--compile auto: {config.learning_steps:,} learning steps, fewer than "
             f"the {COMPILE_AUTO_LEARNING_STEPS:,} that repay the compilation)"

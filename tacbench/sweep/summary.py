@@ -10,8 +10,9 @@ from pathlib import Path
 from typing import Any
 
 from tacbench import envs, runs
-from tacbench.config import COMPILE_AUTO_LEARNING_STEPS, RunConfig
+from tacbench.config import RunConfig
 from tacbench.hardware import cpu_class
+from tacbench.members import repays_compilation
 from tacbench.progress import duration
 from tacbench.sweep import calibration, cost, state
 from tacbench.sweep.plan import PlannedRun, SweepPlan
@@ -201,8 +202,7 @@ def _never_compiled(config: RunConfig) -> bool:
     """Whether ``config`` trains uncompiled wherever it runs: ``--compile off``, or ``auto`` for
     too few learning steps (``auto`` for more is decided by the worker's C++ compiler, which the
     machine that plans cannot see)."""
-    short = config.learning_steps < COMPILE_AUTO_LEARNING_STEPS
-    return config.compile == "off" or (config.compile == "auto" and short)
+    return config.compile == "off" or (config.compile == "auto" and not repays_compilation(config))
 
 
 def _units(plan: SweepPlan) -> list[str]:
