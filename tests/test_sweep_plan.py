@@ -640,7 +640,8 @@ def test_the_dry_run_says_when_tac_units_are_unlike_those_of_the_default(tmp_pat
     assert result.exit_code == 0, result.output
     assert (
         "tac Hopper-v4: units of 1 member, not compiled, where the default was measured in "
-        "compiled units of 45" in result.output
+        "compiled units of 45 with hidden layers (300,): each member-step costs more than it "
+        "says, so the estimate is low" in result.output
     )
     # two units of 45 members on two workers, whatever this machine's cores and memory, and the
     # workers' own compilers decide the compilation, not this machine's (here: none)
@@ -656,7 +657,44 @@ def test_the_dry_run_says_when_tac_units_are_unlike_those_of_the_default(tmp_pat
         result = CliRunner().invoke(cli, [*grid, "--members", "10", "--out", str(tmp_path / "g")])
     assert "units of 10 members, where the default was measured" in result.output
     compiled_off = [*grid, "--compile", "off", "--out", str(tmp_path / "off")]
-    assert "units of 45 members, not compiled" in CliRunner().invoke(cli, compiled_off).output
+    assert "units not compiled, where" in CliRunner().invoke(cli, compiled_off).output
+
+
+def test_the_dry_run_says_when_tac_networks_are_unlike_those_of_the_default(
+    tmp_path: Path,
+) -> None:
+    """The reference profile's default rate is of compiled units of 5 members with (400, 300)
+    networks, the paper profile's of (300,): an authors' version with --hidden-sizes 300 (the
+    authors'-versions study) was priced at 7.94 ms a member-step where it took 1.58, and now
+    says the estimate is high; wider networks say low, and narrower ones not compiled that it
+    may be off either way. A reference unit's size alone says nothing: batching members hardly
+    speeds its (400, 300) products."""
+    grid = ["sweep", "--preset", "paper-q-grid", "--env", "Hopper", "--q", "1", "--dry-run"]
+
+    def note(*options: str) -> str:
+        out = str(tmp_path / "-".join(options).replace(",", "_"))
+        result = CliRunner().invoke(cli, [*grid, *options, "--out", out])
+        assert result.exit_code == 0, result.output
+        return result.output
+
+    authors = ["--profile", "authors-2019-01-07b", "--seed", "0"]
+    assert (
+        "tac-ref Hopper-v4: units with hidden layers (300,), where the default was measured in "
+        "compiled units of 5 with hidden layers (400, 300): each member-step costs less than it "
+        "says, so the estimate is high" in note(*authors, "--hidden-sizes", "300")
+    )
+    assert "where the default was measured" not in note(*authors, "--compile", "on")
+    assert "units not compiled, where" in note(*authors, "--compile", "off")
+    wider = note(*authors, "--compile", "on", "--hidden-sizes", "400,400")
+    assert "units with hidden layers (400, 400), where" in wider and "estimate is low" in wider
+    paper = ["--seed", "0", "--seed", "10", "--workers", "1", "--compile", "on"]
+    assert (
+        "tac Hopper-v4: units of 2 members, with hidden layers (400, 300), where the default "
+        "was measured in compiled units of 45 with hidden layers (300,): each member-step "
+        "costs more" in note(*paper, "--hidden-sizes", "400,300")
+    )
+    assert "units of 2 members, with hidden layers (64,)" in note(*paper, "--hidden-sizes", "64")
+    assert "the estimate may be off either way" in note(*paper, "--hidden-sizes", "64")
 
 
 def test_the_warnings_of_a_runs_own_settings_are_told_apart_by_type_not_words() -> None:

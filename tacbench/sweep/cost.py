@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from tacbench import runs
+from tacbench.paper import HYPERPARAMETERS, PROFILES, paper_task
 
 # CPU seconds per member-step with the paper's settings, one torch thread, measured with
 # :func:`measure`: learning from step 1,000, CPU time (time.process_time, not inflated by other
@@ -90,11 +91,25 @@ DEFAULT_SOURCE = "default*"  # the plan explains the asterisk
 # the members per unit in which the TAC defaults above were measured
 DEFAULT_TAC_MEMBERS = {"Ant-v4": 30, "Humanoid-v4": 5}
 DEFAULT_TAC_MEMBERS_ELSEWHERE = 45
+REFERENCE_TAC_MEMBERS = 5  # and the members per unit of the tac-ref defaults (networks (400, 300))
 
 
-def default_tac_members(env: str) -> int:
-    """How many members the units held in which TAC's default rate on ``env`` was measured."""
-    return DEFAULT_TAC_MEMBERS.get(env, DEFAULT_TAC_MEMBERS_ELSEWHERE)
+@dataclass(frozen=True)
+class TacBasis:
+    """The compiled units in which a TAC default rate was measured: members and networks."""
+
+    members: int
+    hidden_sizes: tuple[int, ...]
+
+
+def default_tac_basis(algo: str, env: str) -> TacBasis:
+    """The units that TAC's default rate on ``env`` was measured in, ``algo`` as
+    :func:`cost_algo` names it: the paper's (300,) networks, or the reference profile's
+    (400, 300) for :data:`REFERENCE_TAC`."""
+    if algo == REFERENCE_TAC:
+        return TacBasis(REFERENCE_TAC_MEMBERS, PROFILES["reference"]["hidden_sizes"])
+    members = DEFAULT_TAC_MEMBERS.get(env, DEFAULT_TAC_MEMBERS_ELSEWHERE)
+    return TacBasis(members, HYPERPARAMETERS.hidden_sizes)
 
 
 def cost_algo(algo: str, profile: str | None) -> str:
@@ -189,7 +204,6 @@ def measure(
     import time
 
     from tacbench import trainers
-    from tacbench.paper import paper_task
 
     settings = {"total_steps": 3000, "eval_every": 1000, "eval_episodes": 4}
     result = {}

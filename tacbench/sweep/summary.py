@@ -6,6 +6,7 @@ from __future__ import annotations
 from collections import Counter, defaultdict
 from collections.abc import Sequence
 from dataclasses import dataclass
+from itertools import pairwise
 from pathlib import Path
 from typing import Any
 
@@ -167,35 +168,63 @@ def _priced_as(config: Any) -> tuple[str, str]:
 
 
 def _unlike_the_tac_default(plan: SweepPlan, priced: Price) -> list[str]:
-    """A line for each task whose TAC units the default prices but which are smaller than, or
-    not compiled like, those it was measured in: their member-steps cost more (AMD EPYC AVX2
-    class: the smoke preset's one eager Hopper member 4.1 ms a step when calibrated, 7.5x the
-    default; one compiled HalfCheetah member 1.9 ms in tacbench bench, 3x)."""
+    """A line for each TAC task whose units the default prices but which differ from the units
+    it was measured in (:func:`cost.default_tac_basis`). Smaller units and uncompiled ones cost
+    more per member-step (AMD EPYC AVX2 class: the smoke preset's one eager Hopper member 4.1 ms
+    a step when calibrated, 7.5x the default; one compiled HalfCheetah member 1.9 ms in tacbench
+    bench, 3x), wider networks more, narrower ones less. Not the reference profile's unit size:
+    its (400, 300) products take most of a step, and batching members hardly speeds them (one
+    compiled member 1.1-1.2x five's member-step in tacbench bench; uncompiled 1.75x)."""
     defaulted = {
-        g.env for g in priced.groups if g.algo == "tac" and g.source == cost.DEFAULT_SOURCE
+        (g.algo, g.env)
+        for g in priced.groups
+        if g.algo in ("tac", cost.REFERENCE_TAC) and g.source == cost.DEFAULT_SOURCE
     }
     lines = []
-    for env in sorted(defaulted):
+    for algo, env in sorted(defaulted):
         units = [
             (len(u.runs), config)
             for u in plan.units
             if isinstance(config := u.runs[0].config, RunConfig)
-            and _priced_as(config) == ("tac", env)
+            and _priced_as(config) == (algo, env)
         ]
         if not units:
             continue
-        smallest, basis = min(size for size, _ in units), cost.default_tac_members(env)
+        basis = cost.default_tac_basis(algo, env)
+        smallest = min(size for size, _ in units)
+        fewer = algo == "tac" and smallest < basis.members
         eager = any(_never_compiled(config) for _, config in units)
-        if smallest < basis or eager:
-            held = f"{smallest} member{'s' if smallest != 1 else ''}" + (
-                ", not compiled" if eager else ""
-            )
-            lines.append(
-                f"  tac {env}: units of {held}, where the default was measured in compiled "
-                f"units of {basis}: each member-step costs more than it says (several times for "
-                "one member), so the estimate is low; --calibrate measures these units."
-            )
+        obs_dim = envs.env_info(env).obs_dim
+        measured = _hidden_weights(obs_dim, basis.hidden_sizes)
+        networks = sorted({config.hidden_sizes for _, config in units} - {basis.hidden_sizes})
+        wider = any(_hidden_weights(obs_dim, h) > measured for h in networks)
+        narrower = any(_hidden_weights(obs_dim, h) < measured for h in networks)
+        costlier = fewer or eager or wider
+        if not (costlier or narrower):
+            continue
+        held = [
+            *([f"of {smallest} member{'s' if smallest != 1 else ''}"] if fewer else []),
+            *(["not compiled"] if eager else []),
+            *(f"with hidden layers {h}" for h in networks),
+        ]
+        verdict = (
+            "the estimate may be off either way"
+            if costlier and narrower
+            else f"each member-step costs {'more' if costlier else 'less'} than it says, so the "
+            f"estimate is {'low' if costlier else 'high'}"
+        )
+        lines.append(
+            f"  {algo} {env}: units {', '.join(held)}, where the default was measured in "
+            f"compiled units of {basis.members} with hidden layers {basis.hidden_sizes}: "
+            f"{verdict}; --calibrate measures these units."
+        )
     return lines
+
+
+def _hidden_weights(obs_dim: int, hidden_sizes: tuple[int, ...]) -> int:
+    """The weights of a network's hidden layers on ``obs_dim`` inputs: what its products cost."""
+    widths = (obs_dim, *hidden_sizes)
+    return sum(a * b for a, b in pairwise(widths))
 
 
 def _never_compiled(config: RunConfig) -> bool:
