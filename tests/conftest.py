@@ -32,6 +32,16 @@ def shared_tmp_path(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
 
 
+@pytest.fixture(autouse=True)
+def _no_calibrations_of_this_machine(
+    tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Every test prices from an empty calibration store: a dry run reads the calibrations of
+    the machine's CPU class (~/.cache/tacbench), and one a developer made with --calibrate (the
+    smoke preset's TAC unit, say) turned a test's default* price into a calibrated one."""
+    monkeypatch.setenv("TACBENCH_CALIBRATION", str(tmp_path_factory.mktemp("calibrations")))
+
+
 @pytest.fixture(scope="session")
 def uninterrupted(tmp_path_factory: pytest.TempPathFactory) -> Callable[[str], Path]:
     """The run directory of one uninterrupted tiny Hopper run per learner, trained once per
