@@ -310,6 +310,32 @@ def test_the_reference_profile_is_priced_on_its_own(tmp_path: Path) -> None:
     )
 
 
+def test_a_pair_without_a_default_of_its_own_is_priced_at_its_algorithms_mean_and_says_so(
+    tmp_path: Path,
+) -> None:
+    """tac-ref has defaults on HalfCheetah and Hopper only: on Humanoid it is priced at their
+    mean, though the paper profile's TAC costs ten times as much there as on HalfCheetah, and
+    the plan now says so; a pair with its own default gets no such line."""
+    own = [(cost.REFERENCE_TAC, "HalfCheetah-v4"), (cost.REFERENCE_TAC, "Hopper-v4")]
+    assert cost.default_stand_ins(cost.REFERENCE_TAC, "Humanoid-v4") == own
+    assert cost.default_stand_ins("tac", "Humanoid-v4") == []
+    assert cost.default_stand_ins("not-an-algo", "Hopper-v4") == sorted(
+        cost.DEFAULT_SECONDS_PER_STEP
+    )
+    rates = cost.rates(tmp_path, [(cost.REFERENCE_TAC, "Humanoid-v4")])
+    mean = (cost.DEFAULT_SECONDS_PER_STEP[own[0]] + cost.DEFAULT_SECONDS_PER_STEP[own[1]]) / 2
+    assert rates[(cost.REFERENCE_TAC, "Humanoid-v4")].seconds_per_step == pytest.approx(mean)
+    command = ["sweep", "--preset", "paper-q-grid", "--env", "Humanoid", "--env", "Hopper"]
+    command += ["--q", "1", "--seed", "0", "--profile", "reference", "--dry-run"]
+    result = CliRunner().invoke(cli, [*command, "--out", str(tmp_path / "out")])
+    assert result.exit_code == 0, result.output
+    assert (
+        "tac-ref Humanoid-v4: no default of its own, priced at the mean of tac-ref's on "
+        "HalfCheetah-v4, Hopper-v4; --calibrate measures it." in result.output
+    )
+    assert "tac-ref Hopper-v4: no default" not in result.output
+
+
 def test_defaults_cover_every_paper_pair() -> None:
     pairs = {(r.config.algo, r.config.env) for r in plan.build_runs(get_preset("paper-comparison"))}
     assert pairs <= set(cost.DEFAULT_SECONDS_PER_STEP)

@@ -142,6 +142,7 @@ def describe_plan(plan: SweepPlan, workers: int, group: str, workers_from: str =
             "(tacbench/sweep/cost.py); runs under --out with two evaluations replace it, and "
             "--dry-run --calibrate measures the units on this CPU class (a few minutes)."
         )
+        lines += _without_a_default_of_its_own(priced)
         lines += _unlike_the_tac_default(plan, priced)
     if any(p.run.config.device != "cpu" for p in plan.runs):
         lines.append(
@@ -165,6 +166,26 @@ def wall_seconds(plan: SweepPlan, per_step: dict[tuple[str, str], float], worker
 def _priced_as(config: Any) -> tuple[str, str]:
     """The (algo, env) whose rate prices a run: TAC's reference-code profiles have their own."""
     return cost.cost_algo(config.algo, getattr(config, "profile", None)), config.env
+
+
+def _without_a_default_of_its_own(priced: Price) -> list[str]:
+    """A line for each (algo, env) priced at the mean of other pairs' defaults: a task's own
+    cost can be far from it (the paper profile's TAC on Humanoid costs 10x HalfCheetah's)."""
+    lines = []
+    for g in sorted(priced.groups, key=lambda g: (g.algo, g.env)):
+        stand_ins = cost.default_stand_ins(g.algo, g.env)
+        if g.source != cost.DEFAULT_SOURCE or not stand_ins:
+            continue
+        whose = (
+            f"{g.algo}'s on {', '.join(env for _, env in stand_ins)}"
+            if all(algo == g.algo for algo, _ in stand_ins)
+            else "every algorithm's defaults"
+        )
+        lines.append(
+            f"  {g.algo} {g.env}: no default of its own, priced at the mean of {whose}; "
+            "--calibrate measures it."
+        )
+    return lines
 
 
 def _unlike_the_tac_default(plan: SweepPlan, priced: Price) -> list[str]:
