@@ -48,6 +48,11 @@ COMPILE_AUTO_LEARNING_STEPS = 20_000
 BF16_VARIANT_PART = "bf16"
 
 
+def has_bf16_products(variant: str) -> bool:
+    """Whether a run of this variant name trained with ``--matmul-precision bf16``."""
+    return BF16_VARIANT_PART in variant.split("-")
+
+
 @dataclass(frozen=True, kw_only=True)
 class RunConfig(RunSettings):
     """Everything that determines one TAC run; built once (CLI or sweep), then read-only."""

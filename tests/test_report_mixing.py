@@ -47,6 +47,17 @@ def test_several_settings_or_budgets_on_a_task_are_cautioned() -> None:
     assert cautions(unknown, 10) == []
 
 
+def test_float32_and_bf16_runs_are_no_mix_to_caution_of_but_settings_within_each_are() -> None:
+    """float32 and bf16 runs are never compared or pooled with each other (each compares with
+    its own q = 1; bf16 runs stay out of the q ranges): only settings within one are a mix."""
+    products = _runs([("tac", "H", "q1-a0.2", 1e5), ("tac", "H", "q1.5-a0.2-bf16", 1e5)])
+    assert cautions(products, 10) == []
+    bf16 = _runs([("tac", "H", "q1-a0.2-bf16", 1e5), ("tac", "H", "q1-a0.2-bs32-bf16", 1e5)])
+    [caution] = cautions(bf16, 10)
+    assert caution.startswith("H: TAC runs of 2 settings (`bf16`, `bs32-bf16`); the comparisons")
+    assert "with q = 1 take them as one family" in caution
+
+
 def test_a_last_beyond_the_runs_logged_returns_is_cautioned() -> None:
     """--last longer than a run's rows makes its final return the mean of all of them, the
     first evaluations included: said once, with how many runs and the fewest rows."""

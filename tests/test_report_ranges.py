@@ -13,7 +13,7 @@ import pytest
 from tacbench.report import ReportOptions, analyse, write_report
 from tacbench.report.load import load_runs
 from tacbench.report.ranges import q_range_table, within_run_spread
-from tests.report_fixtures import synthetic_tree
+from tests.report_fixtures import synthetic_tree, write_run
 
 pytestmark = pytest.mark.unit
 
@@ -97,6 +97,27 @@ def test_the_claim_is_of_a_fixed_alpha_learned_ones_are_left_out(tmp_path: Path)
     assert table["alpha"].isna().sum() == 2  # the runs without an alpha have rows of their own
     verdicts = table.dropna(subset=["p_value"]).set_index("alpha", drop=False)["verdict"]
     assert verdicts.tolist() == ["larger", "smaller"]  # 1 <= q < 2 ahead, then behind q = 3
+
+
+def test_bf16_runs_stay_out_of_the_ranges(tmp_path: Path) -> None:
+    """The paper's claim is of float32 runs: bf16 runs (their own method, compared with their
+    own q = 1) are not pooled into a range beside float32 ones."""
+    synthetic_tree(tmp_path, tasks=("Hopper-v4",), qs=(0.5, 1.0, 1.5), baselines=())
+    for seed in range(3):
+        write_run(
+            tmp_path,
+            algo="tac",
+            env="Hopper-v4",
+            variant="q3-a0.2-bf16",
+            seed=seed,
+            q=3.0,
+            alpha=0.2,
+            steps=[5000.0, 10000.0],
+            returns=[0.0, 10.0],
+        )
+    table = analyse(ReportOptions(results=tmp_path, out=tmp_path / "report", reps=100)).q_ranges
+    assert table["range"].tolist() == ["0 < q < 1", "1 <= q < 2"]
+    assert table["runs"].tolist() == [3, 6]
 
 
 def test_a_sweep_inside_one_range_has_no_comparison(tmp_path: Path) -> None:

@@ -154,6 +154,32 @@ def test_improvement_compares_with_q1_runs_of_the_same_alpha_and_alpha_mode() ->
     assert table["tasks"].tolist() == [1, 1, 2] * 2
 
 
+def test_improvement_compares_bf16_runs_with_bf16_q1_runs_only() -> None:
+    """A float32 q = 1.5 was compared with the q = 1 runs of both products pooled (here P 0.5,
+    not distinguishable, where against its float32 q = 1 alone it wins every pair); a bf16 one
+    compares with bf16 q = 1 runs, and a task without them is left out."""
+    runs = (
+        ("A", "SAC", 1.0, "q1-a0.2", [1.0, 2.0]),
+        ("A", "SAC bf16", 1.0, "q1-a0.2-bf16", [100.0, 200.0]),
+        ("A", "TAC q=1.5", 1.5, "q1.5-a0.2", [3.0, 4.0]),
+        ("A", "TAC q=1.5 bf16", 1.5, "q1.5-a0.2-bf16", [150.0, 160.0]),
+        ("B", "SAC", 1.0, "q1-a0.2", [1.0, 2.0]),
+        ("B", "TAC q=1.5 bf16", 1.5, "q1.5-a0.2-bf16", [150.0, 160.0]),
+    )
+    scores = pd.DataFrame(
+        [
+            {"env": e, "method": m, "q": q, "alpha": 0.2, "variant": v, "final": f}
+            for e, m, q, v, finals in runs
+            for f in finals
+        ]
+    )
+    table = improvement_over_q1(scores, ["TAC q=1.5", "TAC q=1.5 bf16"], 200, 0)
+    assert table[["method", "env", "p"]].values.tolist() == [
+        ["TAC q=1.5", "A", 1.0],
+        ["TAC q=1.5 bf16", "A", 0.5],
+    ]
+
+
 def test_baseline_comparison_pairs_each_method_with_each_baseline_on_shared_tasks() -> None:
     finals = {
         ("A", "TAC (best q)"): [5.0, 6.0, 7.0],

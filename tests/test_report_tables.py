@@ -184,6 +184,16 @@ def test_method_labels() -> None:
         {"algo": ["tac"], "env": ["A-v4"], "variant": ["q1.5-a0.2-bf16"], "q": [1.5]}
     )
     assert assign_methods(bf16).tolist() == ["TAC q=1.5 [q1.5-a0.2-bf16]"]
+    # a bf16 --q auto population too, though it is the task's only one (it was "TAC q=auto")
+    populations = pd.DataFrame(
+        {
+            "algo": ["tac", "tac"],
+            "env": ["A-v4", "B-v4"],
+            "variant": ["qauto-a0.2", "qauto-a0.2-bf16"],
+            "q": [np.nan, np.nan],
+        }
+    )
+    assert assign_methods(populations).tolist() == ["TAC q=auto", "TAC q=auto [qauto-a0.2-bf16]"]
 
 
 def test_styles_are_fixed_per_method() -> None:

@@ -19,7 +19,7 @@ from matplotlib import colormaps
 from matplotlib.colors import to_hex
 from matplotlib.typing import LineStyleType
 
-from tacbench.config import BF16_VARIANT_PART
+from tacbench.config import has_bf16_products
 from tacbench.paper import Q_GRID
 
 SAC_LABEL = "SAC (TAC q=1)"
@@ -79,9 +79,9 @@ def assign_methods(runs: pd.DataFrame) -> pd.Series:
     TAC runs are labelled by q (``TAC q=1.5``), so the paper's sweep, whose alpha differs between
     tasks, lines up across tasks. Where one task has several TAC variants with the same q (an
     alpha sweep, say), every run with that q is labelled with its variant too, and so is every
-    run with bfloat16 products (``--matmul-precision bf16``, variant part ``-bf16``), so that
-    it never passes for a float32 run. A baseline is labelled by its name, with the variant
-    added when the algorithm has several.
+    run with bfloat16 products (``--matmul-precision bf16``, variant part ``-bf16``), a ``--q
+    auto`` population's too, so that it never passes for a float32 run. A baseline is labelled
+    by its name, with the variant added when the algorithm has several.
     """
     tac = runs[runs["algo"] == "tac"]
     per_task = tac.groupby(["env", "q"])["variant"].nunique()
@@ -92,9 +92,9 @@ def assign_methods(runs: pd.DataFrame) -> pd.Series:
     labels = []
     for algo, variant, q in zip(runs["algo"], runs["variant"], runs["q"], strict=True):
         if algo == "tac" and math.isnan(q):
-            name, tagged = Q_AUTO_LABEL, several_learned
+            name, tagged = Q_AUTO_LABEL, several_learned or has_bf16_products(variant)
         elif algo == "tac":
-            name, tagged = tac_label(q), q in ambiguous or BF16_VARIANT_PART in variant.split("-")
+            name, tagged = tac_label(q), q in ambiguous or has_bf16_products(variant)
         else:
             name, tagged = BASELINE_NAMES.get(algo, algo.upper()), algo in several
         labels.append(f"{name} [{variant}]" if tagged else name)

@@ -1,6 +1,8 @@
 """What a report's runs mix that its comparisons take as alike: several TAC settings on one task
-(compared with one q = 1 and pooled into the q ranges by q alone) and several budgets on one task
-(final returns of different lengths of training). The report says so; it does not refuse."""
+(compared with one q = 1 and pooled into the q ranges by q alone; float32 and bfloat16 products
+never are: each compares with its own q = 1, and bf16 runs stay out of the q ranges) and several
+budgets on one task (final returns of different lengths of training). The report says so; it
+does not refuse."""
 
 from __future__ import annotations
 
@@ -9,6 +11,7 @@ import re
 
 import pandas as pd
 
+from tacbench.config import has_bf16_products
 from tacbench.errors import listing
 
 # a TAC variant's q and alpha part: q1.5-a0.2, qauto-aauto0.2, q1e-05-a0.2 (numbers in %g form)
@@ -29,14 +32,16 @@ def cautions(runs: pd.DataFrame, last: int) -> list[str]:
     found = []
     tac = runs[runs["algo"] == "tac"]
     for env, group in tac.groupby("env"):
-        settings = sorted({tac_setting(v) for v in group["variant"]})
-        if len(settings) > 1:
-            shown = ", ".join(f"`{s}`" if s else "the defaults" for s in settings)
-            found.append(
-                f"{env}: TAC runs of {len(settings)} settings ({shown}); the comparisons with "
-                "q = 1 and the q ranges take them as one family (rows carry the variant where a "
-                "q has several). Report one setting at a time to compare like with like."
-            )
+        for bf16, same_products in group.groupby(group["variant"].map(has_bf16_products)):
+            settings = sorted({tac_setting(v) for v in same_products["variant"]})
+            if len(settings) > 1:
+                shown = ", ".join(f"`{s}`" if s else "the defaults" for s in settings)
+                pooled = "comparisons with q = 1" + ("" if bf16 else " and the q ranges")
+                found.append(
+                    f"{env}: TAC runs of {len(settings)} settings ({shown}); the {pooled} take "
+                    "them as one family (rows carry the variant where a q has several). Report "
+                    "one setting at a time to compare like with like."
+                )
     for env, group in runs.groupby("env"):
         budgets = sorted({int(b) for b in group["total_steps"] if not math.isnan(b)})
         if len(budgets) > 1:

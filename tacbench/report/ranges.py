@@ -11,8 +11,9 @@ p-value of its permutation test and its verdict (:mod:`tacbench.verdicts`). Over
 several tasks an "all tasks" row pools the normalised scores for the IQM and averages the
 per-task probabilities, for each range that every task (and alpha) has runs in (a range that
 one lacks gets none: its row would pool other tasks than the rest). The claim is of a fixed
-alpha: runs that learn theirs (``--alpha auto``) are left out, as their own comparisons are in
-the improvement table.
+alpha and float32 products: runs that learn their alpha (``--alpha auto``) or train with
+bfloat16 products (``--matmul-precision bf16``) are left out, as their own comparisons with
+q = 1 are in the improvement table.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ import math
 import numpy as np
 import pandas as pd
 
+from tacbench.config import has_bf16_products
 from tacbench.report.stats import (
     ALL_TASKS,
     interval_estimates,
@@ -72,7 +74,8 @@ def q_range_table(
 ) -> pd.DataFrame:
     """The table of the module docstring from the report's per-run ``scores`` (TAC runs have a
     q; ``final`` and the normalised ``score``) and its tidy ``data`` (for the spread)."""
-    tac = scores[scores["q"].notna() & ~learns_alpha(scores["variant"])].copy()
+    fixed_alpha = scores["q"].notna() & ~learns_alpha(scores["variant"])
+    tac = scores[fixed_alpha & ~scores["variant"].map(has_bf16_products)].copy()
     tac["range"] = [_range_of(float(q)) for q in tac["q"]]
     tac = tac[tac["range"].notna()]
     tac = tac.join(within_run_spread(data, last).rename("spread"), on="run")

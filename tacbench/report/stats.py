@@ -27,6 +27,7 @@ import pandas as pd
 from rliable import metrics
 
 from tacbench.bootstrap import interval, scalar_interval, strata_seed
+from tacbench.config import has_bf16_products
 from tacbench.detectable import detectable_difference, detectable_shift
 from tacbench.sequential import NOT_DISTINGUISHABLE
 from tacbench.verdicts import improvement_verdict
@@ -201,12 +202,16 @@ def learns_alpha(variants: pd.Series) -> pd.Series:
     return variants.astype(str).str.contains("-aauto", regex=False)
 
 
-def _reference_runs(scores: pd.DataFrame, env: str, alpha: float, learned: bool) -> np.ndarray:
-    """Final returns of the q = 1 runs on ``env`` with the same alpha (NaN matches NaN) and
-    the same alpha mode (a learned alpha is compared with a learned alpha from the same start)."""
+def _reference_runs(
+    scores: pd.DataFrame, env: str, alpha: float, learned: bool, bf16: bool
+) -> np.ndarray:
+    """Final returns of the q = 1 runs on ``env`` with the same alpha (NaN matches NaN), the
+    same alpha mode (a learned alpha is compared with a learned alpha from the same start) and
+    the same products (bfloat16 with bfloat16, float32 with float32)."""
     same = scores[(scores["env"] == env) & (scores["q"] == 1.0)]
     same = same[same["alpha"].isna()] if np.isnan(alpha) else same[same["alpha"] == alpha]
     same = same[learns_alpha(same["variant"]) == learned]
+    same = same[same["variant"].map(has_bf16_products) == bf16]
     return same["final"].to_numpy()
 
 
@@ -215,8 +220,9 @@ def improvement_over_q1(
 ) -> pd.DataFrame:
     """P(method > q = 1) per task and over all tasks, with 95 % intervals.
 
-    Each TAC method is compared, task by task, with the q = 1 runs that share its alpha and its
-    alpha mode (fixed, or learned: --alpha auto); tasks without such runs are left out.
+    Each TAC method is compared, task by task, with the q = 1 runs that share its alpha, its
+    alpha mode (fixed, or learned: --alpha auto) and its products (float32 or bfloat16); tasks
+    without such runs are left out.
     ``env`` is ``"all tasks"`` on the aggregate rows. Columns: :data:`IMPROVEMENT_COLUMNS`.
     """
     rows = []
@@ -226,8 +232,11 @@ def improvement_over_q1(
         for env, group in mine.groupby("env", sort=False):
             alphas = group["alpha"].unique()
             modes = learns_alpha(group["variant"]).unique()
-            reference = _reference_runs(scores, str(env), float(alphas[0]), bool(modes[0]))
-            if len(alphas) != 1 or len(modes) != 1 or len(reference) == 0:
+            products = group["variant"].map(has_bf16_products).unique()
+            reference = _reference_runs(
+                scores, str(env), float(alphas[0]), bool(modes[0]), bool(products[0])
+            )
+            if len(alphas) != 1 or len(modes) != 1 or len(products) != 1 or len(reference) == 0:
                 continue
             xs.append(group["final"].to_numpy())
             ys.append(reference)
