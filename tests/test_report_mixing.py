@@ -10,7 +10,7 @@ import pytest
 from click.testing import CliRunner
 
 from tacbench.cli import cli
-from tacbench.report.mixing import cautions, tac_setting
+from tacbench.report.mixing import cautions, tac_setting, without_q
 from tests.report_fixtures import write_run
 
 pytestmark = pytest.mark.unit
@@ -27,6 +27,14 @@ pytestmark = pytest.mark.unit
 )
 def test_a_tac_setting_is_its_variant_without_q_and_alpha(variant: str, setting: str) -> None:
     assert tac_setting(variant) == setting
+
+
+@pytest.mark.parametrize(
+    ("variant", "design"),
+    [("q1.5-a0.2", "a0.2"), ("qauto-aauto0.2", "aauto0.2"), ("q1e-05-a0.2-bs32", "a0.2-bs32")],
+)
+def test_a_variant_without_q_names_its_runs_across_q(variant: str, design: str) -> None:
+    assert without_q(variant) == design
 
 
 def _runs(rows: list[tuple[str, str, str, float]], logged: int = 20) -> pd.DataFrame:

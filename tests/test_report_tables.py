@@ -23,6 +23,7 @@ from tacbench.report.methods import (
     method_sort_key,
     style_of,
 )
+from tacbench.report.page import best_q_display
 from tacbench.report.tables import normalise, run_scores
 from tests.report_fixtures import synthetic_tree, write_run
 
@@ -115,6 +116,37 @@ def test_best_q_table_ranks_and_compares_with_the_paper(flat_report: Report) -> 
     assert row["agrees"] == "yes" and row["best_in_1_2"] == "yes"
     # q=1.2 finals {400, 500, 600} vs q=1 {100, 200, 600}: 6 wins and 1 tie of 9 pairs
     assert row["p_best_over_q1"] == pytest.approx(6.5 / 9)
+
+
+def test_best_q_table_ranks_each_setting_of_a_task_apart(tmp_path: Path) -> None:
+    """The adaptive study's HalfCheetah ranked its fixed- and learned-alpha runs together
+    ("1 > 1.5 > 1 > 1.5", best q = 1 of the learned alpha, P of the learned-alpha pair): a task
+    gets a row per setting now, each ranking its own q values, its P read for its own best q."""
+    finals = {"a0.2": {1.0: 100.0, 1.5: 300.0}, "aauto0.2": {1.0: 500.0, 1.5: 200.0}}
+    for setting, by_q in finals.items():
+        for q, final in by_q.items():
+            for seed in range(3):
+                write_run(
+                    tmp_path,
+                    algo="tac",
+                    env="Hopper-v4",
+                    variant=f"q{q:g}-{setting}",
+                    seed=seed,
+                    q=q,
+                    alpha=0.2,
+                    steps=[1000.0, 2000.0],
+                    returns=[0.0, final + seed],
+                )
+    report = analyse(ReportOptions(results=tmp_path, out=tmp_path / "out", reps=100, last=1))
+    table = report.best_q.set_index("setting")
+    assert table["env"].tolist() == ["Hopper-v4"] * 2
+    assert table.loc["a0.2", "ranking"] == "1.5 > 1" and table.loc["a0.2", "best_q"] == 1.5
+    assert table.loc["aauto0.2", "ranking"] == "1 > 1.5" and table.loc["aauto0.2", "best_q"] == 1
+    assert table.loc["a0.2", "paper_q_rank"] == "not run"  # the paper's Hopper q is 2
+    assert table.loc["a0.2", "p_best_over_q1"] == 1.0  # 300s against the fixed alpha's 100s
+    assert table.loc["aauto0.2", "p_best_over_q1"] == 0.0  # 200s against 500s
+    shown = best_q_display(report)["task"].tolist()
+    assert shown == ["Hopper-v4 [a0.2]", "Hopper-v4 [aauto0.2]"]
 
 
 def test_normalisation_anchors_are_the_task_extremes(flat_report: Report) -> None:

@@ -16,6 +16,14 @@ from tacbench.errors import listing
 
 # a TAC variant's q and alpha part: q1.5-a0.2, qauto-aauto0.2, q1e-05-a0.2 (numbers in %g form)
 _Q_ALPHA = re.compile(r"^q(?:auto|[0-9.]+(?:e[+-]\d+)?)-a(?:auto)?[0-9.]+(?:e[+-]\d+)?")
+_Q = re.compile(r"^q(?:auto|[0-9.]+(?:e[+-]\d+)?)-")
+
+
+def without_q(variant: str) -> str:
+    """A TAC variant without its q: the runs of one design across q (``q1.5-a0.2-bs32`` ->
+    ``a0.2-bs32``; ``qauto-aauto0.2`` -> ``aauto0.2``)."""
+    match = _Q.match(variant)
+    return variant[match.end() :] if match else variant
 
 
 def tac_setting(variant: str) -> str:

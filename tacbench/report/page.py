@@ -73,11 +73,15 @@ def summary_display(report: Report) -> pd.DataFrame:
 
 
 def best_q_display(report: Report) -> pd.DataFrame:
-    """The best-q table as shown."""
+    """The best-q table as shown: a task with several settings names each row's."""
     b = report.best_q
+    several = b["env"].duplicated(keep=False)  # a task with runs of several settings
     return pd.DataFrame(
         {
-            "task": b["env"],
+            "task": [
+                f"{env} [{setting}]" if named else env
+                for env, setting, named in zip(b["env"], b["setting"], several, strict=True)
+            ],
             "best q (final)": [
                 f"{_q(q)} ({_pm(m, d)})"
                 for q, m, d in zip(b["best_q"], b["best_final"], b["best_final_std"], strict=True)

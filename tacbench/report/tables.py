@@ -19,10 +19,12 @@ import numpy as np
 import pandas as pd
 
 from tacbench.paper import task_facts
+from tacbench.report.mixing import without_q
 
 DEFAULT_LAST = 10
 BEST_Q_COLUMNS = (
     "env",
+    "setting",
     "best_q",
     "best_final",
     "best_final_std",
@@ -126,15 +128,20 @@ def best_q_rows(summary: pd.DataFrame) -> pd.DataFrame:
 
 
 def best_q_table(summary: pd.DataFrame, improvement: pd.DataFrame) -> pd.DataFrame:
-    """The best q per task from the data, and how its ranking compares with the paper's.
+    """The best q per task and setting from the data, and how its ranking compares with the
+    paper's.
 
-    Ranking is by mean final return over seeds (all q, q = 1 included). ``p_best_over_q1`` is
-    P(best q != 1 > q = 1) on that task with its 95 % interval (from ``improvement``); it is
-    optimistic because the best q was picked on the same runs.
+    A *setting* is a TAC variant without its q (``a0.2``; ``aauto0.2`` for a learned alpha;
+    ``a0.2-bs32``): a task with runs of several gets a row for each, which ranks that setting's
+    q values alone (ranked together, one q's fixed and learned alpha runs would stand side by
+    side unnamed). Ranking is by mean final return over seeds (all q, q = 1 included).
+    ``p_best_over_q1`` is P(best q != 1 > q = 1) on that task with its 95 % interval (from
+    ``improvement``); it is optimistic because the best q was picked on the same runs.
     """
     rows = []
     tac = summary[(summary["algo"] == "tac") & summary["q"].notna()]  # TAC q=auto has no q
-    for env, group in tac.groupby("env", sort=False):
+    tac = tac.assign(setting=tac["variant"].map(without_q))
+    for (env, setting), group in tac.groupby(["env", "setting"], sort=False):
         ranked = group.sort_values("final_mean", ascending=False)
         top = ranked.iloc[0]
         others = ranked[ranked["q"] != 1.0]
@@ -148,6 +155,7 @@ def best_q_table(summary: pd.DataFrame, improvement: pd.DataFrame) -> pd.DataFra
             agrees = "yes" if top["q"] == paper_q else "no"
         row = {
             "env": env,
+            "setting": setting,
             "best_q": top["q"],
             "best_final": top["final_mean"],
             "best_final_std": top["final_std"],
