@@ -23,7 +23,7 @@ from tacbench.report.methods import (
     method_sort_key,
     style_of,
 )
-from tacbench.report.page import best_q_display
+from tacbench.report.page import best_q_display, summary_display
 from tacbench.report.tables import normalise, run_scores
 from tests.report_fixtures import synthetic_tree, write_run
 
@@ -147,6 +147,38 @@ def test_best_q_table_ranks_each_setting_of_a_task_apart(tmp_path: Path) -> None
     assert table.loc["aauto0.2", "p_best_over_q1"] == 0.0  # 200s against 500s
     shown = best_q_display(report)["task"].tolist()
     assert shown == ["Hopper-v4 [a0.2]", "Hopper-v4 [aauto0.2]"]
+
+
+def test_a_q_whose_every_run_failed_keeps_its_rows(tmp_path: Path) -> None:
+    """The authors' 2019-01-11b runs of q = 3 and 5 all failed at their first update and were
+    missing from the summary and the best-q ranking (leaving out diverged runs flatters a
+    method): such a method has a summary row of its failures, in its q's place, and the
+    ranking names it; here it is the paper's best q of the task."""
+    for q, state in ((1.0, "complete"), (2.0, "failed"), (3.0, "complete")):
+        for seed in range(2):
+            write_run(
+                tmp_path,
+                algo="tac",
+                env="Hopper-v4",
+                variant=f"q{q:g}-a0.2",
+                seed=seed,
+                q=q,
+                alpha=0.2,
+                steps=[1000.0, 2000.0],
+                returns=[0.0, 100.0 * q + seed],
+                state=state,
+                reason="non-finite loss" if state == "failed" else "",
+            )
+    report = analyse(ReportOptions(results=tmp_path, out=tmp_path / "out", reps=100))
+    summary = report.summary.set_index("method")
+    assert summary.index.tolist() == [SAC_LABEL, "TAC q=2", "TAC q=3"]
+    assert summary.loc["TAC q=2", ["seeds", "failed"]].tolist() == [0, 2]
+    assert math.isnan(summary.loc["TAC q=2", "final_mean"])
+    shown = summary_display(report).set_index("method").loc["TAC q=2"]
+    assert (shown["steps reached"], shown["final (last 10)"]) == ("n/a", "n/a")
+    [row] = report.best_q.to_dict("records")
+    assert row["ranking"] == "3 > 1; every run failed: 2"
+    assert row["paper_q_rank"] == "every run failed" and row["best_q_not_1"] == 3.0
 
 
 def test_normalisation_anchors_are_the_task_extremes(flat_report: Report) -> None:

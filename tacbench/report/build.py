@@ -227,12 +227,16 @@ def analyse(options: ReportOptions) -> Report:
     envs = sorted((str(e) for e in runs["env"].unique()), key=task_sort_key)
     recorded, decisions = _sequential_results(options.results)
     methods = [m for m in methods if m in set(extended["method"])]
+    # the summary also lists the methods whose every run on a task failed, in their q's place
+    failed_qs = {str(m): float(q) for m, q in failed.groupby("method")["q"].first().items()}
+    listed = {**failed_qs, **qs}
+    summarised = sorted(set(summary["method"]), key=lambda m: method_sort_key(m, listed[m]))
     report = Report(
         options=options,
         runset=runset,
         scores=scores,
         failed=failed,
-        summary=_in_order(summary, envs, methods),
+        summary=_in_order(summary, envs, summarised),
         best_q=_in_order(best_q_table(summary, improvement), envs, methods),
         curves=curves,
         anchors=_in_order(anchors, envs, methods),

@@ -23,7 +23,8 @@ def _num(value: float, digits: int = 1) -> str:
 
 
 def _pm(mean: float, std: float, digits: int = 1) -> str:
-    return f"{_num(mean, digits)} ± {_num(std, digits)}"
+    """Mean ± std; "n/a" without a mean (a method whose every run failed)."""
+    return "n/a" if math.isnan(mean) else f"{_num(mean, digits)} ± {_num(std, digits)}"
 
 
 def _ci(point: float, low: float, high: float, digits: int = 2) -> str:
@@ -57,7 +58,7 @@ def summary_display(report: Report) -> pd.DataFrame:
             "partial": s["partial"],
             "failed": s["failed"],
             "steps reached": [
-                _steps(a) if a == b else f"{_steps(a)}–{_steps(b)}"
+                _steps(a) if a == b or math.isnan(a) else f"{_steps(a)}–{_steps(b)}"
                 for a, b in zip(s["steps_min"], s["steps_max"], strict=True)
             ],
             "planned": [_steps(v) for v in s["planned"]],

@@ -22,6 +22,11 @@ from tacbench.paper import task_facts
 from tacbench.report.mixing import without_q
 
 DEFAULT_LAST = 10
+SUMMARY_COLUMNS = (
+    "env", "method", "algo", "variant", "q", "alpha", "seeds", "partial", "failed",
+    "steps_min", "steps_max", "planned", "final_mean", "final_std", "best_mean", "best_std",
+    "auc_mean", "auc_std",
+)  # fmt: skip
 BEST_Q_COLUMNS = (
     "env",
     "setting",
@@ -93,7 +98,9 @@ def summary_table(scores: pd.DataFrame, failed: pd.DataFrame) -> pd.DataFrame:
 
     ``scores`` has one row per loaded run (``env``, ``method``, ``algo``, ``variant``, ``q``,
     ``alpha``, ``partial``, ``step_reached``, ``total_steps``, ``final``, ``best``, ``auc``);
-    ``failed`` one row per failed run with ``env`` and ``method``.
+    ``failed`` one row per failed run with ``env``, ``method``, ``algo``, ``variant``, ``q`` and
+    ``alpha``. A method whose every run on a task failed gets a row too (seeds 0, its failures,
+    no statistics): leaving out diverged runs flatters a method, all of them most of all.
     """
     failed_counts = failed.groupby(["env", "method"]).size()
     rows = []
@@ -116,12 +123,28 @@ def summary_table(scores: pd.DataFrame, failed: pd.DataFrame) -> pd.DataFrame:
             row[f"{column}_mean"] = group[column].mean()
             row[f"{column}_std"] = group[column].std(ddof=1)
         rows.append(row)
-    return pd.DataFrame(rows)
+    loaded = set(scores.groupby(["env", "method"]).groups)
+    for (env, method), group in failed.groupby(["env", "method"], sort=False):
+        if (env, method) not in loaded:
+            rows.append(
+                {
+                    "env": env,
+                    "method": method,
+                    "algo": _joined(group["algo"]),
+                    "variant": _joined(group["variant"]),
+                    "q": group["q"].iat[0],
+                    "alpha": _joined(group["alpha"].dropna()) or "",
+                    "seeds": 0,
+                    "partial": 0,
+                    "failed": len(group),
+                }
+            )
+    return pd.DataFrame(rows, columns=list(SUMMARY_COLUMNS))
 
 
 def best_q_rows(summary: pd.DataFrame) -> pd.DataFrame:
     """Per task, the TAC row with the highest mean final return among q != 1 (for the figure)."""
-    tac = summary[summary["algo"] == "tac"]
+    tac = summary[(summary["algo"] == "tac") & (summary["seeds"] > 0)]
     candidates = tac[tac["q"].notna() & (tac["q"] != 1.0)]  # a fixed q: not TAC q=auto
     best = candidates.loc[candidates.groupby("env", sort=False)["final_mean"].idxmax()]
     return best.reset_index(drop=True)
@@ -142,7 +165,10 @@ def best_q_table(summary: pd.DataFrame, improvement: pd.DataFrame) -> pd.DataFra
     tac = summary[(summary["algo"] == "tac") & summary["q"].notna()]  # TAC q=auto has no q
     tac = tac.assign(setting=tac["variant"].map(without_q))
     for (env, setting), group in tac.groupby(["env", "setting"], sort=False):
-        ranked = group.sort_values("final_mean", ascending=False)
+        ranked = group[group["seeds"] > 0].sort_values("final_mean", ascending=False)
+        if ranked.empty:
+            continue  # every run failed: the summary table says so
+        failed_qs = sorted(group.loc[group["seeds"] == 0, "q"])
         top = ranked.iloc[0]
         others = ranked[ranked["q"] != 1.0]
         paper = task_facts(str(env))
@@ -152,6 +178,7 @@ def best_q_table(summary: pd.DataFrame, improvement: pd.DataFrame) -> pd.DataFra
         if paper_q is not None:
             positions = np.flatnonzero(ranked["q"].to_numpy() == paper_q)
             rank = f"{positions[0] + 1} of {len(ranked)}" if len(positions) else "not run"
+            rank = "every run failed" if paper_q in failed_qs else rank
             agrees = "yes" if top["q"] == paper_q else "no"
         row = {
             "env": env,
@@ -160,7 +187,7 @@ def best_q_table(summary: pd.DataFrame, improvement: pd.DataFrame) -> pd.DataFra
             "best_final": top["final_mean"],
             "best_final_std": top["final_std"],
             "best_q_not_1": others.iloc[0]["q"] if len(others) else math.nan,
-            "ranking": " > ".join(f"{q:g}" for q in ranked["q"]),
+            "ranking": " > ".join(f"{q:g}" for q in ranked["q"]) + _all_failed(failed_qs),
             "paper_q": "task not in the paper" if paper is None else paper.best_q_label,
             "paper_q_rank": rank,
             "agrees": agrees,
@@ -173,6 +200,11 @@ def best_q_table(summary: pd.DataFrame, improvement: pd.DataFrame) -> pd.DataFra
         row.update(_improvement_of_best(improvement, str(env), best_method))
         rows.append(row)
     return pd.DataFrame(rows, columns=list(BEST_Q_COLUMNS))
+
+
+def _all_failed(qs: list[float]) -> str:
+    """The ranking's tail naming the q values whose every run failed (empty if none)."""
+    return "; every run failed: " + ", ".join(f"{q:g}" for q in qs) if qs else ""
 
 
 def _improvement_of_best(improvement: pd.DataFrame, env: str, method: str) -> dict[str, float]:
