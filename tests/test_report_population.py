@@ -82,3 +82,21 @@ def test_statistics_count_one_value_per_population(tmp_path: Path) -> None:
     page = (tmp_path / "report" / "report.md").read_text()
     assert "count one value per population" in page
     assert (tmp_path / "report" / "q_trajectories.png").exists()
+
+
+def test_members_without_a_readable_q_log_show_their_start_and_a_caution(tmp_path: Path) -> None:
+    """Results copied without losses.csv made the whole report fail (FileNotFoundError): a
+    member without a readable q column now shows its starting q alone, and the report says so."""
+    paths = _population(tmp_path, [0, 1, 2, 3], 100.0)
+    (paths[0] / "losses.csv").unlink()
+    (paths[1] / "losses.csv").write_text("step,value_loss\n1000,0.5\n")  # no q column
+    report = analyse(ReportOptions(results=tmp_path, out=tmp_path / "report", reps=100, last=1))
+    steps = report.trajectories.groupby("seed")["step"].count()
+    assert steps.to_dict() == {0: 1, 1: 1, 2: 4, 3: 4}
+    assert report.cautions == [
+        "Hopper-v4: 2 TAC q=auto members whose losses.csv is missing or has no readable q "
+        "column: the q trajectories show their starting q alone."
+    ]
+    write_report(report)
+    page = (tmp_path / "report" / "report.md").read_text()
+    assert "Caution: Hopper-v4: 2 TAC q=auto members" in page

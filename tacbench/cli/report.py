@@ -66,7 +66,6 @@ def report(
     """Figures, tables and rliable statistics from the run directories under --results."""
     from tacbench.errors import listing
     from tacbench.report import ReportOptions, analyse, write_report  # pandas etc. only here
-    from tacbench.report.mixing import cautions
     from tacbench.report.write import check_out, leftovers
     from tacbench.runs.files import check_writable
 
@@ -85,7 +84,7 @@ def report(
     analysed = analyse(options)
     written = write_report(analysed)
     runs, skipped = analysed.runset.runs, analysed.runset.skipped
-    for caution in cautions(runs, last):
+    for caution in analysed.cautions:
         click.echo(f"caution: {caution}", err=True)
     older = leftovers(out, written)
     if older:

@@ -28,7 +28,8 @@ from tacbench.report.methods import (
     assign_methods,
     method_sort_key,
 )
-from tacbench.report.population import one_per_population, q_trajectories
+from tacbench.report.mixing import cautions
+from tacbench.report.population import one_per_population, q_trajectories, unlogged_q
 from tacbench.report.ranges import q_range_table
 from tacbench.report.series import METRIC_SOURCES, Metric
 from tacbench.report.stats import (
@@ -119,6 +120,12 @@ class Report:
     sequential: pd.DataFrame  # sweep --until-decided: each comparison's decision (or empty)
     spending: pd.DataFrame  # ... and each task's runs against the fixed design
     figures: dict[str, Figure] = field(default_factory=dict)
+
+    @property
+    def cautions(self) -> list[str]:
+        """What the comparisons take as alike (:func:`mixing.cautions`), and the populations'
+        members whose q was not logged (:func:`population.unlogged_q`)."""
+        return [*cautions(self.runset.runs, self.options.last), *unlogged_q(self.trajectories)]
 
     @property
     def tac_methods(self) -> list[str]:

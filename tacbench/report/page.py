@@ -9,7 +9,6 @@ from collections import Counter
 import pandas as pd
 
 from tacbench.report.build import Report
-from tacbench.report.mixing import cautions
 from tacbench.report.reading import how_to_read
 from tacbench.report.render import Bullets, Code, Image, Section, Table, Text
 from tacbench.report.stats import ALL_TASKS
@@ -193,7 +192,7 @@ def _overview(report: Report) -> list[str]:
         items.append(f"{int(runs['partial'].sum())} partial runs included (see Runs).")
     if report.runset.skipped:
         items.append(f"{len(report.runset.skipped)} run directories skipped (see Runs).")
-    items += [f"Caution: {caution}" for caution in cautions(runs, o.last)]
+    items += [f"Caution: {caution}" for caution in report.cautions]
     return items
 
 

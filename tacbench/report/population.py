@@ -31,10 +31,11 @@ def one_per_population(scores: pd.DataFrame) -> pd.DataFrame:
 
 def q_trajectories(runs: pd.DataFrame, root: Path) -> pd.DataFrame:
     """Each population member's q from step 0 (its starting q, the run's config) and at every
-    losses row (``losses.csv``), for the figure."""
+    losses row (``losses.csv``), for the figure; its starting q alone where the log is missing
+    or unreadable (results copied without it: :func:`unlogged_q`)."""
     frames = []
     for run in runs[runs["population"].fillna("") != ""].itertuples():
-        logged = pd.read_csv(root / str(run.path) / "losses.csv", usecols=["step", "q"])
+        logged = _logged_q(root / str(run.path) / "losses.csv")
         config = json.loads((root / str(run.path) / "config.json").read_text())
         start = pd.DataFrame({"step": [0], "q": [config["q"]]})  # where the member started
         losses = pd.concat([start, logged], ignore_index=True)
@@ -44,3 +45,22 @@ def q_trajectories(runs: pd.DataFrame, root: Path) -> pd.DataFrame:
     if not frames:
         return pd.DataFrame(columns=list(TRAJECTORY_COLUMNS))
     return pd.concat(frames, ignore_index=True)[list(TRAJECTORY_COLUMNS)]
+
+
+def _logged_q(losses_csv: Path) -> pd.DataFrame:
+    """A member's q by step from its losses.csv (no rows where it is missing or unreadable)."""
+    try:
+        return pd.read_csv(losses_csv, usecols=["step", "q"])
+    except (OSError, ValueError):  # missing, empty, damaged, or without a q column
+        return pd.DataFrame({"step": pd.Series(dtype=int), "q": pd.Series(dtype=float)})
+
+
+def unlogged_q(trajectories: pd.DataFrame) -> list[str]:
+    """A caution per task whose population members logged no q (:func:`q_trajectories`)."""
+    rows = trajectories.groupby(["env", "population", "seed"], sort=False).size()
+    alone = rows[rows == 1]  # the starting q only
+    return [
+        f"{env}: {len(group)} TAC q=auto member{'s' if len(group) != 1 else ''} whose losses.csv "
+        "is missing or has no readable q column: the q trajectories show their starting q alone."
+        for env, group in alone.groupby(level="env", sort=False)
+    ]
