@@ -24,7 +24,7 @@ from tacbench.report.methods import (
     style_of,
 )
 from tacbench.report.page import best_q_display, summary_display
-from tacbench.report.tables import normalise, run_scores
+from tacbench.report.tables import best_q_rows, normalise, run_scores
 from tests.report_fixtures import synthetic_tree, write_run
 
 pytestmark = pytest.mark.unit
@@ -179,6 +179,25 @@ def test_a_q_whose_every_run_failed_keeps_its_rows(tmp_path: Path) -> None:
     [row] = report.best_q.to_dict("records")
     assert row["ranking"] == "3 > 1; every run failed: 2"
     assert row["paper_q_rank"] == "every run failed" and row["best_q_not_1"] == 3.0
+
+
+def test_tac_best_q_is_of_the_papers_design_where_a_task_has_it() -> None:
+    """The adaptive study's TAC (best q) was HalfCheetah's learned-alpha q = 1.5 beside Hopper's
+    fixed-alpha q = 2, so its "all tasks" comparison mixed the two: it is chosen among fixed-
+    alpha float32 runs where a task has any, else among all."""
+    rows = [
+        ("A", "TAC q=1.5 [q1.5-a0.2]", "q1.5-a0.2", 1.5, 100.0),
+        ("A", "TAC q=1.5 [q1.5-aauto0.2]", "q1.5-aauto0.2", 1.5, 500.0),
+        ("A", "TAC q=2 [q2-a0.2-bf16]", "q2-a0.2-bf16", 2.0, 900.0),
+        ("A", SAC_LABEL, "q1-a0.2", 1.0, 1000.0),
+        ("B", "TAC q=2 [q2-aauto0.2]", "q2-aauto0.2", 2.0, 50.0),
+    ]
+    summary = pd.DataFrame(rows, columns=["env", "method", "variant", "q", "final_mean"])
+    best = best_q_rows(summary.assign(algo="tac", seeds=3))
+    assert best.set_index("env")["method"].to_dict() == {
+        "A": "TAC q=1.5 [q1.5-a0.2]",
+        "B": "TAC q=2 [q2-aauto0.2]",
+    }
 
 
 def test_normalisation_anchors_are_the_task_extremes(flat_report: Report) -> None:

@@ -18,8 +18,10 @@ import math
 import numpy as np
 import pandas as pd
 
+from tacbench.config import has_bf16_products
 from tacbench.paper import task_facts
 from tacbench.report.mixing import without_q
+from tacbench.report.stats import learns_alpha
 
 DEFAULT_LAST = 10
 SUMMARY_COLUMNS = (
@@ -143,9 +145,14 @@ def summary_table(scores: pd.DataFrame, failed: pd.DataFrame) -> pd.DataFrame:
 
 
 def best_q_rows(summary: pd.DataFrame) -> pd.DataFrame:
-    """Per task, the TAC row with the highest mean final return among q != 1 (for the figure)."""
+    """Per task, the TAC row with the highest mean final return among q != 1 (for the figure):
+    among the runs of the paper's design (a fixed alpha, float32 products) where the task has
+    any, so that TAC (best q) is not one task's learned alpha beside another's fixed one."""
     tac = summary[(summary["algo"] == "tac") & (summary["seeds"] > 0)]
     candidates = tac[tac["q"].notna() & (tac["q"] != 1.0)]  # a fixed q: not TAC q=auto
+    variants = candidates["variant"]
+    papers = candidates[~learns_alpha(variants) & ~variants.map(has_bf16_products)]
+    candidates = pd.concat([papers, candidates[~candidates["env"].isin(papers["env"])]])
     best = candidates.loc[candidates.groupby("env", sort=False)["final_mean"].idxmax()]
     return best.reset_index(drop=True)
 
