@@ -172,11 +172,22 @@ def _time_limit(env: gym.Env[Any, Any]) -> Any:
     return wrapper
 
 
+# The kinematics MuJoCo computed at the start of the last physics step (mj_kinematics and
+# mj_comPos), which envs read before they step: Ant's torso (xpos) and Humanoid's centre of mass
+# (xipos) for the reward. mj_setState restores none of them, and mj_forward would compute them
+# for the state after the step, not before it, so they are kept as they were.
+KINEMATICS = (
+    "xpos", "xquat", "xmat", "xipos", "ximat", "geom_xpos", "geom_xmat", "site_xpos",
+    "site_xmat", "subtree_com",
+)  # fmt: skip
+
+
 def get_env_state(env: gym.Env[Any, Any]) -> dict[str, Any] | None:
     """Everything needed to continue ``env`` bit-exactly, or None when it cannot be captured.
 
     For MuJoCo tasks: the simulator's integration state (positions, velocities, actuator state,
-    solver warm start, time), the env's random generator and the time-limit counter.
+    solver warm start, time), the kinematics of :data:`KINEMATICS`, the env's random generator
+    and the time-limit counter.
     """
     base = env.unwrapped
     if not isinstance(base, MujocoEnv):
@@ -186,17 +197,22 @@ def get_env_state(env: gym.Env[Any, Any]) -> dict[str, Any] | None:
     mujoco.mj_getState(base.model, base.data, physics, spec)
     return {
         "physics": physics.tolist(),
+        "kinematics": {name: getattr(base.data, name).tolist() for name in KINEMATICS},
         "np_random": base.np_random.bit_generator.state,
         "elapsed_steps": int(_time_limit(env)._elapsed_steps),
     }
 
 
 def set_env_state(env: gym.Env[Any, Any], state: dict[str, Any]) -> None:
-    """Restore a state from :func:`get_env_state` into an env of the same id that was reset."""
+    """Restore a state from :func:`get_env_state` into an env of the same id that was reset (a
+    state saved before the kinematics were kept restores without them, as it did then)."""
     base = env.unwrapped
     assert isinstance(base, MujocoEnv)
     physics = np.asarray(state["physics"], dtype=np.float64)
     mujoco.mj_setState(base.model, base.data, physics, mujoco.mjtState.mjSTATE_INTEGRATION)
+    for name, values in state.get("kinematics", {}).items():
+        field = getattr(base.data, name)
+        field[...] = np.asarray(values, dtype=np.float64).reshape(field.shape)
     base.np_random.bit_generator.state = state["np_random"]
     _time_limit(env)._elapsed_steps = state["elapsed_steps"]
 
