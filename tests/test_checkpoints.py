@@ -126,6 +126,32 @@ def test_a_group_resumes_from_the_newest_step_all_its_members_have(tmp_path: Pat
     assert "resume the others" not in str(refused.value)
 
 
+def test_a_first_checkpoint_cut_short_between_members_starts_the_group_afresh(
+    tmp_path: Path,
+) -> None:
+    """A member without a checkpoint that trained in the group from its start (its config.json
+    lists the same members) beside members holding only the first generation: the group was
+    stopped while it committed its first checkpoint, so it starts afresh. A member the others
+    do not list, or others with two generations, are refused as before."""
+    group = {"members": [{"q": 2.0, "alpha": 0.2, "seed": 0}, {"q": 2.0, "alpha": 0.2, "seed": 1}]}
+    runs = [tmp_path / "seed0", tmp_path / "seed1"]
+    for run in runs:
+        (run / "checkpoint").mkdir(parents=True)
+        (run / "config.json").write_text(json.dumps(group))
+    _generation(runs[0] / "checkpoint", 100)
+    folders = [run / "checkpoint" for run in runs]
+    step, [note] = checkpoints.choose(folders)
+    assert step is None
+    assert note.startswith("the group's first checkpoint (step 100) was cut short before")
+    (runs[1] / "config.json").write_text(json.dumps({"members": group["members"][1:]}))
+    with pytest.raises(TacbenchError, match="has no checkpoint, and the other members have"):
+        checkpoints.choose(folders)
+    (runs[1] / "config.json").write_text(json.dumps(group))
+    _generation(runs[0] / "checkpoint", 200)  # its second: the group did checkpoint once
+    with pytest.raises(TacbenchError, match="has no checkpoint, and the other members have"):
+        checkpoints.choose(folders)
+
+
 def test_a_damaged_generation_is_passed_over_and_later_ones_forgotten(tmp_path: Path) -> None:
     for step in (100, 200):
         _generation(tmp_path, step)

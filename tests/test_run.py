@@ -179,6 +179,36 @@ def test_a_new_member_beside_one_to_resume_is_refused_without_a_contrary_note(
     assert alone.exit_code == 0 and "seed 0: complete" in alone.output
 
 
+def test_a_group_stopped_during_its_first_checkpoint_starts_afresh(tmp_path: Path) -> None:
+    """Members commit their checkpoints one after another: a group killed after seed 0's first
+    and before seed 10's was refused as if seed 10 were a new member, with advice (resume seed
+    0 alone) that trains other numbers. It starts afresh, says why, and ends as an
+    uninterrupted group."""
+    group = [*CLI_TINY, "--seed", "0", "--seed", "10", "--checkpoint-every", "100"]
+    runner = CliRunner()
+    assert runner.invoke(cli, ["run", *group, "--out", str(tmp_path / "whole")]).exit_code == 0
+    out = tmp_path / "cut"
+    assert runner.invoke(cli, ["run", *group, "--out", str(out)]).exit_code == 0
+    variant = out / "runs" / "tac" / "Hopper-v4" / "q2-a0.2-ls200"
+    (variant / "seed0" / "checkpoint" / "manifest-000000000300.json").unlink()  # only step 200
+    shutil.rmtree(variant / "seed10" / "checkpoint")  # killed before it wrote its first
+    (variant / "seed0" / "status.json").write_text('{"state": "running", "step": 200}')  # kill -9
+    (variant / "seed10" / "status.json").write_text('{"state": "running", "step": 0}')
+    again = [*group, "--checkpoint-every", "150", "--out", str(out), "--resume"]
+    resumed = runner.invoke(cli, ["run", *again])
+    assert resumed.exit_code == 0, resumed.output
+    assert "the group's first checkpoint (step 200) was cut short before" in resumed.output
+    for seed in ("seed0", "seed10"):  # the cut-short generation at step 200 is forgotten
+        kept = sorted(p.name for p in (variant / seed / "checkpoint").glob("manifest-*"))
+        assert kept == ["manifest-000000000150.json", "manifest-000000000300.json"], seed
+    for seed in ("seed0", "seed10"):
+        for name in ("eval.csv", "losses.csv"):
+            fresh = pd.read_csv(variant / seed / name).drop(columns="wall_s", errors="ignore")
+            whole = tmp_path / "whole" / variant.relative_to(out) / seed / name
+            expected = pd.read_csv(whole).drop(columns="wall_s", errors="ignore")
+            pd.testing.assert_frame_equal(fresh, expected)
+
+
 def test_cli_user_errors_and_failed_run(tmp_path: Path) -> None:
     runner = CliRunner()
     for env, message in [("Hoper-v4", "Closest registered names"), ("CartPole-v1", "Discrete")]:

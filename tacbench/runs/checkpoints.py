@@ -207,10 +207,12 @@ def files_of(folder: Path, step: int) -> list[Path]:
 
 def choose(folders: Sequence[Path]) -> tuple[int | None, list[str]]:
     """The newest step that every member's checkpoint folder has an intact generation of (None:
-    no member has a checkpoint, so training starts afresh), and a note on each damaged
-    generation passed over. A TacbenchError (exit status 2) when a member has checkpoints but
-    none that every member can use; nothing is deleted."""
+    no member has a checkpoint, or the group's first was cut short before every member wrote
+    its own, so training starts afresh), and a note on each damaged generation passed over. A
+    TacbenchError (exit status 2) when a member has checkpoints but none that every member can
+    use; nothing is deleted."""
     usable, notes, without, having = [], [], [], []  # having: the steps of members with some
+    with_some: list[Path] = []
     for folder in folders:
         if folder.exists() and not folder.is_dir():
             raise TacbenchError(
@@ -227,6 +229,7 @@ def choose(folders: Sequence[Path]) -> tuple[int | None, list[str]]:
         usable.append(set(good))
         if good or bad:
             having.append(set(good))
+            with_some.append(folder)
         else:
             without.append(folder.parent)
         for step, found in bad.items():
@@ -234,6 +237,12 @@ def choose(folders: Sequence[Path]) -> tuple[int | None, list[str]]:
     if not having:
         return None, []
     common = set.intersection(*usable)
+    if not common and without and _first_cut_short(with_some, without):
+        return None, [
+            f"the group's first checkpoint (step {min(set.union(*having)):,}) was cut short "
+            f"before {listing([str(d) for d in without], shown=3)} wrote theirs, so the group "
+            "starts afresh"
+        ]
     if not common and without and set.intersection(*having):
         # new members beside partial ones that could resume: --force would lose their steps
         named = listing([str(d) for d in without], shown=3)
@@ -252,6 +261,27 @@ def choose(folders: Sequence[Path]) -> tuple[int | None, list[str]]:
             + f". Nothing was deleted; {START_OVER}."
         )
     return max(common), notes
+
+
+def _first_cut_short(with_some: Sequence[Path], without: Sequence[Path]) -> bool:
+    """Whether the members that have a checkpoint folder each hold one intact generation, of
+    one step, and those without one (run directories) trained in the same group from its start
+    (their config.json lists the same members): the group was stopped while its members
+    committed their first checkpoint one after another, and none can resume without the rest."""
+    steps = [usable_steps(folder) for folder in with_some]
+    if any(len(good) != 1 or bad for good, bad in steps) or len({good[0] for good, _ in steps}) > 1:
+        return False
+    groups = [_members(folder.parent) for folder in with_some] + [_members(d) for d in without]
+    return None not in groups and all(group == groups[0] for group in groups)
+
+
+def _members(directory: Path) -> list[Any] | None:
+    """The group a run directory's config.json records (None: no readable config.json)."""
+    try:
+        members = json.loads((directory / "config.json").read_text()).get("members")
+    except (OSError, ValueError):
+        return None
+    return members if isinstance(members, list) and members else None
 
 
 @contextmanager

@@ -111,14 +111,13 @@ class GroupTrainer:
             if step is None
             else [w.check_resume(step, c.to_dict(), members) for w, c in pairs]
         )
-        if step is not None:
-            for folder in folders:
-                checkpoints.discard_after(folder, step)
+        for folder in folders:  # what a resume abandons: all of a first checkpoint cut short
+            checkpoints.discard_after(folder, -1 if step is None else step)
         # each note once: the members share their hardware settings and their group
         self.resume_notes += dict.fromkeys(note for plan in plans if plan for note in plan.notes)
         for writer, config, plan in zip(self.writers, self.configs, plans, strict=True):
             if self.resume_notes:
-                writer.note = f"resumed from step {step}: " + "; ".join(self.resume_notes)
+                writer.note = f"resumed from step {step or 0}: " + "; ".join(self.resume_notes)
             writer.open(
                 runs.run_metadata(config, self.command, config.q, members=members)
                 if plan is None  # a resumed run keeps its config.json
