@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 import pytest
+import torch
 from click.testing import CliRunner
 
 from tacbench.cli import cli
@@ -207,6 +208,47 @@ def test_a_group_stopped_during_its_first_checkpoint_starts_afresh(tmp_path: Pat
             whole = tmp_path / "whole" / variant.relative_to(out) / seed / name
             expected = pd.read_csv(whole).drop(columns="wall_s", errors="ignore")
             pd.testing.assert_frame_equal(fresh, expected)
+
+
+def test_a_group_resumes_in_the_order_it_trained_in_whatever_the_commands(
+    tmp_path: Path,
+) -> None:
+    """The order of a group's members is part of its rounding: `--seed 10 --seed 0` resumed a
+    group trained as `--seed 0 --seed 10` in the other order, to other numbers and without a
+    note. It resumes in the order config.json records."""
+    first = [*CLI_TINY, "--seed", "0", "--seed", "10", "--checkpoint-every", "100"]
+    runner = CliRunner()
+    assert runner.invoke(cli, ["run", *first, "--out", str(tmp_path / "whole")]).exit_code == 0
+    out = tmp_path / "stopped"
+    assert runner.invoke(cli, ["run", *first, "--out", str(out)]).exit_code == 0
+    variant = out / "runs" / "tac" / "Hopper-v4" / "q2-a0.2-ls200"
+    for seed in ("seed0", "seed10"):  # as if stopped at step 200
+        (variant / seed / "checkpoint" / "manifest-000000000300.json").unlink()
+        (variant / seed / "status.json").write_text('{"state": "interrupted", "step": 200}')
+    swapped = [*CLI_TINY, "--seed", "10", "--seed", "0", "--checkpoint-every", "100"]
+    resumed = runner.invoke(cli, ["run", *swapped, "--out", str(out), "--resume"])
+    assert resumed.exit_code == 0, resumed.output
+    for seed in ("seed0", "seed10"):
+        for name in ("eval.csv", "losses.csv"):
+            got = pd.read_csv(variant / seed / name).drop(columns="wall_s", errors="ignore")
+            whole = tmp_path / "whole" / variant.relative_to(out) / seed / name
+            expected = pd.read_csv(whole).drop(columns="wall_s", errors="ignore")
+            pd.testing.assert_frame_equal(got, expected)
+        # the weights and Adam moments to the last bit (the order's rounding: about 1e-8)
+        trained = checkpoint_state(variant / seed)["agent"]
+        whole = tmp_path / "whole" / variant.relative_to(out) / seed
+        uninterrupted = checkpoint_state(whole)["agent"]
+        for part in ("params", "adam"):
+            pairs = zip(_tensors(trained[part]), _tensors(uninterrupted[part]), strict=True)
+            assert all(torch.equal(a, b) for a, b in pairs), (seed, part)
+
+
+def _tensors(tree: Any) -> list[torch.Tensor]:
+    """The tensors of a checkpoint's nested dicts, in their order."""
+    if isinstance(tree, torch.Tensor):
+        return [tree]
+    values = tree.values() if isinstance(tree, dict) else []
+    return [tensor for value in values for tensor in _tensors(value)]
 
 
 def test_cli_user_errors_and_failed_run(tmp_path: Path) -> None:

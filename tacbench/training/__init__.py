@@ -76,6 +76,7 @@ def train(
     """:meth:`tacbench.trainers.Trainer.train` for TAC: the members ``configs`` (equal but for
     q, alpha and the seed) train in lockstep as one group; ``stop`` is polled before every
     step."""
+    configs = _in_recorded_order(out, configs) if resume else list(configs)
     recorded = [_recorded_compile(out, c) for c in configs] if resume else []
     started = next((value for value in recorded if value is not None), None)
     configs = [resolve_compile(c, started) for c in configs]  # a group shares one value
@@ -95,6 +96,26 @@ def train(
                     lambda step: bool(received) or (stop is not None and stop(step))
                 )
     return sorted(outcomes, key=lambda o: o.seed)
+
+
+def _in_recorded_order(out: Path, configs: Sequence[RunConfig]) -> list[RunConfig]:
+    """The members in the order their config.json records, where it lists these members: the
+    order of a group's members is part of its rounding, so the same members given in another
+    order resume as they trained (another group keeps the command's order, and its resume says
+    that the group changed)."""
+    for config in configs:
+        path = runs.run_directory(out, config.algo, config.env, config.variant, config.seed)
+        try:
+            recorded = runs.read_json(path / "config.json").get("members")
+        except (OSError, ValueError, AttributeError):
+            continue  # none yet, or unreadable: planning says what to do about the latter
+        if not isinstance(recorded, list) or not all(isinstance(m, dict) for m in recorded):
+            return list(configs)  # an older config.json lists the seeds alone
+        order = [(m.get("q"), m.get("alpha"), m.get("seed")) for m in recorded]
+        if len(order) != len(configs) or set(order) != {(c.q, c.alpha, c.seed) for c in configs}:
+            return list(configs)
+        return sorted(configs, key=lambda c: order.index((c.q, c.alpha, c.seed)))
+    return list(configs)
 
 
 def _recorded_compile(out: Path, config: RunConfig) -> str | None:
