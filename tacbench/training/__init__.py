@@ -107,7 +107,7 @@ def _in_recorded_order(out: Path, configs: Sequence[RunConfig]) -> list[RunConfi
         path = runs.run_directory(out, config.algo, config.env, config.variant, config.seed)
         try:
             recorded = runs.read_json(path / "config.json").get("members")
-        except (OSError, ValueError, AttributeError):
+        except TacbenchError:
             continue  # none yet, or unreadable: planning says what to do about the latter
         if not isinstance(recorded, list) or not all(isinstance(m, dict) for m in recorded):
             return list(configs)  # an older config.json lists the seeds alone
