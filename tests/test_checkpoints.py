@@ -110,6 +110,15 @@ def test_a_group_resumes_from_the_newest_step_all_its_members_have(tmp_path: Pat
     _generation(d, 300)
     with pytest.raises(TacbenchError, match="the members' checkpoints are at different steps"):
         checkpoints.choose([a, d])
+    # every checkpoint intact (members resumed apart): not --force, which deletes them all
+    apart = [tmp_path / "q1-a0.2" / seed / "checkpoint" for seed in ("seed0", "seed1")]
+    for step in (100, 200):
+        _generation(apart[0], step)
+    _generation(apart[1], 300)
+    with pytest.raises(TacbenchError) as refused:
+        checkpoints.choose(apart)
+    assert "(q1-a0.2/seed0 at 100, 200; q1-a0.2/seed1 at 300)" in str(refused.value)
+    assert "resume each member in a command of its own" in str(refused.value)
     # a new member beside a partial one: the advice was --force, which would lose a's steps
     with pytest.raises(TacbenchError) as refused:
         checkpoints.choose([a, c / "checkpoint"])

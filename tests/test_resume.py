@@ -236,9 +236,7 @@ def test_a_resume_from_before_the_step_status_json_records_says_so(tmp_path: Pat
     [outcome] = train(tmp_path, configs, resume=True)
     assert (outcome.state, outcome.step) == ("complete", 1500)
     reason = json.loads((outcome.directory / "status.json").read_text())["reason"]
-    assert "status.json records step 1,100, but the newest intact checkpoint is at step 1,000" in (
-        reason
-    )
+    assert "status.json records step 1,100, but the resume starts from step 1,000" in reason
 
 
 def test_a_group_resumed_with_fewer_members_says_its_numbers_round_otherwise(

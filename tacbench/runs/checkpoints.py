@@ -254,11 +254,22 @@ def choose(folders: Sequence[Path]) -> tuple[int | None, list[str]]:
             + "".join(f"; {note}" for note in notes)
             + "."
         )
-    if not common:
+    if not common and notes:
         raise NoCommonCheckpoint(
-            "no usable checkpoint to resume from: "
-            + ("; ".join(notes) or "the members' checkpoints are at different steps")
-            + f". Nothing was deleted; {START_OVER}."
+            f"no usable checkpoint to resume from: {'; '.join(notes)}. Nothing was deleted; "
+            f"{START_OVER}."
+        )
+    if not common:  # every checkpoint intact: members resumed apart, say, and went on apart
+        held = "; ".join(
+            f"{folder.parent.parent.name}/{folder.parent.name} at "
+            + ", ".join(f"{step:,}" for step in sorted(steps))
+            for folder, steps in zip(with_some, having, strict=True)
+        )
+        raise NoCommonCheckpoint(
+            f"the members' checkpoints are at different steps ({held}), and a group resumes "
+            "only from a step all its members share. Nothing was deleted; resume each member "
+            "in a command of its own (its --seed, --q or --alpha alone), or rerun the group "
+            "with --force to start it over."
         )
     return max(common), notes
 

@@ -255,8 +255,9 @@ class RunWriter:
         reached = read_json(status).get("step") if status.exists() else None
         if isinstance(reached, int) and reached > step:  # a newer generation is lost
             plan.notes.append(
-                f"status.json records step {reached:,}, but the newest intact checkpoint is at "
-                f"step {step:,}: the steps after it are trained again"
+                f"status.json records step {reached:,}, but the resume starts from step "
+                f"{step:,}, the newest checkpoint intact in every member: the steps after it are "
+                "trained again"
             )
         for name, columns in self._csvs().items():
             file = f"{name}.csv"
