@@ -106,6 +106,31 @@ def check_density(config: RunConfig) -> None:
         )
 
 
+def check_alpha_target(config: RunConfig, act_dim: int) -> None:
+    """Refuse ``--alpha auto`` with the default target where the density cap binds at the
+    target's own density (log-density 1 per action dimension): the target is then the largest
+    value the capped ln_q takes, E[ln_q pi] never exceeds it, and alpha could only fall. That is
+    per-dim above q = 1 + 8 ln 10 (19.4), joint where act_dim (q - 1) >= 8 ln 10 (HalfCheetah at
+    q = 5); with --q auto at the top of its --q-range."""
+    if config.alpha_mode != "auto" or config.target_entropy is not None:
+        return
+    q = max(config.q_range) if config.q_mode == "auto" else config.q
+    at_target = 1.0 if config.lnq == "per-dim" else float(act_dim)
+    if config.lnq == "joint-batch-max" or at_target < paper.density_log_cap(q, config.density_cap):
+        return
+    remedies = [
+        "give --target-entropy",
+        "narrow --q-range" if config.q_mode == "auto" else "use a smaller q",
+        *(["use --lnq per-dim"] if config.lnq == "joint" else []),
+    ]
+    raise TacbenchError(
+        f"--alpha auto: at q = {q:g} with --lnq {config.lnq} on {act_dim} action dimensions "
+        "the default target of E[ln_q pi] lies at the density cap (--density-cap "
+        f"{config.density_cap}: 10^(8/(q-1)) per density), the largest value the capped ln_q "
+        f"takes, so alpha could only fall; {', '.join(remedies[:-1])} or {remedies[-1]}."
+    )
+
+
 def check_pbt(config: RunConfig) -> None:
     """Population-based training's settings, only with --q auto; stores ``q_range`` as
     (LOW, HIGH) first, so that it compares equal to its default."""

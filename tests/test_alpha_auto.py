@@ -5,6 +5,7 @@ command line carry it."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import warnings
 from pathlib import Path
@@ -19,9 +20,17 @@ from stable_baselines3 import SAC
 
 from tacbench.cli import cli
 from tacbench.config import RunConfig
+from tacbench.config_checks import check_alpha_target
 from tacbench.errors import TacbenchError
 from tacbench.tac.agent import TacAgent
-from tacbench.tac.maths import ALPHA_METRICS, METRICS, Batch, coefficients, default_lnq_target
+from tacbench.tac.maths import (
+    ALPHA_METRICS,
+    METRICS,
+    Batch,
+    coefficients,
+    default_lnq_target,
+    lnq_of_policy,
+)
 from tacbench.tac.update import gradients, update
 from tests.helpers import random_batch, random_minibatch, tac_agent
 
@@ -160,3 +169,34 @@ def test_bad_alpha_requests_are_usage_errors(tmp_path: Path, args: list[str], me
     assert result.exit_code == 2, result.output
     assert message in result.output
     assert not (tmp_path / "runs").exists()
+
+
+@pytest.mark.parametrize(
+    ("lnq", "q", "refused"),
+    [("joint", 5.0, True), ("joint", 2.0, False), ("per-dim", 25.0, True), ("per-dim", 5.0, False)],
+)
+def test_a_default_target_at_the_density_cap_is_refused(lnq: str, q: float, refused: bool) -> None:
+    """Where the cap binds at the default target's density (joint at q = 5 on six action
+    dimensions, per-dim above q = 19.4), the target is the most the capped ln_q can be, so the
+    temperature loss could only lower alpha: no density of any policy reaches above it there,
+    and below the cap it does. Such a run is refused unless --target-entropy is given."""
+    c = coefficients([q], [0.2], CPU)
+    target = default_lnq_target(c, 6, lnq)
+    log_densities = torch.linspace(-30.0, 30.0, 601)[None, :, None].expand(1, 601, 6)
+    assert bool((lnq_of_policy(log_densities, c, lnq) > target).any()) is not refused
+    config = RunConfig(env="HalfCheetah-v4", q=q, alpha=0.2, alpha_mode="auto", lnq=lnq)
+    if refused:
+        with pytest.raises(TacbenchError, match="lies at the density cap"):
+            check_alpha_target(config, act_dim=6)
+        explicit = dataclasses.replace(config, target_entropy=-6.0)
+        check_alpha_target(explicit, act_dim=6)  # an explicit target is the user's to choose
+    else:
+        check_alpha_target(config, act_dim=6)
+
+
+def test_a_population_is_checked_at_the_top_of_its_q_range() -> None:
+    auto = RunConfig(env="Hopper-v4", q=1.0, alpha=0.2, q_mode="auto", alpha_mode="auto")
+    auto = dataclasses.replace(auto, q_range=(0.7, 30.0))
+    remedy = r"at q = 30 .* give --target-entropy or narrow --q-range\."
+    with pytest.raises(TacbenchError, match=remedy):
+        check_alpha_target(auto, act_dim=3)

@@ -20,6 +20,7 @@ import numpy as np
 
 from tacbench import envs, memory, runs
 from tacbench.config import RunConfig
+from tacbench.config_checks import check_alpha_target
 from tacbench.errors import TacbenchError
 from tacbench.hardware import check_matmul_precision, configure_process
 from tacbench.interrupts import StopCheck, stop_signals
@@ -83,6 +84,8 @@ def train(
     check_members(configs)
     info = envs.env_info(configs[0].env)  # an unusable task fails before any directory is touched
     check_sizes(configs, info)
+    for config in configs:
+        check_alpha_target(config, info.act_dim)
     check_matmul_precision(configs[0].matmul_precision, resolve_device(configs[0].device))
     with (
         disk_errors("the run's files"),
