@@ -131,7 +131,7 @@ DEFAULT_Q = 1.0
 
 DENSITY_CAP_RULES: tuple[str, ...] = ("paper", "every-q", "off")
 """Where the density cap ``10^(8/(q-1))`` applies (``--density-cap``): ``paper`` for q >= 2 (the
-appendix "Numerical Issue", line 1712; the authors' final code), ``every-q`` for every q != 1
+appendix "Numerical Issue", lines 2026-2035; the authors' final code), ``every-q`` for every q != 1
 (the authors' code of 2019-01-16, 7b0308a), ``off`` nowhere (their code before that)."""
 
 
