@@ -319,6 +319,7 @@ def test_a_pair_without_a_default_of_its_own_is_priced_at_its_algorithms_mean_an
     own = [(cost.REFERENCE_TAC, "HalfCheetah-v4"), (cost.REFERENCE_TAC, "Hopper-v4")]
     assert cost.default_stand_ins(cost.REFERENCE_TAC, "Humanoid-v4") == own
     assert cost.default_stand_ins("tac", "Humanoid-v4") == []
+    assert cost.default_stand_ins("tac", "Hopper-v5") == [("tac", "Hopper-v4")]  # another suite
     assert cost.default_stand_ins("not-an-algo", "Hopper-v4") == sorted(
         cost.DEFAULT_SECONDS_PER_STEP
     )

@@ -141,6 +141,10 @@ def test_sweep_command_takes_the_suite(tmp_path: object) -> None:
     args = ["sweep", "--preset", "smoke", "--suite", "v5", "--dry-run", "--out", str(tmp_path)]
     result = CliRunner().invoke(cli, args)
     assert result.exit_code == 0, result.output
-    assert "tac Hopper-v5: 2 units" in result.output and "Hopper-v4" not in result.output
+    assert "tac Hopper-v5: 2 units" in result.output
+    planned = [line.split()[:2] for line in result.output.splitlines()]
+    assert ["tac", "Hopper-v5"] in planned and ["tac", "Hopper-v4"] not in planned
+    # priced as Hopper-v4's default, the same task, and said so
+    assert "tac Hopper-v5: no default of its own, priced at tac's on Hopper-v4;" in (result.output)
     refused = CliRunner().invoke(cli, [*args[:3], "--env", "Hopper-v5", "--dry-run"])
     assert refused.exit_code != 0 and "add --suite v5" in refused.output

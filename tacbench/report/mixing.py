@@ -19,6 +19,11 @@ _Q_ALPHA = re.compile(r"^q(?:auto|[0-9.]+(?:e[+-]\d+)?)-a(?:auto)?[0-9.]+(?:e[+-
 _Q = re.compile(r"^q(?:auto|[0-9.]+(?:e[+-]\d+)?)-")
 
 
+def learns_alpha(variants: pd.Series) -> pd.Series:
+    """Whether each run learned its alpha (--alpha auto: ``-aauto`` in the variant)."""
+    return variants.astype(str).str.contains("-aauto", regex=False)
+
+
 def without_q(variant: str) -> str:
     """A TAC variant without its q: the runs of one design across q (``q1.5-a0.2-bs32`` ->
     ``a0.2-bs32``; ``qauto-aauto0.2`` -> ``aauto0.2``)."""

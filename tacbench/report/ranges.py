@@ -24,12 +24,8 @@ import numpy as np
 import pandas as pd
 
 from tacbench.config import has_bf16_products
-from tacbench.report.stats import (
-    ALL_TASKS,
-    interval_estimates,
-    learns_alpha,
-    probability_of_improvement,
-)
+from tacbench.report.mixing import learns_alpha
+from tacbench.report.stats import ALL_TASKS, interval_estimates, probability_of_improvement
 from tacbench.verdicts import improvement_verdict
 
 Q_RANGES: tuple[tuple[str, float, float], ...] = (

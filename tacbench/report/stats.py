@@ -29,6 +29,7 @@ from rliable import metrics
 from tacbench.bootstrap import interval, scalar_interval, strata_seed
 from tacbench.config import has_bf16_products
 from tacbench.detectable import detectable_difference, detectable_shift
+from tacbench.report.mixing import learns_alpha
 from tacbench.sequential import NOT_DISTINGUISHABLE
 from tacbench.verdicts import improvement_verdict
 
@@ -195,11 +196,6 @@ def _flat(estimates: dict[str, Estimate]) -> dict[str, float]:
     for name, (point, low, high) in estimates.items():
         flat.update({name: point, f"{name}_low": low, f"{name}_high": high})
     return flat
-
-
-def learns_alpha(variants: pd.Series) -> pd.Series:
-    """Whether each run learned its alpha (--alpha auto: ``-aauto`` in the variant)."""
-    return variants.astype(str).str.contains("-aauto", regex=False)
 
 
 def _reference_runs(

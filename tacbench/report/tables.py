@@ -20,8 +20,7 @@ import pandas as pd
 
 from tacbench.config import has_bf16_products
 from tacbench.paper import task_facts
-from tacbench.report.mixing import without_q
-from tacbench.report.stats import learns_alpha
+from tacbench.report.mixing import learns_alpha, without_q
 
 DEFAULT_LAST = 10
 SUMMARY_COLUMNS = (

@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from tacbench import runs
-from tacbench.paper import HYPERPARAMETERS, PROFILES, paper_task
+from tacbench.paper import ENV_IDS, HYPERPARAMETERS, PROFILES, paper_task
 
 # CPU seconds per member-step with the paper's settings, one torch thread, measured with
 # :func:`measure`: learning from step 1,000, CPU time (time.process_time, not inflated by other
@@ -192,11 +192,16 @@ def _default(algo: str, env: str) -> float:
 
 
 def default_stand_ins(algo: str, env: str) -> list[tuple[str, str]]:
-    """The (algo, env) pairs whose defaults' mean prices a pair without a default of its own
-    (``tac-ref`` on the tasks other than HalfCheetah and Hopper, a task outside the paper's):
-    the algorithm's, or every pair's for an algorithm with none. Empty for a pair with its own."""
+    """The (algo, env) pairs whose defaults' mean prices a pair without a default of its own:
+    the same paper task in the suite the defaults were measured in (``Hopper-v5`` by
+    ``Hopper-v4``), else the algorithm's pairs (``tac-ref`` on the tasks other than HalfCheetah
+    and Hopper, a task outside the paper's), or every pair's for an algorithm with none. Empty
+    for a pair with its own."""
     if (algo, env) in DEFAULT_SECONDS_PER_STEP:
         return []
+    task = paper_task(env)
+    if task is not None and (algo, ENV_IDS[task]) in DEFAULT_SECONDS_PER_STEP:
+        return [(algo, ENV_IDS[task])]
     same_algo = sorted(pair for pair in DEFAULT_SECONDS_PER_STEP if pair[0] == algo)
     return same_algo or sorted(DEFAULT_SECONDS_PER_STEP)
 

@@ -177,12 +177,13 @@ def _without_a_default_of_its_own(priced: Price) -> list[str]:
         if g.source != cost.DEFAULT_SOURCE or not stand_ins:
             continue
         whose = (
-            f"{g.algo}'s on {', '.join(env for _, env in stand_ins)}"
+            f"{'' if len(stand_ins) == 1 else 'the mean of '}{g.algo}'s on "
+            + ", ".join(env for _, env in stand_ins)
             if all(algo == g.algo for algo, _ in stand_ins)
-            else "every algorithm's defaults"
+            else "the mean of every algorithm's defaults"
         )
         lines.append(
-            f"  {g.algo} {g.env}: no default of its own, priced at the mean of {whose}; "
+            f"  {g.algo} {g.env}: no default of its own, priced at {whose}; "
             "--calibrate measures it."
         )
     return lines
