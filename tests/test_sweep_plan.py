@@ -102,6 +102,18 @@ def test_a_run_failed_more_than_max_retries_is_given_up(
     assert _plan(out, driver.Options(max_retries=2)).count(action="retry") == 1
 
 
+def test_a_failure_in_status_json_already_recorded_is_not_counted_again(tmp_path: Path) -> None:
+    """A retry whose worker died before it reset status.json leaves the earlier failure there,
+    behind the worker's own: it was counted again, and the run given up an attempt early."""
+    history = state.SweepState(tmp_path)
+    history.add_failure("run", 700, "non-finite loss_v")
+    history.add_failure("run", 700, "worker process killed by SIGKILL")
+    history.note_failed_status("run", 700, "non-finite loss_v")
+    assert len(history.failures("run")) == 2
+    history.note_failed_status("run", 900, "non-finite loss_v")  # a new failure: counted
+    assert len(history.failures("run")) == 3
+
+
 def test_another_config_in_a_run_directory_stops_the_plan(tmp_path: Path) -> None:
     run = plan.build_runs(SMOKE)[0]
     _fake_run(tmp_path, run, {"state": "running", "step": 0}, eval_every=123)

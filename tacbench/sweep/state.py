@@ -86,10 +86,11 @@ class SweepState:
         self.save()
 
     def note_failed_status(self, key: str, step: int, reason: str) -> None:
-        """Record (without saving) a failure read from a run's status.json unless it is the last
-        one recorded: a run that failed outside a sweep, or before the sweep recorded it."""
-        last = self.failures(key)[-1:]
-        if not last or (last[0].step, last[0].reason) != (step, reason):
+        """Record (without saving) a failure read from a run's status.json unless one recorded
+        already says it (the same step and reason): a run that failed outside a sweep, or before
+        the sweep recorded it. Not only the last: a retry whose worker died before it reset
+        status.json leaves the earlier failure there, behind the worker's own."""
+        if all((f.step, f.reason) != (step, reason) for f in self.failures(key)):
             self._append(key, step, reason, "(from status.json)")
 
     def _append(self, key: str, step: int, reason: str, host: str) -> None:
