@@ -143,6 +143,35 @@ def test_bad_designs_are_refused_with_what_to_change(tmp_path: Path) -> None:
         describe_design(HOPPER, tmp_path, driver.Options(), never)
 
 
+def test_runs_without_evaluations_are_refused_before_anything_trains(tmp_path: Path) -> None:
+    """Each interim is scored by its runs' final evaluation returns: --eval-every 0 trained a
+    whole interim and then stopped on the first eval.csv without rows, and a changed
+    --eval-every was then refused as another config."""
+    blind = narrow(HOPPER, Narrowing(settings={"eval_every": 0}))
+    train = FakeTrain()
+    with pytest.raises(TacbenchError, match=r"would make none \(--eval-every 0\)"):
+        run_until_decided(blind, tmp_path, driver.Options(), Design(), train=train)
+    assert train.trained == [] and not (tmp_path / "runs").exists()
+    with pytest.raises(TacbenchError, match="--eval-every a number of steps"):
+        describe_design(blind, tmp_path, driver.Options(), Design())
+
+
+def test_runs_given_up_are_told_to_rerun_with_more_retries(tmp_path: Path) -> None:
+    """After a run was given up the command said both 'a larger --max-retries' (the sweep) and
+    'rerun the same command' (which trains nothing and gives up again)."""
+
+    def gives_up(grid: Preset, out: Path, *args: Any, **kw: Any) -> driver.SweepResult:
+        counts = {"given_up": 2, "failed": 2}
+        return driver.SweepResult({"counts": counts}, "2 failed (2 given up)", False)
+
+    outcome = run_until_decided(HOPPER, tmp_path, driver.Options(), Design(), train=gives_up)
+    assert outcome.text.endswith(
+        "interim 1 gave up on 2 runs after too many failures; see why above, then rerun it "
+        "with a larger --max-retries to continue."
+    )
+    assert "rerun the same command" not in outcome.text
+
+
 def test_a_decided_comparison_stops_spending_runs(tmp_path: Path) -> None:
     train = FakeTrain()
     outcome = run_until_decided(HOPPER, tmp_path, driver.Options(), Design(n=5, K=2), train=train)

@@ -170,6 +170,20 @@ def check_decidable(design: Design, tasks: dict[str, list[Method]]) -> None:
         )
 
 
+def check_evaluated(tasks: dict[str, list[Method]]) -> None:
+    """Refuse, before anything trains, methods whose runs make no evaluation: every interim is
+    scored by its runs' final evaluation returns (eval.csv)."""
+    for env, methods in tasks.items():
+        for method in methods:
+            (run,) = method.runs(1)
+            if getattr(run.config, "eval_every", 1) == 0:
+                raise TacbenchError(
+                    f"--until-decided scores each interim by its runs' final evaluation returns, "
+                    f"and {method.label} on {env} would make none (--eval-every 0); give "
+                    "--eval-every a number of steps."
+                )
+
+
 def same_design(stored: Any, design: Design, tasks: dict[str, list[Method]]) -> bool:
     """Whether a recorded design is ``design``, its control compared as resolved on each task
     (``q=1`` is ``SAC (TAC q=1)``, ``BEST-Q`` is ``best-q``), not as spelled."""

@@ -41,6 +41,7 @@ from tacbench.sweep.sequential_design import (
     Design,
     Method,
     check_decidable,
+    check_evaluated,
     control_of,
     default_control,
     earliest_decision,
@@ -158,6 +159,7 @@ def run_until_decided(
     design = replace(design, control=design.control or default_control(preset))
     tasks = methods_of(preset)
     controls = {env: control_of(design, env, methods) for env, methods in tasks.items()}
+    check_evaluated(tasks)
     record = Record(out, design, tasks)
     if not any(record.interims.values()):
         check_decidable(design, tasks)
@@ -172,8 +174,16 @@ def run_until_decided(
         last = train(_grid(preset, chosen), out, options, stream, told=frozenset(told))
         told.update(last.warnings)
         if last.exit_code:
-            why = "stopped" if last.interrupted else "could not train every run"
-            text = f"{last.text}\ninterim {k} {why}; rerun the same command to continue it."
+            given_up = 0 if last.interrupted else last.summary["counts"]["given_up"]
+            why = (
+                "stopped; rerun the same command to continue it"
+                if last.interrupted
+                else f"gave up on {given_up} run{'s' if given_up != 1 else ''} after too many "
+                "failures; see why above, then rerun it with a larger --max-retries to continue"
+                if given_up
+                else "could not train every run; rerun the same command to continue it"
+            )
+            text = f"{last.text}\ninterim {k} {why}."
             return Outcome({e: c.result() for e, c in compared.items()}, last, text)
         for env in needed:
             trained = {m.label: m.runs(needed[env][m.label]) for m in tasks[env]}
@@ -231,6 +241,7 @@ def describe_design(preset: Preset, out: Path, options: Options, design: Design)
     design = replace(design, control=design.control or default_control(preset))
     tasks = methods_of(preset)
     controls = {env: control_of(design, env, methods) for env, methods in tasks.items()}
+    check_evaluated(tasks)
     record = Record(out, design, tasks)
     if not any(record.interims.values()):
         check_decidable(design, tasks)
