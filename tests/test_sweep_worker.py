@@ -75,6 +75,20 @@ def test_members_without_a_common_checkpoint_train_one_at_a_time(
     assert isinstance(outcomes, list) and [o.seed for o in outcomes] == [0, 10]
 
 
+def test_a_member_alone_without_a_usable_checkpoint_is_left_out_and_the_others_train(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Trained one at a time, a member whose every checkpoint is damaged ended the unit before
+    the others started; the driver then failed them all with its error and gave them up."""
+    refusal = NoCommonCheckpoint("no usable checkpoint to resume from: ... damaged")
+    damaged: dict[str, str] = {}
+    trainer, outcomes = _train(tmp_path, monkeypatch, refusal, 0, (0, 10), damaged)
+    assert trainer.calls == [[0, 10], [0], [10]]
+    assert isinstance(outcomes, list) and [o.seed for o in outcomes] == [10]
+    key = _unit((0,)).runs[0].key
+    assert damaged == {key: f"NoCommonCheckpoint: {refusal}"}
+
+
 def test_a_group_refused_for_another_reason_is_not_split(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -111,7 +111,8 @@ def execute(job: Job, report: Report, every_s: float = 1.0) -> JobResult:
 def _train(job: Job, stop: StopHook, damaged: dict[str, str]) -> list[Outcome]:
     """Train ``job``'s runs as one group. A member whose CSVs cannot continue is left out
     (its error goes to ``damaged``, by run key) and the group trained without it; members
-    that share no checkpoint step are trained one at a time."""
+    that share no checkpoint step are trained one at a time, and one of them whose every
+    checkpoint is damaged is left out alike, the others trained."""
 
     def call(members: list[Run]) -> list[Outcome]:
         try:
@@ -137,7 +138,11 @@ def _train(job: Job, stop: StopHook, damaged: dict[str, str]) -> list[Outcome]:
             print(f"training the members one at a time: {err}", file=sys.stderr, flush=True)
         outcomes: list[Outcome] = []
         for run in members:
-            outcomes += call([run])
+            try:
+                outcomes += call([run])
+            except NoCommonCheckpoint as err:  # every checkpoint of its own damaged: its error
+                print(f"left out of its unit: {err}", file=sys.stderr, flush=True)
+                damaged[run.key] = one_line(err)
             if any(outcome.state == "interrupted" for outcome in outcomes):
                 break
         return outcomes
