@@ -21,6 +21,7 @@ from click.testing import CliRunner
 from tacbench import hardware, runs
 from tacbench.cli import cli
 from tacbench.errors import TacbenchError
+from tacbench.runs import Outcome
 from tacbench.sweep import cost, driver, plan, state, summary, worker
 from tacbench.sweep.presets import Narrowing, get_preset, narrow
 
@@ -625,6 +626,47 @@ def test_a_retried_runs_worker_that_dies_is_recorded_with_its_death(
     failures = history.failures(all_runs[4].key)
     assert [f.reason for f in failures] == ["non-finite", *["worker process killed by SIGKILL"] * 2]
     assert {f.host for f in failures[1:]} == {host}
+
+
+class _WorkersTerminated(_DiedOfCtrlC):
+    """An executor whose every unit's worker gets a SIGTERM the sweep did not send: its trainer
+    checkpoints, returns its runs interrupted, and the worker ends with a result."""
+
+    def __init__(self, out: Path) -> None:
+        super().__init__({})
+        self.out = out
+
+    def wait(self, timeout: float) -> list[Any]:
+        from tacbench.sweep.executors import Finished
+
+        done = []
+        for unit in self.units:
+            for run in unit.runs:
+                status = {"state": "interrupted", "step": 300}
+                (self.out / run.key).mkdir(parents=True, exist_ok=True)
+                config = {"config": run.config.to_dict(), "members": [run.config.seed]}
+                runs.atomic_write_json(self.out / run.key / "config.json", config)
+                runs.atomic_write_json(self.out / run.key / "status.json", status)
+            outcomes = tuple(
+                Outcome(r.config.seed, self.out, "interrupted", 300) for r in unit.runs
+            )
+            done.append(Finished(unit, worker.JobResult(outcomes, host="h"), ""))
+        self.units = []
+        return done
+
+
+def test_a_run_whose_worker_was_stopped_by_another_signal_is_retried_not_left(
+    tmp_path: Path,
+) -> None:
+    """A worker killed by a SIGTERM the sweep did not send checkpoints and returns its runs
+    interrupted: the sweep left them partial and exited 0 as if every run were complete. Such an
+    attempt is a failure now, retried up to --max-retries, then given up (exit 1)."""
+    options = driver.Options(workers=1, max_retries=1)
+    work, history = driver.load_plan(SMOKE, tmp_path, options, save=False)
+    driver._Driver(work, history, _WorkersTerminated(tmp_path), options, stream=None).run({})
+    key = work.runs[0].run.key
+    reasons = [f.reason for f in history.failures(key)]
+    assert reasons == ["its worker ended at step 300; the sweep did not stop it"] * 2
 
 
 @pytest.mark.parametrize(

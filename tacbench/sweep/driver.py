@@ -321,6 +321,10 @@ class _Driver:
             stale = bool(finished.died) and self._recorded(run.key, status)
             failed_now = status.state == "failed" and not stale
             reason = status.reason if failed_now else _error_of(run, error, result)
+            if not reason and result is not None and not self.stopping:
+                # its worker returned it unfinished though the sweep did not stop it: a signal
+                # from elsewhere (its trainer checkpoints and returns), so it is retried
+                reason = f"its worker ended at step {status.step:,}; the sweep did not stop it"
             if not failed_now and (not reason or self.stopping):
                 continue  # interrupted (or never started): resumes with the next sweep
             self.history.add_failure(run.key, status.step, reason, self._host(finished))
