@@ -247,6 +247,10 @@ def test_a_record_of_another_design_or_an_edited_decision_is_refused(tmp_path: P
         run_until_decided(HOPPER, tmp_path, driver.Options(), Design(n=5, K=3))
     with pytest.raises(TacbenchError, match=r"another sequential design"):
         run_until_decided(HOPPER, tmp_path, driver.Options(), Design(n=5, K=2, control="q=2"))
+    # runs of other settings under the same labels: their scores would have joined the record's
+    other = narrow(HOPPER, Narrowing(settings={"learning_starts": 500}))
+    with pytest.raises(TacbenchError, match=r"interims of runs with other settings"):
+        run_until_decided(other, tmp_path, driver.Options(), Design(n=5, K=2), train=FakeTrain())
     same = Design(n=5, K=2, control="q=1")  # the recorded default control, spelled another way
     resumed = run_until_decided(HOPPER, tmp_path, driver.Options(), same, train=FakeTrain())
     assert resumed.exit_code == 0

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 from collections.abc import Collection, Sequence
 from dataclasses import asdict, dataclass, replace
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 from typing import IO, Any, Protocol
 
 from tacbench import runs
@@ -73,6 +73,11 @@ class Record:
         self.path = state.sweep_dir(out) / RECORD_FILE
         self.design = design
         self.methods = {env: [m.label for m in methods] for env, methods in tasks.items()}
+        # where each method's runs are: their settings, which the labels alone do not name
+        self.folders = {
+            env: {m.label: str(PurePosixPath(m.runs(1)[0].key).parent) for m in methods}
+            for env, methods in tasks.items()
+        }
         self.interims: dict[str, list[dict[str, Any]]] = {env: [] for env in tasks}
         if not self.path.exists():
             return
@@ -83,6 +88,13 @@ class Record:
                 f"{self.path} records another sequential design or other methods "
                 f"({stored.get('design')}, {stored.get('methods')}); rerun with the flags it "
                 "records, or use another --out."
+            )
+        if stored.get("folders", self.folders) != self.folders:  # a record without: not checked
+            raise TacbenchError(
+                f"{self.path} records interims of runs with other settings "
+                f"({stored.get('folders')}, where this command trains {self.folders}); its "
+                "scores would be mixed with these runs'. Rerun with the settings it records, or "
+                "use another --out."
             )
         self.interims = stored["interims"]
 
@@ -107,7 +119,12 @@ class Record:
     def save(self) -> None:
         """Write the file atomically."""
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        data = {"design": asdict(self.design), "methods": self.methods, "interims": self.interims}
+        data = {
+            "design": asdict(self.design),
+            "methods": self.methods,
+            "folders": self.folders,
+            "interims": self.interims,
+        }
         runs.atomic_write_json(self.path, data)
 
 
