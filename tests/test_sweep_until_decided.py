@@ -134,6 +134,12 @@ def test_bad_designs_are_refused_with_what_to_change(tmp_path: Path) -> None:
     with pytest.raises(TacbenchError, match=r"x --interims 1000000 is 5,000,000 runs per method"):
         Design(K=1_000_000)  # the dry run used to hang planning five million seeds per method
     Design(n=10, K=100)
+    # a grid without its default control: not blamed on a --control that was never given
+    no_sac = narrow(HOPPER, Narrowing(q=(2.0, 5.0)))
+    with pytest.raises(TacbenchError, match=r"Hopper-v4 has no SAC \(TAC q=1\), this grid's"):
+        run_until_decided(no_sac, tmp_path / "x", driver.Options(), Design(), train=FakeTrain())
+    with pytest.raises(TacbenchError, match=r"--control q=1: Hopper-v4 has no such method"):
+        describe_design(no_sac, tmp_path / "x", driver.Options(), Design(control="q=1"))
     never = Design(n=2, K=2, alpha=0.05)
     with pytest.raises(TacbenchError, match=r"can ever be decided.*--interim-runs 3 can"):
         run_until_decided(HOPPER, tmp_path, driver.Options(), never, train=FakeTrain())

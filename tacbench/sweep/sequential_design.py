@@ -107,9 +107,24 @@ def methods_of(preset: Preset) -> dict[str, list[Method]]:
     return tasks
 
 
-def control_of(design: Design, env: str, methods: Sequence[Method]) -> str | None:
+def with_controls(
+    design: Design, preset: Preset, tasks: dict[str, list[Method]]
+) -> tuple[Design, dict[str, str | None]]:
+    """``design`` with its control (the grid's default, :func:`default_control`, where none was
+    given) and each task's control label (:func:`control_of`); a default the grid lacks is
+    refused as such, not as a ``--control`` the user never gave."""
+    defaulted = not design.control
+    design = replace(design, control=design.control or default_control(preset))
+    controls = {env: control_of(design, env, m, defaulted) for env, m in tasks.items()}
+    return design, controls
+
+
+def control_of(
+    design: Design, env: str, methods: Sequence[Method], defaulted: bool = False
+) -> str | None:
     """The label of ``env``'s control (None: every pair), or TacbenchError naming the choices
-    (also for a task with a single method: nothing to compare)."""
+    (also for a task with a single method: nothing to compare); ``defaulted``: the control is
+    the grid's default, not a --control given."""
     labels = [m.label for m in methods]
     if len(labels) < 2:
         raise TacbenchError(
@@ -126,10 +141,15 @@ def control_of(design: Design, env: str, methods: Sequence[Method]) -> str | Non
     q = wanted.lower().removeprefix("q=")
     if q != wanted.lower() and q.replace(".", "", 1).isdigit():  # q=1.5: TAC q=1.5 (q=1: SAC)
         found = [label for label in labels if label == tac_label(float(q))]
+    choices = f"{', '.join(labels)}, {BEST_Q} or {PAIRS}"
+    if not found and defaulted:
+        raise TacbenchError(
+            f"{env} has no {design.control}, this grid's default control: keep it in the grid, "
+            f"or give --control one of {choices}."
+        )
     if not found:
         raise TacbenchError(
-            f"--control {design.control}: {env} has no such method; choose one of "
-            f"{', '.join(labels)}, {BEST_Q} or {PAIRS}."
+            f"--control {design.control}: {env} has no such method; choose one of {choices}."
         )
     return found[0]
 

@@ -42,11 +42,10 @@ from tacbench.sweep.sequential_design import (
     Method,
     check_decidable,
     check_evaluated,
-    control_of,
-    default_control,
     earliest_decision,
     methods_of,
     same_design,
+    with_controls,
 )
 
 
@@ -173,9 +172,8 @@ def run_until_decided(
     """Train ``preset`` into ``out`` interim by interim until every task's comparisons are
     decided or ``design.K`` interims are done (the module doc). ``train`` trains one interim's
     grid (a sweep; tests pass their own)."""
-    design = replace(design, control=design.control or default_control(preset))
     tasks = methods_of(preset)
-    controls = {env: control_of(design, env, methods) for env, methods in tasks.items()}
+    design, controls = with_controls(design, preset, tasks)
     check_evaluated(tasks)
     record = Record(out, design, tasks)
     if not any(record.interims.values()):
@@ -255,9 +253,8 @@ def describe_design(preset: Preset, out: Path, options: Options, design: Design)
     interim; a method no longer in one keeps the runs it has), the fixed design's runs, and the
     first interim at which a decision is possible at all. A design that can never decide is
     refused, as the sweep refuses it (:func:`check_decidable`)."""
-    design = replace(design, control=design.control or default_control(preset))
     tasks = methods_of(preset)
-    controls = {env: control_of(design, env, methods) for env, methods in tasks.items()}
+    design, controls = with_controls(design, preset, tasks)
     check_evaluated(tasks)
     record = Record(out, design, tasks)
     if not any(record.interims.values()):
