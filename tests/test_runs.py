@@ -44,6 +44,20 @@ def test_csv_rows_are_flushed_at_once_and_keep_full_precision(tmp_path: Path) ->
     log.close()
 
 
+def test_a_digest_a_checkpoint_records_is_of_rows_synced_to_the_device(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Rows were flushed to the OS but not synced before the manifest that records them was:
+    a power loss could keep the manifest and lose the rows, and the resume would refuse."""
+    log = runs.CsvLog(tmp_path / "train.csv", runs.TRAIN_COLUMNS)
+    log.write([10, 0.1, 1.0, 10])
+    synced: list[int] = []
+    monkeypatch.setattr(runs.files.os, "fsync", synced.append)
+    log.digest()
+    assert synced == [log._handle.fileno()]
+    log.close()
+
+
 def test_reopening_keeps_the_checked_bytes_and_continues_the_digest(tmp_path: Path) -> None:
     path = tmp_path / "train.csv"
     log = runs.CsvLog(path, runs.TRAIN_COLUMNS)

@@ -4,7 +4,8 @@ events).
 
 JSON files are written durably (a temporary name, synced, renamed:
 :func:`tacbench.runs.checkpoints.write_durably`). CSV rows are appended and flushed one at a
-time; each checkpoint records what every CSV holds, and a resume first checks every CSV against
+time; each checkpoint syncs every CSV to the device and records what it holds, and a resume
+first checks every CSV against
 it and cuts it back to it (:mod:`tacbench.runs.resume_checks`), so no row is ever duplicated or
 missing, and a damaged CSV is refused before anything is written. docs/results-schema.md
 describes every file, column and field.
@@ -153,7 +154,10 @@ class CsvLog:
         self._rows += 1
 
     def digest(self) -> LogDigest:
-        """What the file holds now (every row written is flushed)."""
+        """What the file holds now, synced to the device first: a checkpoint's manifest records
+        it, so its rows must survive whatever the manifest survives (a power loss after the
+        manifest would otherwise leave rows it records missing, and the resume refused)."""
+        os.fsync(self._handle.fileno())
         return LogDigest(self._rows, self._size, self._sha.hexdigest())
 
     def close(self) -> None:
