@@ -15,8 +15,8 @@ from tacbench.config import has_bf16_products
 from tacbench.errors import listing
 
 # a TAC variant's q and alpha part: q1.5-a0.2, qauto-aauto0.2, q1e-05-a0.2 (numbers in %g form)
-_Q_ALPHA = re.compile(r"^q(?:auto|[0-9.]+(?:e[+-]\d+)?)-a(?:auto)?[0-9.]+(?:e[+-]\d+)?")
 _Q = re.compile(r"^q(?:auto|[0-9.]+(?:e[+-]\d+)?)-")
+_Q_ALPHA = re.compile(_Q.pattern + r"a(?:auto)?[0-9.]+(?:e[+-]\d+)?")
 
 
 def learns_alpha(variants: pd.Series) -> pd.Series:

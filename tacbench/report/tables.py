@@ -107,12 +107,7 @@ def summary_table(scores: pd.DataFrame, failed: pd.DataFrame) -> pd.DataFrame:
     rows = []
     for (env, method), group in scores.groupby(["env", "method"], sort=False):
         row = {
-            "env": env,
-            "method": method,
-            "algo": _joined(group["algo"]),
-            "variant": _joined(group["variant"]),
-            "q": group["q"].iat[0],
-            "alpha": _joined(group["alpha"].dropna()) or "",
+            **_method_of(env, method, group),
             "seeds": len(group),
             "partial": int(group["partial"].sum()),
             "failed": int(failed_counts.get((env, method), 0)),
@@ -127,20 +122,21 @@ def summary_table(scores: pd.DataFrame, failed: pd.DataFrame) -> pd.DataFrame:
     loaded = set(scores.groupby(["env", "method"]).groups)
     for (env, method), group in failed.groupby(["env", "method"], sort=False):
         if (env, method) not in loaded:
-            rows.append(
-                {
-                    "env": env,
-                    "method": method,
-                    "algo": _joined(group["algo"]),
-                    "variant": _joined(group["variant"]),
-                    "q": group["q"].iat[0],
-                    "alpha": _joined(group["alpha"].dropna()) or "",
-                    "seeds": 0,
-                    "partial": 0,
-                    "failed": len(group),
-                }
-            )
+            failures = {"seeds": 0, "partial": 0, "failed": len(group)}  # no statistics
+            rows.append({**_method_of(env, method, group), **failures})
     return pd.DataFrame(rows, columns=list(SUMMARY_COLUMNS))
+
+
+def _method_of(env: object, method: object, group: pd.DataFrame) -> dict[str, object]:
+    """The summary columns that name a task's method, from its runs (loaded or failed)."""
+    return {
+        "env": env,
+        "method": method,
+        "algo": _joined(group["algo"]),
+        "variant": _joined(group["variant"]),
+        "q": group["q"].iat[0],
+        "alpha": _joined(group["alpha"].dropna()) or "",
+    }
 
 
 def best_q_rows(summary: pd.DataFrame) -> pd.DataFrame:
