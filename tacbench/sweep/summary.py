@@ -6,11 +6,10 @@ from __future__ import annotations
 from collections import Counter, defaultdict
 from collections.abc import Sequence
 from dataclasses import dataclass
-from itertools import pairwise
 from pathlib import Path
 from typing import Any
 
-from tacbench import envs, runs
+from tacbench import envs, memory, runs
 from tacbench.config import RunConfig
 from tacbench.hardware import cpu_class
 from tacbench.members import repays_compilation
@@ -169,8 +168,9 @@ def _priced_as(config: Any) -> tuple[str, str]:
 
 
 def _without_a_default_of_its_own(priced: Price) -> list[str]:
-    """A line for each (algo, env) priced at the mean of other pairs' defaults: a task's own
-    cost can be far from it (the paper profile's TAC on Humanoid costs 10x HalfCheetah's)."""
+    """A line for each (algo, env) priced at other pairs' defaults (:func:`cost.default_stand_ins`):
+    a task's own cost can be far from them (the paper profile's TAC on Humanoid costs 10x
+    HalfCheetah's)."""
     lines = []
     for g in sorted(priced.groups, key=lambda g: (g.algo, g.env)):
         stand_ins = cost.default_stand_ins(g.algo, g.env)
@@ -216,11 +216,11 @@ def _unlike_the_tac_default(plan: SweepPlan, priced: Price) -> list[str]:
         smallest = min(size for size, _ in units)
         fewer = algo == "tac" and smallest < basis.members
         eager = any(_never_compiled(config) for _, config in units)
-        obs_dim = envs.env_info(env).obs_dim
-        measured = _hidden_weights(obs_dim, basis.hidden_sizes)
+        obs_dim = envs.env_info(env).obs_dim  # the hidden layers' parameters: their products
+        measured = memory.mlp_parameters((obs_dim, *basis.hidden_sizes))
         networks = sorted({config.hidden_sizes for _, config in units} - {basis.hidden_sizes})
-        wider = any(_hidden_weights(obs_dim, h) > measured for h in networks)
-        narrower = any(_hidden_weights(obs_dim, h) < measured for h in networks)
+        wider = any(memory.mlp_parameters((obs_dim, *h)) > measured for h in networks)
+        narrower = any(memory.mlp_parameters((obs_dim, *h)) < measured for h in networks)
         costlier = fewer or eager or wider
         if not (costlier or narrower):
             continue
@@ -241,12 +241,6 @@ def _unlike_the_tac_default(plan: SweepPlan, priced: Price) -> list[str]:
             f"{verdict}; --calibrate measures these units."
         )
     return lines
-
-
-def _hidden_weights(obs_dim: int, hidden_sizes: tuple[int, ...]) -> int:
-    """The weights of a network's hidden layers on ``obs_dim`` inputs: what its products cost."""
-    widths = (obs_dim, *hidden_sizes)
-    return sum(a * b for a, b in pairwise(widths))
 
 
 def _never_compiled(config: RunConfig) -> bool:
