@@ -155,6 +155,9 @@ def test_a_first_checkpoint_cut_short_between_members_starts_the_group_afresh(
     (runs[1] / "config.json").write_text(json.dumps({"members": group["members"][1:]}))
     with pytest.raises(TacbenchError, match="has no checkpoint, and the other members have"):
         checkpoints.choose(folders)
+    (runs[1] / "config.json").write_text("[1, 2]")  # not an object: not of the group either
+    with pytest.raises(TacbenchError, match="has no checkpoint, and the other members have"):
+        checkpoints.choose(folders)
     (runs[1] / "config.json").write_text(json.dumps(group))
     _generation(runs[0] / "checkpoint", 200)  # its second: the group did checkpoint once
     with pytest.raises(TacbenchError, match="has no checkpoint, and the other members have"):

@@ -289,9 +289,10 @@ def _first_cut_short(with_some: Sequence[Path], without: Sequence[Path]) -> bool
 def _members(directory: Path) -> list[Any] | None:
     """The group a run directory's config.json records (None: no readable config.json)."""
     try:
-        members = json.loads((directory / "config.json").read_text()).get("members")
+        data = json.loads((directory / "config.json").read_text())
     except (OSError, ValueError):
         return None
+    members = data.get("members") if isinstance(data, dict) else None
     return members if isinstance(members, list) and members else None
 
 
