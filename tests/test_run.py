@@ -22,7 +22,7 @@ from tacbench.config import RunConfig
 from tacbench.errors import TacbenchError
 from tacbench.paper import ENV_IDS, TASK_FACTS
 from tacbench.runs import Outcome
-from tests.helpers import checkpoint_state, tiny_configs, train
+from tests.helpers import assert_same_results, checkpoint_state, tiny_configs, train
 
 pytestmark = pytest.mark.smoke
 
@@ -203,11 +203,7 @@ def test_a_group_stopped_during_its_first_checkpoint_starts_afresh(tmp_path: Pat
         kept = sorted(p.name for p in (variant / seed / "checkpoint").glob("manifest-*"))
         assert kept == ["manifest-000000000150.json", "manifest-000000000300.json"], seed
     for seed in ("seed0", "seed10"):
-        for name in ("eval.csv", "losses.csv"):
-            fresh = pd.read_csv(variant / seed / name).drop(columns="wall_s", errors="ignore")
-            whole = tmp_path / "whole" / variant.relative_to(out) / seed / name
-            expected = pd.read_csv(whole).drop(columns="wall_s", errors="ignore")
-            pd.testing.assert_frame_equal(fresh, expected)
+        assert_same_results(variant / seed, tmp_path / "whole" / variant.relative_to(out) / seed)
 
 
 def test_a_group_resumes_in_the_order_it_trained_in_whatever_the_commands(
@@ -229,14 +225,10 @@ def test_a_group_resumes_in_the_order_it_trained_in_whatever_the_commands(
     resumed = runner.invoke(cli, ["run", *swapped, "--out", str(out), "--resume"])
     assert resumed.exit_code == 0, resumed.output
     for seed in ("seed0", "seed10"):
-        for name in ("eval.csv", "losses.csv"):
-            got = pd.read_csv(variant / seed / name).drop(columns="wall_s", errors="ignore")
-            whole = tmp_path / "whole" / variant.relative_to(out) / seed / name
-            expected = pd.read_csv(whole).drop(columns="wall_s", errors="ignore")
-            pd.testing.assert_frame_equal(got, expected)
+        whole = tmp_path / "whole" / variant.relative_to(out) / seed
+        assert_same_results(variant / seed, whole)
         # the weights and Adam moments to the last bit (the order's rounding: about 1e-8)
         trained = checkpoint_state(variant / seed)["agent"]
-        whole = tmp_path / "whole" / variant.relative_to(out) / seed
         uninterrupted = checkpoint_state(whole)["agent"]
         for part in ("params", "adam"):
             pairs = zip(_tensors(trained[part]), _tensors(uninterrupted[part]), strict=True)

@@ -196,7 +196,7 @@ def check_evaluated(tasks: dict[str, list[Method]]) -> None:
     for env, methods in tasks.items():
         for method in methods:
             (run,) = method.runs(1)
-            if getattr(run.config, "eval_every", 1) == 0:
+            if run.config.eval_every == 0:
                 raise TacbenchError(
                     f"--until-decided scores each interim by its runs' final evaluation returns, "
                     f"and {method.label} on {env} would make none (--eval-every 0); give "
