@@ -282,12 +282,14 @@ def _first_cut_short(with_some: Sequence[Path], without: Sequence[Path]) -> bool
     steps = [usable_steps(folder) for folder in with_some]
     if any(len(good) != 1 or bad for good, bad in steps) or len({good[0] for good, _ in steps}) > 1:
         return False
-    groups = [_members(folder.parent) for folder in with_some] + [_members(d) for d in without]
+    groups = [recorded_members(folder.parent) for folder in with_some]
+    groups += [recorded_members(d) for d in without]
     return None not in groups and all(group == groups[0] for group in groups)
 
 
-def _members(directory: Path) -> list[Any] | None:
-    """The group a run directory's config.json records (None: no readable config.json)."""
+def recorded_members(directory: Path) -> list[Any] | None:
+    """The group a run directory's config.json records (None: no readable config.json, or one
+    without a ``members`` list, as an older config.json lists the seeds alone)."""
     try:
         data = json.loads((directory / "config.json").read_text())
     except (OSError, ValueError):

@@ -26,7 +26,7 @@ from tacbench.hardware import check_matmul_precision, configure_process
 from tacbench.interrupts import StopCheck, stop_signals
 from tacbench.members import resolve_compile
 from tacbench.runs import Outcome, planned_runs
-from tacbench.runs.checkpoints import disk_errors
+from tacbench.runs.checkpoints import disk_errors, recorded_members
 from tacbench.training.loop import LOSS_COLUMNS, PHASES, GroupTrainer
 
 __all__ = ["LOSS_COLUMNS", "PHASES", "Stepper", "policy", "resolve_device", "stepper", "train"]
@@ -108,12 +108,11 @@ def _in_recorded_order(out: Path, configs: Sequence[RunConfig]) -> list[RunConfi
     that the group changed)."""
     for config in configs:
         path = runs.run_directory(out, config.algo, config.env, config.variant, config.seed)
-        try:
-            recorded = runs.read_json(path / "config.json").get("members")
-        except TacbenchError:
+        recorded = recorded_members(path)
+        if recorded is None:
             continue  # none yet, or unreadable: planning says what to do about the latter
-        if not isinstance(recorded, list) or not all(isinstance(m, dict) for m in recorded):
-            return list(configs)  # an older config.json lists the seeds alone
+        if not all(isinstance(m, dict) for m in recorded):
+            return list(configs)
         order = [(m.get("q"), m.get("alpha"), m.get("seed")) for m in recorded]
         if len(order) != len(configs) or set(order) != {(c.q, c.alpha, c.seed) for c in configs}:
             return list(configs)
