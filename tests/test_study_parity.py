@@ -342,3 +342,43 @@ def test_runs_left_out_are_named_in_the_cautions(tmp_path: Path) -> None:
         "left out 1 run short of the budget: tac/Hopper-v4/q1-a0.2/seed20 (interrupted at step "
         "2,000)",
     ]
+
+
+def test_runs_of_several_folders_are_one_study_and_a_run_in_two_is_refused(
+    tmp_path: Path,
+) -> None:
+    """--results is repeatable (an ablation's TAC runs beside the study's SB3 runs): the tables
+    are those of one folder holding them all, a left-out run is named with its folder, and a
+    run in two of the folders is refused rather than counted twice."""
+    for folder, algo, offset in (("tac", "tac", 300.0), ("sb3", "sac-sb3", 0.0)):
+        for seed in (0, 10, 20):
+            for root in (tmp_path / folder, tmp_path / "both"):
+                write_run(
+                    root,
+                    algo=algo,
+                    env="Hopper-v4",
+                    variant="q1-a0.2" if algo == "tac" else "default",
+                    seed=seed,
+                    steps=[2000.0, 4000.0],
+                    returns=[offset + seed, offset + 2 * seed],
+                    q=1.0 if algo == "tac" else None,
+                    alpha=0.2 if algo == "tac" else None,
+                    total_steps=4000,
+                )
+    _hopper(tmp_path / "sb3", "sac-sb3", 30, 4000, "failed")
+    apart = parity.analyse([tmp_path / "tac", tmp_path / "sb3"], reps=100)
+    together = parity.analyse(tmp_path / "both", reps=100)
+    for name in ("curves", "finals", "summary"):
+        pd.testing.assert_frame_equal(apart[name], together[name])
+    assert apart["summary"]["TAC - SB3"].tolist() == [pytest.approx(300.0)]
+    assert apart["cautions"]["caution"].tolist() == [
+        f"left out 1 run directory that cannot be used: {tmp_path / 'sb3'}/sac-sb3/Hopper-v4/"
+        "default/seed30 (run failed at step 2000: no reason given)"
+    ]
+    out = tmp_path / "analysis"
+    folders = ["--results", str(tmp_path / "tac"), "--results", str(tmp_path / "sb3")]
+    result = _analyse([*folders, "--out", str(out), "--reps", "100"])
+    assert result.exit_code == 0, result.output
+    assert pd.read_csv(out / "summary.csv")["SB3 seeds"].tolist() == [3]
+    with pytest.raises(TacbenchError, match=r"tac q1-a0.2 seed 0 on Hopper-v4 is in more than one"):
+        parity.analyse([tmp_path / "tac", tmp_path / "both"], reps=100)

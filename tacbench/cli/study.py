@@ -133,7 +133,14 @@ def parity_commands(envs: tuple[str, ...], seeds: tuple[int, ...], steps: int, o
 
 
 @parity.command(name="analyse")
-@click.option("--results", type=_RESULTS, default=Path("results/parity"), show_default=True)
+@click.option(
+    "--results",
+    type=_RESULTS,
+    multiple=True,
+    default=[Path("results/parity")],
+    show_default=True,
+    help="Repeatable: the runs of several folders, each run in one of them.",
+)
 @click.option("--out", type=_OUT, help="Also write each table here as CSV, and curves.png.")
 @click.option(
     "--reps",
@@ -157,7 +164,7 @@ def parity_commands(envs: tuple[str, ...], seeds: tuple[int, ...], steps: int, o
     "return).",
 )
 def parity_analyse(
-    results: Path,
+    results: tuple[Path, ...],
     out: Path | None,
     reps: int,
     fraction: float,

@@ -12,13 +12,15 @@ module prints those commands and analyses their run directories:
   algorithm.
 
 ``tacbench study parity commands`` prints the study's commands; ``tacbench study parity
-analyse --results DIR`` prints the tables and writes the figure; ``--finals CSV`` adds final
+analyse --results DIR`` (repeatable: the runs of several folders, say an ablation's TAC runs
+and the study's SB3 runs) prints the tables and writes the figure; ``--finals CSV`` adds final
 returns recorded by an earlier study whose runs are not kept (one row per run: env, method,
 seed, return), so a new method can be compared with them.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import shlex
 from collections.abc import Sequence
 from pathlib import Path
@@ -65,35 +67,54 @@ def commands(
     return lines
 
 
-def load(results: Path, by_variant: bool = False) -> pd.DataFrame:
+def load(results: Path | Sequence[Path], by_variant: bool = False) -> pd.DataFrame:
     """Evaluation returns of the study's runs (TAC at q = 1, with either critic target or in the
-    reference profile, and sac-sb3), runs trained to their budget only, one budget per task.
-    Columns: method (one of :data:`METHODS`; with ``by_variant``, TAC runs are named ``TAC
-    <variant>`` instead, for an ablation's variants of one method), env, seed, step, return."""
+    reference profile, and sac-sb3) in one results folder or several, runs trained to their
+    budget only, one budget per task. Columns: method (one of :data:`METHODS`; with
+    ``by_variant``, TAC runs are named ``TAC <variant>`` instead, for an ablation's variants of
+    one method), env, seed, step, return."""
     return _load(results, by_variant)[0]
 
 
-def _load(results: Path, by_variant: bool) -> tuple[pd.DataFrame, list[str]]:
-    """:func:`load`, and cautions naming the run directories it left out."""
+def _load(results: Path | Sequence[Path], by_variant: bool) -> tuple[pd.DataFrame, list[str]]:
+    """:func:`load`, and cautions naming the run directories it left out (by folder and path,
+    where there are several folders)."""
     from tacbench.report.load import load_runs  # the report package: only when runs are read
     from tacbench.studies import cautions
 
-    runset = load_runs(results, "eval")
-    runs = runset.runs
-    chosen = runs[((runs["algo"] == "tac") & (runs["q"] == 1.0)) | (runs["algo"] == "sac-sb3")]
-    left_out = cautions.skipped_runs(runset.skipped) + cautions.short_runs(chosen)
-    chosen = chosen[~chosen["partial"]].copy()
+    folders = [results] if isinstance(results, Path) else list(results)
+    where = " and ".join(str(folder) for folder in folders)
+    picked, tidy, left_out = [], [], []
+    for number, folder in enumerate(folders):
+        runset = load_runs(folder, "eval")
+        runs, skipped = runset.runs.copy(), list(runset.skipped)
+        if len(folders) > 1:  # name each left-out run by its folder too
+            runs["path"] = [f"{folder}/{path}" for path in runs["path"]]
+            skipped = [dataclasses.replace(s, path=f"{folder}/{s.path}") for s in skipped]
+        chosen = runs[((runs["algo"] == "tac") & (runs["q"] == 1.0)) | (runs["algo"] == "sac-sb3")]
+        left_out += cautions.skipped_runs(skipped) + cautions.short_runs(chosen)
+        picked.append(chosen[~chosen["partial"]].assign(folder=number))
+        tidy.append(runset.data.assign(folder=number))
+    chosen = pd.concat(picked, ignore_index=True)
     if chosen.empty:
         raise TacbenchError(
-            f"no complete run of TAC at q = 1 or of sac-sb3 under {results}; tacbench study "
+            f"no complete run of TAC at q = 1 or of sac-sb3 under {where}; tacbench study "
             "parity commands lists the study's runs."
+        )
+    twice = chosen[chosen.duplicated(["algo", "env", "variant", "seed"], keep=False)]
+    if not twice.empty:
+        run = twice.iloc[0]
+        raise TacbenchError(
+            f"{run['algo']} {run['variant']} seed {run['seed']} on {run['env']} is in more than "
+            f"one of {where}; give each run once (one folder for it, or --results of folders "
+            "that do not overlap)."
         )
     budgets = chosen.groupby("env")["total_steps"].unique()
     mixed = {env: sorted(steps) for env, steps in budgets.items() if len(steps) > 1}
     if mixed:
         env, steps = next(iter(mixed.items()))
         raise TacbenchError(
-            f"the runs of {env} under {results} have budgets of "
+            f"the runs of {env} under {where} have budgets of "
             f"{' and '.join(f'{s:,.0f}' for s in steps)} steps; the study compares runs of one "
             "budget: keep the runs of one."
         )
@@ -102,10 +123,12 @@ def _load(results: Path, by_variant: bool) -> tuple[pd.DataFrame, list[str]]:
     several = chosen.groupby(["method", "env"])["variant"].nunique()
     if (several > 1).any():
         raise TacbenchError(
-            f"several variants of one method on one task under {results}: "
+            f"several variants of one method on one task under {where}: "
             f"{several[several > 1].to_dict()}; keep one per method and task."
         )
-    data = runset.data.merge(chosen[["run", "method"]], on="run")
+    data = pd.concat(tidy, ignore_index=True).merge(
+        chosen[["folder", "run", "method"]], on=["folder", "run"]
+    )
     return data[["method", "env", "seed", "step", "return"]].reset_index(drop=True), left_out
 
 
@@ -268,16 +291,16 @@ def plot(table: pd.DataFrame, path: Path) -> None:
 
 
 def analyse(
-    results: Path,
+    results: Path | Sequence[Path],
     *,
     by_variant: bool = False,
     fraction: float = FRACTION,
     finals: Sequence[Path] = (),
     reps: int = REPS,
 ) -> dict[str, pd.DataFrame]:
-    """Every table of the study, by name (:data:`TABLES`): curves, finals (with the recorded
-    ``finals`` CSVs added), summary (the differences to SB3) and cautions (a task that lacks
-    one side)."""
+    """Every table of the study, by name (:data:`TABLES`), from the runs of one results folder
+    or several: curves, finals (with the recorded ``finals`` CSVs added), summary (the
+    differences to SB3) and cautions (a task that lacks one side)."""
     if not 0 < fraction <= 1:
         raise TacbenchError(f"--fraction must be in (0, 1] (got {fraction}).")
     data, cautions = _load(results, by_variant)
