@@ -44,6 +44,9 @@ RUNS = {
     # TD3 and SB3's SAC on Swimmer and Ant x 5 seeds; DDPG on Pusher x 5 seeds; Humanoid: PPO,
     # TRPO and TAC at q = 1 and 1.2 x 3 seeds
     "comparison-100k": 2 * 7 * 5 + 3 * 4 * 5 + 3 * 5 + 5 + 3 * 5 + 4 * 3,
+    # Hopper and HalfCheetah: two `--q auto` populations of 8, fixed q = 1 and the paper's best q
+    # x 16 seeds, and `--alpha auto` at both q x 5 seeds (docs/adaptive.md)
+    "adaptive-q-100k": 2 * (2 * 8 + 2 * 16 + 2 * 5),
 }
 # runs recorded as failed (a non-finite loss): how many at each step. In 2019-01-11b q = 3 and 5
 # overflow float32 at their first update; with (400, 300) networks q = 5 does, and q = 3's seeds
