@@ -80,7 +80,9 @@ def test_zoo_values_are_applied_per_environment() -> None:
             3e-4,
             True,
         )
-    assert hyperparams.resolve("td3", "Hopper-v4", "Hopper")[0]["learning_rate"] == 3e-4
+    # RL Zoo's v4 TD3 entries keep 1e-3 on Hopper (its 3e-4 override was the v3 era's)
+    assert hyperparams.resolve("td3", "Hopper-v4", "Hopper")[0]["learning_rate"] == 1e-3
+    assert hyperparams.resolve("td3", "Swimmer-v4", "Swimmer")[0]["gamma"] == 0.9999
     assert hyperparams.resolve("trpo", "HalfCheetah-v4", "HalfCheetah")[0]["target_kl"] == 0.04
     humanoid, sections = hyperparams.resolve("sac-sb3", "Humanoid-v5", "Humanoid")
     assert sections == ["default", "Humanoid"] and humanoid["ent_coef"] == 0.05
@@ -91,9 +93,9 @@ def test_another_version_of_a_task_takes_the_suites_section_and_says_so() -> Non
     v5, sections = hyperparams.resolve("ppo", "Swimmer-v5", "Swimmer")
     assert v5 == v4
     assert sections == ["default", "Swimmer-v4 (carried over to Swimmer-v5)"]
-    configs, _, notes = make_configs("td3", "Hopper-v5", "Hopper", [0])
-    assert configs[0].hyperparams["learning_rate"] == 3e-4  # the zoo's Hopper value
-    assert "Hopper-v4 (carried over to Hopper-v5)" in notes[0]
+    configs, _, notes = make_configs("td3", "Swimmer-v5", "Swimmer", [0])
+    assert configs[0].hyperparams["gamma"] == 0.9999  # the zoo's Swimmer value
+    assert "Swimmer-v4 (carried over to Swimmer-v5)" in notes[0]
     # a task the paper did not run has no suite section to take
     assert hyperparams.resolve("ppo", "Walker2d-v5", None)[1] == ["default"]
 
@@ -179,11 +181,11 @@ def test_ppo_may_leave_target_kl_unlimited() -> None:
 def test_variant_names_what_differs_and_hashes_it() -> None:
     table, _ = hyperparams.resolve("td3", "Hopper-v4", "Hopper")
     assert hyperparams.variant(table, dict(table)) == "default"
-    a = hyperparams.variant(table, {**table, "learning_rate": 1e-3, "net_arch": [64, 64]})
-    b = hyperparams.variant(table, {**table, "net_arch": [64, 64], "learning_rate": 1e-3})
+    a = hyperparams.variant(table, {**table, "learning_rate": 3e-4, "net_arch": [64, 64]})
+    b = hyperparams.variant(table, {**table, "net_arch": [64, 64], "learning_rate": 3e-4})
     c = hyperparams.variant(table, {**table, "learning_rate": 1e-4, "net_arch": [64, 64]})
     assert a == b != c
-    assert re.fullmatch(r"learning_rate0\.001-net_arch64x64-[0-9a-f]{8}", a)
+    assert re.fullmatch(r"learning_rate0\.0003-net_arch64x64-[0-9a-f]{8}", a)
     signed = hyperparams.variant(table, {**table, "learning_rate": 1e-5, "tau": -2.0})
     assert re.fullmatch(r"learning_rate1e-05-tau-2-[0-9a-f]{8}", signed)
 

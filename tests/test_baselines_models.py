@@ -64,7 +64,7 @@ def test_networks_have_the_tables_sizes(models: dict[str, Any]) -> None:
 
 def test_model_arguments_follow_the_table(models: dict[str, Any]) -> None:
     td3 = models["td3"][1]
-    assert td3.learning_rate == 3e-4  # Hopper-v4 section
+    assert td3.learning_rate == 1e-3  # the default section (RL Zoo's MuJoCo v4 value)
     assert td3.learning_starts == 10_000 and td3.batch_size == 256
     assert td3.replay_buffer.buffer_size == 5000  # capped at the run's steps, as TAC
     assert isinstance(td3.action_noise, NormalActionNoise)
