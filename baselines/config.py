@@ -100,6 +100,12 @@ def make_configs(
         f"{' + '.join(sections)}" + (f"; overridden: {changed}" if changed else "")
     ]
     _check_combination(algo, effective)
+    if effective.get("noise_type") == "none" and "noise_std" in overrides:
+        raise TacbenchError(
+            f"--hp noise_std={overrides['noise_std']}: with noise_type=none {algo} adds no "
+            "exploration noise, so its scale would only rename the run; leave noise_std out, "
+            "or give noise_type=normal."
+        )
     total = configs[0].total_steps
     starts = effective.get("learning_starts")
     if configs[0].off_policy and starts is not None:

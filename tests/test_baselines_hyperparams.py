@@ -221,6 +221,11 @@ def test_make_configs_applies_overrides_and_run_settings() -> None:
     with pytest.raises(TacbenchError, match=r"take 1 sample of its 256-step rollout"):
         make_configs("trpo", "Hopper-v4", "Hopper", [0], ["n_steps=256", "sub_sampling_factor=256"])
     make_configs("trpo", "Hopper-v4", "Hopper", [0], ["n_steps=256", "sub_sampling_factor=255"])
+    # a noise scale without noise only renamed the run (another variant folder, the same runs)
+    with pytest.raises(TacbenchError, match="with noise_type=none td3 adds no exploration"):
+        make_configs("td3", "Hopper-v4", "Hopper", [0], ["noise_type=none", "noise_std=0.3"])
+    make_configs("td3", "Hopper-v4", "Hopper", [0], ["noise_type=normal", "noise_std=0.3"])
+    make_configs("td3", "Hopper-v4", "Hopper", [0], ["noise_type=none"])
     with pytest.raises(TacbenchError, match="must differ"):
         make_configs("ppo", "Hopper-v4", "Hopper", [0, 0])
     with pytest.raises(TacbenchError, match="total_steps must be an integer >= 1"):
