@@ -89,9 +89,9 @@ def make_run_configs(
     else:
         for q in sorted({c.q for c in configs}):
             log_cap = paper.density_log_cap(q, rule)
-            if math.isfinite(log_cap):
+            if math.isfinite(log_cap):  # as a power of ten: near q = 1 it overflows a float
                 notes.append(
-                    f"q = {q:g}: the policy density is capped at {math.exp(log_cap):.3g} "
+                    f"q = {q:g}: the policy density is capped at 10^{log_cap / math.log(10):.3g} "
                     f"(--density-cap {rule}; the paper's Numerical Issue)"
                 )
     if learned_q and 0 < first.learning_steps <= first.pbt_every:  # no round at the last step

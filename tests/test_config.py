@@ -117,11 +117,16 @@ def test_a_population_that_never_exploits_is_warned_about() -> None:
 
 def test_the_density_cap_is_mentioned_where_its_rule_applies() -> None:
     _, notes = make_run_configs("Hopper-v4", "Hopper", [0])
-    assert any("q = 2: the policy density is capped at 1e+08" in note for note in notes)
+    assert any("q = 2: the policy density is capped at 10^8 (" in note for note in notes)
     _, notes = make_run_configs("Hopper-v4", "Hopper", [0], [2.0], density_cap="off")
     assert not any("capped" in note for note in notes)
     _, notes = make_run_configs("Hopper-v4", "Hopper", [0], [1.5], density_cap="every-q")
-    assert any("q = 1.5: the policy density is capped at 1e+16" in note for note in notes)
+    assert any("q = 1.5: the policy density is capped at 10^16 (" in note for note in notes)
+    # near q = 1 the cap is far beyond a float (exp overflowed) or below its smallest (read 0)
+    qs = [1.02, 0.98]
+    _, notes = make_run_configs("Hopper-v4", "Hopper", [0], qs, density_cap="every-q")
+    assert any("q = 1.02: the policy density is capped at 10^400 (" in note for note in notes)
+    assert any("q = 0.98: the policy density is capped at 10^-400 (" in note for note in notes)
 
 
 @pytest.mark.parametrize(
