@@ -290,13 +290,42 @@ def test_measured_throughput_replaces_the_default(tmp_path: Path) -> None:
     )
     # second half of the evaluations: (3.0 - 1.0) s / 500 steps, shared by 2 members
     assert cost.run_seconds_per_step(directory) == pytest.approx(0.002)
-    rates = cost.rates(tmp_path, [("tac", "Hopper-v4"), ("trpo", "Hopper-v4")])
+    ppo = next(r for r in plan.build_runs(SMOKE) if r.config.algo == "ppo")
+    planned = {("tac", "Hopper-v4"): [run.config], ("ppo", "Hopper-v4"): [ppo.config]}
+    rates = cost.rates(tmp_path, planned)
     assert rates[("tac", "Hopper-v4")] == cost.Rate(0.002, f"measured: 1 run under {tmp_path}")
-    assert rates[("trpo", "Hopper-v4")].source == cost.DEFAULT_SOURCE
-    assert rates[("trpo", "Hopper-v4")].seconds_per_step > 0
+    assert rates[("ppo", "Hopper-v4")].source == cost.DEFAULT_SOURCE
+    assert rates[("ppo", "Hopper-v4")].seconds_per_step > 0
     with (directory / "eval.csv").open("a") as handle:  # a damaged log: the price goes without
         handle.write("garbage\n")
     assert cost.run_seconds_per_step(directory) is None
+
+
+def test_only_runs_of_the_plans_kind_measure_its_price(tmp_path: Path) -> None:
+    """Every run under --out priced the plan by algo and task alone: four 1,000-step smoke
+    runs made the paper grid's price 13x its default. Runs of another kind (another setting
+    but seed, q, alpha and steps), runs measured in their warm-up and runs with a damaged
+    config.json (which crashed the dry run and the sweep) now price nothing."""
+    run = plan.build_runs(narrow(SMOKE, Narrowing(algos=("tac",))))[0]
+    rows = "step,wall_s,return_mean,return_std,length_mean\n500,1.0,1,0,1\n1000,2.0,1,0,1\n"
+    other_kind = _fake_run(tmp_path, run, None, batch_size=64)
+    (other_kind / "eval.csv").write_text(rows)
+    longer = dataclasses.replace(run.config, seed=99, q=1.5, total_steps=4000)
+    same_kind = plan.Run(longer)
+    directory = _fake_run(tmp_path, same_kind, None)
+    (directory / "eval.csv").write_text(rows.replace("2.0", "4.0"))
+    planned = {("tac", "Hopper-v4"): [run.config]}
+    assert cost.rates(tmp_path, planned)[("tac", "Hopper-v4")].seconds_per_step == 0.006
+    (directory / "eval.csv").write_text(rows.replace("500,", "400,"))  # from inside its warm-up
+    assert cost.rates(tmp_path, planned)[("tac", "Hopper-v4")].source == cost.DEFAULT_SOURCE
+    (directory / "eval.csv").write_text(rows)
+    for damaged in ('{"config": 5}', "{not json", '{"config": {"threads": "x"}}'):
+        (other_kind / "config.json").write_text(damaged)
+        assert cost.rates(tmp_path, planned)[("tac", "Hopper-v4")].seconds_per_step == 0.002
+    metadata = runs.read_json(directory / "config.json")
+    metadata["config"]["threads"] = "x"
+    runs.atomic_write_json(directory / "config.json", metadata)
+    assert cost.rates(tmp_path, planned)[("tac", "Hopper-v4")].source == cost.DEFAULT_SOURCE
 
 
 def test_the_reference_profile_is_priced_on_its_own(tmp_path: Path) -> None:
@@ -314,10 +343,18 @@ def test_the_reference_profile_is_priced_on_its_own(tmp_path: Path) -> None:
     assert cost.cost_algo("tac", "authors-2019-01-11b") == cost.REFERENCE_TAC
     assert cost.cost_algo("tac", "paper") == "tac"
     assert cost.cost_algo("ppo", None) == "ppo"
-    measured = cost.rates(tmp_path, [("tac", "Hopper-v4"), (cost.REFERENCE_TAC, "Hopper-v4")])
+    planned = {
+        ("tac", "Hopper-v4"): [paper.config],
+        (cost.REFERENCE_TAC, "Hopper-v4"): [reference.config],
+    }
+    measured = cost.rates(tmp_path, planned)
     assert measured[("tac", "Hopper-v4")].seconds_per_step == pytest.approx(0.002)
     assert measured[(cost.REFERENCE_TAC, "Hopper-v4")].seconds_per_step == pytest.approx(0.016)
-    defaults = cost.rates(tmp_path / "empty", [("tac", "Ant-v4"), (cost.REFERENCE_TAC, "Ant-v4")])
+    on_ant = {
+        ("tac", "Ant-v4"): [dataclasses.replace(paper.config, env="Ant-v4")],
+        (cost.REFERENCE_TAC, "Ant-v4"): [dataclasses.replace(reference.config, env="Ant-v4")],
+    }
+    defaults = cost.rates(tmp_path / "empty", on_ant)
     assert defaults[(cost.REFERENCE_TAC, "Ant-v4")].seconds_per_step > 5 * (
         defaults[("tac", "Ant-v4")].seconds_per_step
     )
@@ -336,7 +373,9 @@ def test_a_pair_without_a_default_of_its_own_is_priced_at_its_algorithms_mean_an
     assert cost.default_stand_ins("not-an-algo", "Hopper-v4") == sorted(
         cost.DEFAULT_SECONDS_PER_STEP
     )
-    rates = cost.rates(tmp_path, [(cost.REFERENCE_TAC, "Humanoid-v4")])
+    humanoid = plan.build_runs(narrow(SMOKE, Narrowing(algos=("tac",))))[0].config
+    humanoid = dataclasses.replace(humanoid, env="Humanoid-v4", profile="reference")
+    rates = cost.rates(tmp_path, {(cost.REFERENCE_TAC, "Humanoid-v4"): [humanoid]})
     mean = (cost.DEFAULT_SECONDS_PER_STEP[own[0]] + cost.DEFAULT_SECONDS_PER_STEP[own[1]]) / 2
     assert rates[(cost.REFERENCE_TAC, "Humanoid-v4")].seconds_per_step == pytest.approx(mean)
     command = ["sweep", "--preset", "paper-q-grid", "--env", "Humanoid", "--env", "Hopper"]

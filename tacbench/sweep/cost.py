@@ -1,10 +1,11 @@
 """How long the steps left will take (seconds per environment step for each (algo, env)), and
 how much memory a unit of TAC members needs.
 
-Measured, where possible, from run directories already under ``--out``: a run's ``eval.csv``
-``wall_s`` (training, evaluation and checkpoints, summed over sessions) over its second half of
-evaluations, times its torch threads, divided by its members (K seeds sharing one process share
-its clock). The median over the runs of an (algo, env) is used. Where no run has two evaluations
+Measured, where possible, from run directories already under ``--out`` of the plan's kind
+(:func:`rates`): a run's ``eval.csv`` ``wall_s`` (training, evaluation and checkpoints, summed
+over sessions) over its second half of evaluations, times its torch threads, divided by its
+members (K seeds sharing one process share its clock). The median over the runs of an (algo,
+env) is used. Where no run has two evaluations
 yet, the defaults below are used, and the plan says so.
 """
 
@@ -12,15 +13,17 @@ from __future__ import annotations
 
 import csv
 import heapq
+import json
 import math
 import statistics
 from collections import defaultdict
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from tacbench import runs
+from tacbench.errors import TacbenchError
 from tacbench.paper import ENV_IDS, HYPERPARAMETERS, PROFILES, paper_task
 
 # CPU seconds per member-step with the paper's settings, one torch thread, measured with
@@ -139,40 +142,76 @@ def run_seconds_per_step(directory: Path) -> float | None:
 
 def _seconds_per_step(eval_csv: Path, metadata: dict[str, Any]) -> float | None:
     """:func:`run_seconds_per_step` from the run's eval.csv and its config.json's contents (None
-    also when eval.csv is damaged: a price does without that rate, and the run's own resume
-    check says what is wrong with it)."""
+    also when eval.csv or config.json is damaged, and when the window starts before the run
+    learns, its random warm-up being many times faster: a price does without that rate, and the
+    run's own resume check says what is wrong with it)."""
     try:
         with eval_csv.open(newline="") as handle:
             rows = [(int(r["step"]), float(r["wall_s"])) for r in csv.DictReader(handle)]
-    except (OSError, UnicodeDecodeError, csv.Error, KeyError, TypeError, ValueError):
+        settings = metadata["config"]
+        threads = int(settings.get("threads", 1))
+        members = len(metadata.get("members", [0])) or 1
+        start = int(
+            settings.get(
+                "learning_starts", settings.get("hyperparams", {}).get("learning_starts", 0)
+            )
+        )
+    except (OSError, UnicodeDecodeError, csv.Error, AttributeError, KeyError, TypeError):
+        return None
+    except ValueError:  # a step, a time or the threads that is not a number
         return None
     if len(rows) < 2:
         return None
     (step_a, wall_a), (step_b, wall_b) = rows[(len(rows) - 1) // 2], rows[-1]
-    if step_b <= step_a or wall_b <= wall_a:
+    if step_b <= step_a or wall_b <= wall_a or step_a < start:
         return None
-    threads = int(metadata.get("config", {}).get("threads", 1))
-    members = len(metadata.get("members", [0])) or 1
     return (wall_b - wall_a) / (step_b - step_a) * threads / members
 
 
-def rates(out: Path, pairs: Iterable[tuple[str, str]]) -> dict[tuple[str, str], Rate]:
-    """A :class:`Rate` for each (algo, env) in ``pairs`` (algo as :func:`cost_algo` names it):
-    measured under ``out`` when a run there has two evaluations, else the default (None-free: an
-    unmeasured pair gets the mean default of its algorithm, or of everything)."""
+PRICED_ALIKE = ("seed", "q", "alpha", "total_steps", "variant")
+"""Settings in which a measured run may differ from the plan's runs it prices: a member's
+identity and the run's length (the variant names q and alpha). Any other difference (the
+network, the schedule, compilation, threads) is another kind of run, priced otherwise."""
+
+
+def _kind(settings: Mapping[str, Any]) -> Any:
+    """A run's settings without :data:`PRICED_ALIKE`, as JSON reads them (lists, not tuples)."""
+    return json.loads(json.dumps({k: v for k, v in settings.items() if k not in PRICED_ALIKE}))
+
+
+def rates(
+    out: Path, planned: Mapping[tuple[str, str], Sequence[Any]]
+) -> dict[tuple[str, str], Rate]:
+    """A :class:`Rate` for each (algo, env) of ``planned`` (algo as :func:`cost_algo` names it;
+    the plan's configs of that pair): measured under ``out`` where a run there of the same kind
+    (the settings of one of those configs but for :data:`PRICED_ALIKE`) has two evaluations
+    after its warm-up, else the default (None-free: an unmeasured pair gets the mean default of
+    its algorithm, or of everything). A run of another kind or with a damaged config.json
+    prices nothing."""
+    kinds = {pair: [_kind(c.to_dict()) for c in configs] for pair, configs in planned.items()}
     measured: dict[tuple[str, str], list[float]] = defaultdict(list)
     for config_json in Path(out).glob("runs/*/*/*/seed*/config.json"):
         eval_csv = config_json.parent / "eval.csv"
         if not eval_csv.exists():
             continue
-        metadata = runs.read_json(config_json)  # once: the rate's divisors and the profile
+        try:
+            metadata = runs.read_json(config_json)  # once: the rate's divisors and the kind
+        except TacbenchError:
+            continue
+        stored = metadata.get("config") if isinstance(metadata, dict) else None
+        if not isinstance(stored, dict):
+            continue
+        pair = cost_algo(config_json.parts[-5], stored.get("profile")), config_json.parts[-4]
+        if (
+            pair not in planned
+            or _kind(runs.as_read_now(stored, planned[pair][0])) not in kinds[pair]
+        ):
+            continue
         value = _seconds_per_step(eval_csv, metadata)
         if value is not None:
-            profile = metadata.get("config", {}).get("profile")
-            algo, env = cost_algo(config_json.parts[-5], profile), config_json.parts[-4]
-            measured[(algo, env)].append(value)
+            measured[pair].append(value)
     result = {}
-    for pair in set(pairs):
+    for pair in planned:
         if measured.get(pair):
             n = len(measured[pair])
             result[pair] = Rate(

@@ -75,7 +75,9 @@ def price(plan: SweepPlan, workers: int) -> Price:
     groups: dict[tuple[str, str], list[PlannedRun]] = defaultdict(list)
     for p in plan.runs:
         groups[_priced_as(p.run.config)].append(p)
-    rates = cost.rates(plan.out, groups)
+    rates = cost.rates(
+        plan.out, {pair: [p.run.config for p in group] for pair, group in groups.items()}
+    )
     calibrated = calibration.price(plan, calibration.load())
     priced = []
     for (algo, env), members in groups.items():
