@@ -14,6 +14,7 @@ from click.testing import CliRunner
 
 from tacbench import hardware
 from tacbench.cli import cli
+from tacbench.errors import TacbenchError
 from tacbench.members import make_run_configs
 from tacbench.sweep import calibration
 from tacbench.sweep.calibration import Calibration
@@ -62,6 +63,33 @@ def test_calibrations_are_stored_per_cpu_class_and_merged() -> None:
     assert path.name.endswith(".json") and path.parent.name == "calibration"
     assert calibration.load() == {"a": a, "b": b}
     assert calibration.load("another-class") == {}
+
+
+@pytest.mark.parametrize("damaged", ['{"units": []}', '{"units": {"a": {"random": 1}}}', "{not"])
+def test_a_damaged_store_is_a_clear_error_not_a_traceback(damaged: str) -> None:
+    """A store of another shape raised AttributeError or TypeError in every sweep, dry run and
+    study bills; invalid JSON was met with a run folder's advice (--force)."""
+    path = calibration.store_path()
+    path.parent.mkdir(parents=True)
+    path.write_text(damaged)
+    with pytest.raises(TacbenchError, match=r"is not a readable calibration store; delete it"):
+        calibration.load()
+
+
+def test_an_unwritable_store_is_refused_before_anything_is_measured(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """With TACBENCH_CALIBRATION naming a file, --calibrate measured every unit and then lost
+    them to a FileExistsError."""
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    monkeypatch.setenv("TACBENCH_CALIBRATION", str(blocker))
+    measured: list[Any] = []
+    monkeypatch.setattr(calibration, "measure", measured.append)
+    configs, _ = make_run_configs("Pendulum-v1", None, [0], hidden_sizes=(16,))
+    with pytest.raises(TacbenchError, match="TACBENCH_CALIBRATION"):
+        calibration.calibrate([configs], report=lambda line: None)
+    assert measured == []
 
 
 def test_the_dry_run_uses_the_calibration_of_every_unit_and_says_so(tmp_path: Path) -> None:

@@ -134,8 +134,15 @@ def load(cpu: str | None = None) -> dict[str, Calibration]:
     path = store_path(cpu)
     if not path.exists():
         return {}
-    data = runs.read_json(path)
-    return {key: Calibration(**value) for key, value in data.get("units", {}).items()}
+    try:
+        units = json.loads(path.read_text())["units"]
+        return {key: Calibration(**value) for key, value in units.items()}
+    except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError, AttributeError):
+        raise TacbenchError(
+            f"{path} is not a readable calibration store; delete it (or point "
+            "TACBENCH_CALIBRATION elsewhere), then calibrate again with tacbench sweep ... "
+            "--dry-run --calibrate."
+        ) from None
 
 
 def save(calibrations: dict[str, Calibration], cpu: str | None = None) -> Path:
@@ -329,6 +336,8 @@ def calibrate(
         key = unit_key(configs)
         if key not in known and key not in todo:
             todo[key] = configs
+    if todo:  # before minutes of measuring whose results would have nowhere to go
+        runs.check_writable(store_path().parent, "TACBENCH_CALIBRATION")
     new: dict[str, Calibration] = {}
     for index, (key, configs) in enumerate(todo.items(), start=1):
         c = configs[0]
