@@ -32,6 +32,10 @@ LEVEL = 0.05
 """The two-sided level of every verdict (each comparison on its own)."""
 TOO_FEW_RUNS = "too few runs"
 """The verdict where no ranking of these run counts reaches :data:`LEVEL` (:func:`decidable`)."""
+CHOSEN_ON_THESE_RUNS = "not tested: chosen on these runs"
+"""The verdict of TAC (best q) where its q was picked among several by these runs' returns: a
+test of the picked q against q = 1 (or a baseline) at :data:`LEVEL` would decide far more often
+than its level where no q differs (docs/report.md, "TAC (best q)")."""
 EXACT_LABELLINGS = 100_000
 """Up to this many labellings in all (the product over tasks of C(n + m, n)), every one is
 counted: ten runs a side on one task are 184,756, beyond it; five a side on two tasks are

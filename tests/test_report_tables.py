@@ -25,6 +25,7 @@ from tacbench.report.methods import (
 )
 from tacbench.report.page import best_q_display, summary_display
 from tacbench.report.tables import best_q_rows, normalise, run_scores
+from tacbench.verdicts import CHOSEN_ON_THESE_RUNS
 from tests.report_fixtures import synthetic_tree, write_run
 
 pytestmark = pytest.mark.unit
@@ -198,6 +199,37 @@ def test_tac_best_q_is_of_the_papers_design_where_a_task_has_it() -> None:
         "A": "TAC q=1.5 [q1.5-a0.2]",
         "B": "TAC q=2 [q2-aauto0.2]",
     }
+    assert best.set_index("env")["candidates"].to_dict() == {"A": 1, "B": 1}
+
+
+def test_a_best_q_picked_among_several_carries_no_test(tmp_path: Path) -> None:
+    """TAC (best q) picked among several q by these runs was tested against q = 1 and the
+    baselines as if chosen beforehand: nine equal q on six tasks were called "larger" in 62 % of
+    simulated grids. Its rows keep P and the interval, without a p-value or verdict; with one
+    q != 1 on the task (nothing picked) the test stands."""
+    several = tmp_path / "several"
+    for env in ("Humanoid-v4", "Hopper-v4"):  # two tasks: an "all tasks" row too
+        for q, levels in ((1.0, [100.0, 200.0, 600.0]), (1.2, [400.0, 500.0, 600.0])):
+            _flat_runs(several, env, "tac", q, levels)
+        _flat_runs(several, env, "tac", 2.0, [300.0, 300.0, 300.0])
+        _flat_runs(several, env, "ddpg", None, [50.0, 150.0])
+    picked = analyse(ReportOptions(results=several, out=several / "report", reps=200, last=2))
+    for table in (picked.improvement, picked.baselines):
+        best = table[table["method"] == BEST_Q_LABEL]
+        assert set(best["env"]) == {"all tasks", "Humanoid-v4", "Hopper-v4"}
+        assert (best["verdict"] == CHOSEN_ON_THESE_RUNS).all()
+        assert best["p_value"].isna().all() and best["p"].notna().all()
+    sac = picked.baselines[picked.baselines["method"] == SAC_LABEL]
+    assert len(sac) and sac["p_value"].notna().all()
+    root = tmp_path / "one"
+    _flat_runs(root, "Humanoid-v4", "tac", 1.0, [100.0, 200.0, 600.0])
+    _flat_runs(root, "Humanoid-v4", "tac", 1.2, [400.0, 500.0, 600.0])
+    _flat_runs(root, "Humanoid-v4", "ddpg", None, [50.0, 150.0])
+    report = analyse(ReportOptions(results=root, out=root / "report", reps=200, last=2))
+    for table in (report.improvement, report.baselines):
+        best = table[table["method"] == BEST_Q_LABEL]
+        assert len(best) and best["p_value"].notna().all()
+        assert CHOSEN_ON_THESE_RUNS not in set(best["verdict"])
 
 
 def test_normalisation_anchors_are_the_task_extremes(flat_report: Report) -> None:

@@ -77,7 +77,8 @@ def how_to_read(report: Report) -> list[str]:
             else []
         ),
         "TAC (best q) takes, per task, the q ≠ 1 with the highest mean final return on these "
-        "same runs (as the paper did), so its numbers are optimistic.",
+        "same runs (as the paper did), so its numbers are optimistic; where it was picked among "
+        "several q, its comparisons carry no test (verdict 'not tested: chosen on these runs').",
         "Partial runs (still running or stopped before their planned steps) are included and "
         "counted in the partial column; failed or unreadable runs are left out and listed below.",
     ]

@@ -142,13 +142,15 @@ def _method_of(env: object, method: object, group: pd.DataFrame) -> dict[str, ob
 def best_q_rows(summary: pd.DataFrame) -> pd.DataFrame:
     """Per task, the TAC row with the highest mean final return among q != 1 (for the figure):
     among the runs of the paper's design (a fixed alpha, float32 products) where the task has
-    any, so that TAC (best q) is not one task's learned alpha beside another's fixed one."""
+    any, so that TAC (best q) is not one task's learned alpha beside another's fixed one. Column
+    ``candidates``: how many rows it was picked from (more than one: picked by these runs)."""
     tac = summary[(summary["algo"] == "tac") & (summary["seeds"] > 0)]
     candidates = tac[tac["q"].notna() & (tac["q"] != 1.0)]  # a fixed q: not TAC q=auto
     variants = candidates["variant"]
     papers = candidates[~learns_alpha(variants) & ~variants.map(has_bf16_products)]
     candidates = pd.concat([papers, candidates[~candidates["env"].isin(papers["env"])]])
-    best = candidates.loc[candidates.groupby("env", sort=False)["final_mean"].idxmax()]
+    by_task = candidates.groupby("env", sort=False)["final_mean"]
+    best = candidates.loc[by_task.idxmax()].assign(candidates=by_task.size().to_numpy())
     return best.reset_index(drop=True)
 
 
