@@ -136,6 +136,41 @@ def test_committed_scores_against_synthetic_fresh_sets() -> None:
         assert stat.compare_scores("g", scores, scores * 0.5, alpha).status == "drop"
 
 
+def test_a_check_splits_its_level_over_the_groups_it_checks(tmp_path: Path) -> None:
+    """The tier's false-alarm bound (5 % per check) rests on dividing the level by the groups
+    checked (Bonferroni); no test pinned it. A fake runner returns each group's recorded scores
+    (stat.score reads them back), so only the threshold is at stake."""
+    reference = tmp_path / "reference"
+    (reference / "stat").mkdir(parents=True)
+    manifest = mf.read_manifest(REFERENCE, "stat")
+    (reference / "stat" / mf.MANIFEST).write_text(json.dumps(manifest))
+    scores = {e["name"]: list(e["scores"].values()) for e in manifest["groups"]}
+
+    def runner(args: list[str], out: Path) -> mf.CommandResult:
+        seeds = [int(args[i + 1]) for i, arg in enumerate(args) if arg == "--seed"]
+        group = next(e["name"] for e in manifest["groups"] if e["args"] == args[: len(e["args"])])
+        directories = []
+        for seed, value in zip(seeds, scores[group], strict=False):
+            directory = out / f"seed{seed}"
+            directory.mkdir(parents=True)
+            (directory / "status.json").write_text('{"state": "complete", "step": 1}')
+            rows = "".join(f"{step},{value}\n" for step in range(manifest["last"]))
+            (directory / "eval.csv").write_text("step,return_mean\n" + rows)
+            directories.append(directory)
+        return mf.CommandResult(0, "", tuple(directories))
+
+    both = stat.check_stat(reference, tmp_path / "work", log=lambda line: None, runner=runner)
+    level = manifest["alpha"] / len(manifest["groups"])
+    assert len(both.rows) == len(manifest["groups"]) >= 2
+    assert all(f"a drop if p < {level:.4f}" in row.detail for row in both.rows)
+    first = manifest["groups"][0]["name"]
+    alone = stat.check_stat(
+        reference, tmp_path / "alone", [first], log=lambda line: None, runner=runner
+    )
+    assert [row.item for row in alone.rows] == [first]
+    assert f"a drop if p < {manifest['alpha']:.4f}" in alone.rows[0].detail
+
+
 def test_score_is_the_mean_of_the_last_evaluations(tmp_path: Path) -> None:
     path = tmp_path / "eval.csv"
     path.write_text("step,return_mean\n1,10\n2,20\n3,30\n4,50\n")
