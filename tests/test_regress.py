@@ -441,6 +441,20 @@ def test_update_records_this_cpu_class_and_keeps_the_others(tmp_path: Path) -> N
     result = exact.check_exact(reference, tmp_path / "check", log=lambda _: None)
     assert result.verdict == "PASS", format_result(result)
     assert [row.status for row in result.rows] == ["match"] * 4
+    # a reference recorded before settings were added (their defaults keep its behaviour) was
+    # said to differ from every fresh run ("density_cap: '(absent)' -> 'paper'; ..."); a
+    # setting that really differs still is
+    manifest["runs"][0]["config"].pop("matmul_precision")
+    manifest["runs"][0]["config"].pop("density_cap")
+    path.write_text(json.dumps(manifest))
+    result = exact.check_exact(reference, tmp_path / "older", log=lambda _: None)
+    assert not any("config differs" in note for note in result.notes), result.notes
+    manifest["runs"][0]["config"]["alpha"] = 0.3
+    path.write_text(json.dumps(manifest))
+    result = exact.check_exact(reference, tmp_path / "other", log=lambda _: None)
+    assert [n for n in result.notes if "config differs" in n] == [
+        "tac-tiny: config differs from the reference's: alpha: 0.3 -> 0.2"
+    ]
 
 
 def test_a_cpu_class_without_references_fails_loudly_with_exit_three(tmp_path: Path) -> None:
