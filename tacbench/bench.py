@@ -121,6 +121,12 @@ class BenchOptions:
             )
         if self.steps < self.rounds:
             raise TacbenchError("--steps must be at least --rounds (steps are split into rounds).")
+        if self.steps % self.rounds:  # the remainder was dropped unsaid
+            whole = self.steps - self.steps % self.rounds
+            raise TacbenchError(
+                f"--steps {self.steps} does not split into {self.rounds} rounds of equal steps; "
+                f"give a multiple of --rounds, --steps {whole} for example."
+            )
         if self.learning_starts < 1:
             raise TacbenchError("--learning-starts must be at least 1.")
 
@@ -243,7 +249,7 @@ def run_bench(options: BenchOptions, report: Callable[[str], None] = print) -> l
     lines. Returns one :class:`BenchResult` per contestant, in :func:`contestants` order."""
     configure_process(options.threads)
     results = [BenchResult(c) for c in contestants(options)]
-    chunk = max(1, options.steps // options.rounds)
+    chunk = options.steps // options.rounds
     with tempfile.TemporaryDirectory() as tmp, contextlib.ExitStack() as stack:
         learners = []
         for result in results:
@@ -325,7 +331,7 @@ def summary(results: list[BenchResult], options: BenchOptions, before: dict[str,
     head = (
         f"{options.env}, batch 100, ReLU hidden layers ({widths}), one update per step, "
         f"{options.threads} torch thread(s), device {options.device}; {options.rounds} rounds of "
-        f"{max(1, options.steps // options.rounds)} steps after {options.learning_starts} "
+        f"{options.steps // options.rounds} steps after {options.learning_starts} "
         f"random steps and {WARMUP_UPDATES} warm-up updates.\n"
         f"{after['date']}, {after['cpu']}, {after['cores']} cores; load average "
         f"{before['load_average']} at start, {after['load_average']} at end "

@@ -118,6 +118,8 @@ def test_bench_command_refuses_bad_options(tmp_path: Path) -> None:
     result = CliRunner().invoke(cli, ["bench", "--steps", "1", "--rounds", "3"])
     assert result.exit_code == 2
     assert "--steps must be at least --rounds" in result.output
+    result = CliRunner().invoke(cli, ["bench", "--steps", "7", "--rounds", "5"])  # timed 5 of 7
+    assert result.exit_code == 2 and "give a multiple of --rounds, --steps 5" in result.output
     result = CliRunner().invoke(cli, ["bench", "--no-sb3", "--no-eager"])
     assert result.exit_code == 2 and "leave nothing to measure" in result.output
     (tmp_path / "afile").write_text("")  # --json below a file: refused before measuring
