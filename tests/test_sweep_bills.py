@@ -197,27 +197,35 @@ def test_a_folder_named_with_one_inside_it_counts_each_sweep_once(tmp_path: Path
     assert result.output.count(SMOKE) == 1 and "4 runs\n" in result.output
 
 
+BILL = {
+    "wall_s": 5.0,
+    "cpu_class": "x86_64-SomeVendor-1-2-AVX2",
+    "priced_wall_s": 4.0,
+    "workers": 1,
+}
+
+
 @pytest.mark.parametrize(
     ("file", "record", "message"),
     [
         ("config.json", {"command": SMOKE}, "'created' is None, not an ISO 8601 time"),
         ("status.json", {"state": "complete", "updated": "yesterday"}, "'updated' is 'yesterday'"),
         ("summary.json", {"command": SMOKE, "bill": {"wall_s": 5}}, "its bill lacks one of"),
+        ("summary.json", {"command": SMOKE, "bill": BILL}, "'finished' is None"),
         (
             "summary.json",
-            {
-                "command": SMOKE,
-                "bill": dict.fromkeys(["wall_s", "cpu_class", "priced_wall_s", "workers"], 1),
-            },
-            "'finished' is None",
-        ),
-        (
-            "summary.json",
-            {
-                "bill": dict.fromkeys(["wall_s", "cpu_class", "priced_wall_s", "workers"], 1),
-                "finished": "2026-12-05T01:00:00Z",
-            },
+            {"bill": BILL, "finished": "2026-12-05T01:00:00Z"},
             "records no sweep command",
+        ),
+        (  # a TypeError traceback
+            "summary.json",
+            {"command": SMOKE, "bill": {**BILL, "wall_s": "5"}, "finished": "2026-12-05T01:00Z"},
+            "holds one of another type",
+        ),
+        (  # "can't compare offset-naive and offset-aware datetimes"
+            "summary.json",
+            {"command": SMOKE, "bill": BILL, "finished": "2026-12-05T01:00:00"},
+            "a time without its UTC offset",
         ),
     ],
 )

@@ -152,12 +152,24 @@ def _bills(results: Path) -> dict[str, dict[str, Any]]:
         bill = record.get(BILL)
         if not bill or record.get("interrupted"):
             continue
-        fields = ("wall_s", "cpu_class", "priced_wall_s", "workers")
-        if not isinstance(bill, dict) or any(f not in bill for f in fields):
-            raise TacbenchError(f"{path}: its bill lacks one of {list(fields)}; {ADVICE}.")
+        number = (int, float)
+        kinds: dict[str, type | tuple[type, ...]] = {"wall_s": number, "cpu_class": str}
+        kinds.update(priced_wall_s=number, workers=int)
+        if not isinstance(bill, dict) or any(
+            isinstance(bill.get(f), bool) or not isinstance(bill.get(f), kind)
+            for f, kind in kinds.items()
+        ):
+            raise TacbenchError(
+                f"{path}: its bill lacks one of {list(kinds)} or holds one of another type "
+                f"(seconds and workers as numbers, the class as text); {ADVICE}."
+            )
         if not isinstance(record.get("command"), str):
             raise TacbenchError(f"{path} records no sweep command; {ADVICE}.")
-        _time(record, "finished", path)
+        if _time(record, "finished", path).tzinfo is None:  # compared with the runs' times
+            raise TacbenchError(
+                f"{path}: 'finished' is {record['finished']!r}, a time without its UTC offset; "
+                f"{ADVICE}."
+            )
         found[record["command"]] = {**bill, "finished": record["finished"]}
     return found
 
