@@ -188,6 +188,14 @@ def test_resume_names_each_run_that_has_nothing_to_resume(tmp_path: Path) -> Non
         ]
         result = CliRunner().invoke(run, [*args, "--out", str(tmp_path)])
         assert "nothing to resume" not in result.output  # without --resume, nothing to say
+        # a run whose config.json was lost was announced as "nothing to resume ... starting
+        # afresh", then refused: it is refused alone
+        lost = kept.parent / "seed10"
+        lost.mkdir()
+        (lost / "eval.csv").write_text("step\n")
+        result = CliRunner().invoke(run, [*args, "--out", str(tmp_path), "--resume"])
+        assert "eval.csv but no config.json" in str(result.exception)  # exit 2 under tacbench
+        assert "nothing to resume" not in result.output
 
 
 def test_resume_with_no_run_of_the_command_is_refused(tmp_path: Path) -> None:

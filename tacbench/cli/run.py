@@ -21,7 +21,7 @@ from tacbench.cli.options import NumberOrAuto, ResultsFolder, cli_settings, sett
 from tacbench.config import RunConfig
 from tacbench.errors import TacbenchError, listing
 from tacbench.runs.checkpoints import newest_step
-from tacbench.runs.planning import check_resume_or_force, unfinished
+from tacbench.runs.planning import check_nothing_to_lose, check_resume_or_force, unfinished
 from tacbench.settings import RunSettings, settings_of
 
 _SETTINGS = cli_settings(RunConfig)
@@ -215,6 +215,8 @@ def _say_what_starts_afresh(configs: Sequence[Any], out: Path) -> None:
     for config, directory, has_checkpoint, resumes, exists in zip(
         configs, directories, checkpointed, resuming, written, strict=True
     ):
+        if not exists:  # files but no config.json: refused here, not announced as no run
+            check_nothing_to_lose(directory)
         if not exists and config.seed in named:
             click.echo(f"seed {config.seed}: not started before the stop; starting it")
         elif not exists:
