@@ -21,6 +21,7 @@ from click.testing import CliRunner
 from tacbench import hardware, runs
 from tacbench.cli import cli
 from tacbench.errors import TacbenchError
+from tacbench.members import resolve_compile
 from tacbench.runs import Outcome
 from tacbench.sweep import cost, driver, plan, state, summary, worker
 from tacbench.sweep.presets import Narrowing, get_preset, narrow
@@ -34,6 +35,8 @@ def _fake_run(out: Path, run: plan.Run, status: dict[str, Any] | None, **config:
     directory = out / run.key
     directory.mkdir(parents=True)
     data = {**run.config.to_dict(), **config}
+    if data.get("compile") == "auto":  # a run records what --compile auto resolved to
+        data["compile"] = resolve_compile(run.config).compile
     runs.atomic_write_json(directory / "config.json", {"config": data, "members": [0]})
     if status is not None:
         runs.atomic_write_json(directory / "status.json", status)

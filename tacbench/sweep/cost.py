@@ -24,6 +24,7 @@ from typing import Any
 
 from tacbench import runs
 from tacbench.errors import TacbenchError
+from tacbench.members import resolve_compile
 from tacbench.paper import ENV_IDS, HYPERPARAMETERS, PROFILES, paper_task
 
 # CPU seconds per member-step with the paper's settings, one torch thread, measured with
@@ -188,7 +189,10 @@ def rates(
     after its warm-up, else the default (None-free: an unmeasured pair gets the mean default of
     its algorithm, or of everything). A run of another kind or with a damaged config.json
     prices nothing."""
-    kinds = {pair: [_kind(c.to_dict()) for c in configs] for pair, configs in planned.items()}
+    kinds = {  # a run records the compile that --compile auto resolved to: compare with that
+        pair: [_kind((resolve_compile(c) if c.algo == "tac" else c).to_dict()) for c in configs]
+        for pair, configs in planned.items()
+    }
     measured: dict[tuple[str, str], list[float]] = defaultdict(list)
     for config_json in Path(out).glob("runs/*/*/*/seed*/config.json"):
         eval_csv = config_json.parent / "eval.csv"
