@@ -31,6 +31,9 @@ def test_atomic_json_leaves_no_temporary_file(tmp_path: Path) -> None:
     runs.atomic_write_json(path, {"state": "complete", "step": 5})
     assert runs.read_json(path) == {"state": "complete", "step": 5}
     assert [p.name for p in tmp_path.iterdir()] == ["status.json"]
+    (tmp_path / "config.json").mkdir()  # said "... is is a directory"
+    with pytest.raises(TacbenchError, match=r"config.json is a directory; restore"):
+        runs.read_json(tmp_path / "config.json", "restore it")
 
 
 def test_csv_rows_are_flushed_at_once_and_keep_full_precision(tmp_path: Path) -> None:

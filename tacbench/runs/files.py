@@ -108,7 +108,8 @@ def read_json(path: Path, advice: str = RESTORE_OR_FORCE) -> dict[str, Any]:
             if isinstance(err, json.JSONDecodeError) and not err.doc.strip()
             else "not valid JSON"
         )
-        raise TacbenchError(f"{path} is {what}; {advice}.") from None
+        said = what if what.startswith("is ") else f"is {what}"  # strerror: "is a directory"
+        raise TacbenchError(f"{path} {said}; {advice}.") from None
     if not isinstance(data, dict):
         raise TacbenchError(f"{path} is not a JSON object; {advice}.")
     return data

@@ -117,7 +117,8 @@ def check_log(
         if len(steps) < count:
             raise _refuse(
                 path,
-                f"holds {len(steps)} rows, but the checkpoint at step {step} recorded {count}: "
+                f"holds {len(steps)} row{'' if len(steps) == 1 else 's'}, but the checkpoint at "
+                f"step {step} recorded {count}: "
                 "rows are missing",
             )
     kept = b"".join(lines[: 1 + count])
