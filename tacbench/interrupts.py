@@ -11,6 +11,7 @@ import signal
 import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Any
 
 StopCheck = Callable[[int], bool]  # polled with the step count; True: checkpoint and stop
@@ -48,16 +49,19 @@ def exit_status() -> int:
     return 128 + (_received[0] if _received else signal.SIGINT)
 
 
-def resume_command(command: str) -> str:
+def resume_command(command: str, out: Path | None = None) -> str:
     """``command`` with ``--resume`` in place of any ``--force`` (which would delete what the
-    resume continues, and which ``--resume`` refuses beside it); the library call's equivalent
-    when there is no command; a sweep's command as it is: a sweep resumes by being run again,
-    and has no ``--resume``."""
+    resume continues, and which ``--resume`` refuses beside it), and with ``--out`` the folder
+    ``out`` where given (the results were moved or copied since); the library call's
+    equivalent when there is no command; a sweep's command as it is: a sweep resumes by being
+    run again, and has no ``--resume``."""
     if not command:
         return "train(..., resume=True)"
     words = shlex.split(command)
     if words[:2] == ["tacbench", "sweep"]:
         return command
+    if out is not None and "--out" in words[:-1]:
+        words[words.index("--out") + 1] = str(out)
     return shlex.join([*(w for w in words if w not in ("--force", "--resume")), "--resume"])
 
 

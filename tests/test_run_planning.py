@@ -80,6 +80,13 @@ def test_a_resume_with_other_settings_quotes_the_runs_own_command(tmp_path: Path
     )
     with pytest.raises(TacbenchError, match=r"1000000\)\. Pass --force to replace it"):
         plan_runs([config], tmp_path, resume=False, force=False)
+    # recorded with an --out the results have since left: the advice names where they are now
+    moved = "tacbench run --env Hopper-v4 --q 1.5 --steps 30000 --out /elsewhere"
+    runs.atomic_write_json(directory / "config.json", {"config": short.to_dict(), "command": moved})
+    with pytest.raises(TacbenchError) as refused:
+        plan_runs([config], tmp_path, resume=True, force=False)
+    here = f"tacbench run --env Hopper-v4 --q 1.5 --steps 30000 --out {tmp_path} --resume"
+    assert f"repeat its own command: {here};" in str(refused.value)
     # a complete run has nothing to continue: no such advice
     runs.atomic_write_json(directory / "status.json", {"state": "complete", "step": 30_000})
     with pytest.raises(TacbenchError, match=r"1000000\)\. Pass --force to replace it"):

@@ -102,7 +102,8 @@ def plan_run(
     if differences:
         command = metadata.get("command")
         again = (  # a setting left out of the resume, such as --steps
-            f"To continue it, repeat its own command: {resume_command(command)}; or pass "
+            f"To continue it, repeat its own command: "
+            f"{resume_command(command, directory.parents[4])}; or pass "
             if resume
             and isinstance(command, str)
             and command.startswith("tacbench run ")
