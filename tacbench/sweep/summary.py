@@ -140,8 +140,9 @@ def describe_plan(plan: SweepPlan, workers: int, group: str, workers_from: str =
     if cost.DEFAULT_SOURCE in sources:
         lines.append(
             "* CPU time per step measured on tacbench's development machine, not here "
-            "(tacbench/sweep/cost.py); runs under --out with two evaluations replace it, and "
-            "--dry-run --calibrate measures the units on this CPU class (a few minutes)."
+            "(tacbench/sweep/cost.py); runs of the plan's kind under --out with two evaluations "
+            "replace it, and --dry-run --calibrate measures the units on this CPU class (a few "
+            "minutes)."
         )
         lines += _without_a_default_of_its_own(priced)
         lines += _unlike_the_tac_default(plan, priced)
