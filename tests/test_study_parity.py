@@ -237,7 +237,9 @@ def test_the_commands_refuse_what_tacbench_run_would_refuse() -> None:
     assert result.exit_code == 0 and "--env Hopper-v4" in result.output
 
 
-def _hopper(root: Path, algo: str, seed: int, total: int, state: str = "complete") -> None:
+def _hopper(
+    root: Path, algo: str, seed: int, total: int, state: str = "complete", level: float = 100.0
+) -> None:
     steps = [total / 2, float(total)] if state == "complete" else [total / 2]
     write_run(
         root,
@@ -246,7 +248,7 @@ def _hopper(root: Path, algo: str, seed: int, total: int, state: str = "complete
         variant="q1-a0.2" if algo == "tac" else "default",
         seed=seed,
         steps=steps,
-        returns=[100.0 + seed] * len(steps),
+        returns=[level + seed] * len(steps),
         q=1.0 if algo == "tac" else None,
         alpha=0.2 if algo == "tac" else None,
         total_steps=total,
@@ -356,21 +358,10 @@ def test_runs_of_several_folders_are_one_study_and_a_run_in_two_is_refused(
     """--results is repeatable (an ablation's TAC runs beside the study's SB3 runs): the tables
     are those of one folder holding them all, a left-out run is named with its folder, and a
     run in two of the folders is refused rather than counted twice."""
-    for folder, algo, offset in (("tac", "tac", 300.0), ("sb3", "sac-sb3", 0.0)):
+    for folder, algo, level in (("tac", "tac", 300.0), ("sb3", "sac-sb3", 0.0)):
         for seed in (0, 10, 20):
             for root in (tmp_path / folder, tmp_path / "both"):
-                write_run(
-                    root,
-                    algo=algo,
-                    env="Hopper-v4",
-                    variant="q1-a0.2" if algo == "tac" else "default",
-                    seed=seed,
-                    steps=[2000.0, 4000.0],
-                    returns=[offset + seed, offset + 2 * seed],
-                    q=1.0 if algo == "tac" else None,
-                    alpha=0.2 if algo == "tac" else None,
-                    total_steps=4000,
-                )
+                _hopper(root, algo, seed, 4000, level=level)
     _hopper(tmp_path / "sb3", "sac-sb3", 30, 4000, "failed")
     apart = parity.analyse([tmp_path / "tac", tmp_path / "sb3"], reps=100)
     together = parity.analyse(tmp_path / "both", reps=100)

@@ -118,8 +118,7 @@ def check_log(
             raise _refuse(
                 path,
                 f"holds {len(steps)} row{'' if len(steps) == 1 else 's'}, but the checkpoint at "
-                f"step {step} recorded {count}: "
-                "rows are missing",
+                f"step {step} recorded {count}: rows are missing",
             )
     kept = b"".join(lines[: 1 + count])
     if recorded is not None and (

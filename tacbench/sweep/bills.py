@@ -153,8 +153,12 @@ def _bills(results: Path) -> dict[str, dict[str, Any]]:
         if not bill or record.get("interrupted"):
             continue
         number = (int, float)
-        kinds: dict[str, type | tuple[type, ...]] = {"wall_s": number, "cpu_class": str}
-        kinds.update(priced_wall_s=number, workers=int)
+        kinds: dict[str, type | tuple[type, ...]] = {
+            "wall_s": number,
+            "cpu_class": str,
+            "priced_wall_s": number,
+            "workers": int,
+        }
         if not isinstance(bill, dict) or any(
             isinstance(bill.get(f), bool) or not isinstance(bill.get(f), kind)
             for f, kind in kinds.items()

@@ -157,10 +157,8 @@ def _seconds_per_step(eval_csv: Path, metadata: dict[str, Any]) -> float | None:
                 "learning_starts", settings.get("hyperparams", {}).get("learning_starts", 0)
             )
         )
-    except (OSError, UnicodeDecodeError, csv.Error, AttributeError, KeyError, TypeError):
-        return None
-    except ValueError:  # a step, a time or the threads that is not a number
-        return None
+    except (OSError, csv.Error, AttributeError, KeyError, TypeError, ValueError):
+        return None  # ValueError: undecodable, or a step, time or thread count not a number
     if len(rows) < 2:
         return None
     (step_a, wall_a), (step_b, wall_b) = rows[(len(rows) - 1) // 2], rows[-1]
