@@ -142,7 +142,8 @@ def test_bench_command_refuses_bad_options(tmp_path: Path) -> None:
         (["--threads", "1000"], "--threads 1000 is more than this machine's"),
         (["--hidden-sizes", "100000,100000"], "this run would need about"),
         (["--members", "100000", "--hidden-sizes", "3000"], "this run would need about"),
-        (["--json", ""], "--json must name a file (got '.')"),
+        (["--json", ""], "--json must name a file, not a folder (got '')"),
+        (["--json", "newdir/"], "got 'newdir/'); for example --json newdir/bench.json."),
     ],
 )
 def test_bench_refuses_what_it_would_ignore_or_could_not_run(args: list[str], message: str) -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -71,8 +72,8 @@ if TYPE_CHECKING:
 )
 @click.option(
     "--json",
-    "json_path",
-    type=click.Path(dir_okay=False, path_type=Path),
+    "json_arg",
+    type=click.Path(dir_okay=False),
     default=None,
     help="Also write every measurement to this JSON file (its folder is made if need be).",
 )
@@ -94,7 +95,7 @@ def bench(
     hidden_sizes: tuple[int, ...] | None,
     profile: bool,
     no_compile_profile: bool,
-    json_path: Path | None,
+    json_arg: str | None,
 ) -> None:
     """TAC (uncompiled and, with --compile, compiled; one and --members members) against
     stable-baselines3's SAC with the paper's settings, side by side in this process: steps/s,
@@ -127,9 +128,8 @@ def bench(
         "bf16" if bf16 else "float32", options.device, "--bf16", "leave --bf16 out"
     )
     measure.check_sizes(options)
+    json_path = None if json_arg is None else _json_file(json_arg)
     if json_path is not None:  # before minutes of measuring, not after
-        if not json_path.name:
-            raise TacbenchError(f"--json must name a file (got {str(json_path)!r}).")
         check_writable(json_path.parent, "--json")
     if profile:
         _profile(options, not no_compile_profile, json_path)
@@ -177,6 +177,17 @@ def _check_combination(ctx: click.Context) -> None:
             "--bf16 repeats each TAC row with bfloat16 products, and --no-eager without "
             "--compile leaves no TAC row; add --compile or drop --no-eager."
         )
+
+
+def _json_file(given: str) -> Path:
+    """--json's file; a trailing separator names a folder (Path would drop it silently)."""
+    path = Path(given)
+    if not path.name or given.endswith(("/", os.sep)):
+        raise TacbenchError(
+            f"--json must name a file, not a folder (got {given!r}); for example "
+            f"--json {Path(given, 'bench.json')}."
+        )
+    return path
 
 
 def _write_json(path: Path, record: dict[str, object]) -> None:
