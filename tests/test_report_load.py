@@ -251,6 +251,25 @@ def test_no_runs_is_a_clear_error(tmp_path: Path) -> None:
         load_runs(tmp_path)
 
 
+@pytest.mark.parametrize("where", [".", "exact/x86_64-some-class"])
+def test_regression_references_are_not_mistaken_for_damaged_runs(
+    tmp_path: Path, where: str
+) -> None:
+    """The report used to advise fixing or removing references that had no config.json."""
+    tier = tmp_path / where
+    run = tier / "tac-Hopper-v4-q1"
+    run.mkdir(parents=True)
+    (run / "eval.csv").write_text("step,mean_return\n")
+    (tier / "manifest.json").write_text('{"tier": "exact", "format": 1}')
+    with pytest.raises(TacbenchError, match=r"regress`'s exact references \(.*manifest.json\)"):
+        load_runs(tmp_path)
+
+
+def test_a_run_folder_may_hold_other_manifests(tmp_path: Path) -> None:
+    (_tac(tmp_path) / "manifest.json").write_text('["not a tier"]')
+    assert len(load_runs(tmp_path).runs) == 1
+
+
 def test_unknown_metric_is_a_user_error(tmp_path: Path) -> None:
     _tac(tmp_path)
     with pytest.raises(TacbenchError, match="unknown metric"):

@@ -101,6 +101,24 @@ def find_run_dirs(root: Path) -> list[Path]:
     return sorted(found)
 
 
+def _refuse_regression_references(root: Path) -> None:
+    """When nothing under ``root`` is a usable run: ``tacbench regress``'s references (a tier's
+    ``manifest.json`` beside or below ``root``) hold a run's CSVs without its ``config.json``,
+    so they are no run directories to mend."""
+    for manifest in sorted(root.glob("**/manifest.json")):
+        try:
+            tier = json.loads(manifest.read_text(encoding="utf-8")).get("tier")
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError, AttributeError):
+            continue
+        if isinstance(tier, str):
+            raise TacbenchError(
+                f"{root} holds `tacbench regress`'s {tier} references "
+                f"({manifest.relative_to(root).as_posix()}), not run directories; check runs "
+                "against them with `tacbench regress`, and pass --results the --out of a run "
+                "or sweep to report on"
+            )
+
+
 def _read_json(path: Path) -> dict[str, Any]:
     try:
         value = json.loads(path.read_text(encoding="utf-8"))
@@ -231,6 +249,7 @@ def load_runs(results: Path | str, metric: Metric = "eval") -> RunSet:
     root = runs_root(results)
     run_dirs = find_run_dirs(root)
     if not run_dirs:
+        _refuse_regression_references(root)
         raise TacbenchError(
             f"no run directories under {root} (looked for folders holding config.json, "
             "status.json, eval.csv or train.csv); train something with `tacbench run` first "
@@ -260,6 +279,7 @@ def load_runs(results: Path | str, metric: Metric = "eval") -> RunSet:
             rel, kept = kept["path"], rows[at]
         skipped.append(Skipped(rel, f"duplicate of {kept['path']} (same algo, env, variant, seed)"))
     if not rows:
+        _refuse_regression_references(root)
         reasons = listing([f"{s.path}: {s.reason}" for s in skipped], sep="; ")
         raise TacbenchError(
             f"none of the {len(skipped)} run directories under {root} could be used ({reasons}"
