@@ -17,9 +17,14 @@ if TYPE_CHECKING:
     from tacbench.config import RunConfig
 
 PBT_FIELDS = ("pbt_every", "q_range")  # in the variant only with --q auto
-# the largest q a run trains: above it (q - 1) times a log-density overflows float32 in ln_q
-# (a density of 2 at q = 1,000 is 2^999); q -> infinity is plain RL (paper, section 3)
+# the largest q a run trains; q -> infinity is plain RL (paper, section 3), and at q = 1,000
+# the density cap 10^(8/(q-1)) is 1.02, so ln_q is one constant for nearly every density, while
+# without the cap (--density-cap off) ln_q overflows float32 from a density of about 1.1
 MAX_TRAINING_Q = 1_000.0
+ABOVE_MAX_TRAINING_Q = (
+    "the density cap (below 1.02) makes ln_q flat and, with --density-cap off, ln_q overflows "
+    "float32"
+)
 FLOAT32_MAX = 3.4028234663852886e38
 
 
@@ -33,7 +38,7 @@ def check_numbers(config: RunConfig) -> None:
         )
     if config.q_mode == "fixed" and config.q > MAX_TRAINING_Q:
         raise TacbenchError(
-            f"--q {config.q:g} is above {MAX_TRAINING_Q:g}, where ln_q overflows float32; "
+            f"--q {config.q:g} is above {MAX_TRAINING_Q:g}, where {ABOVE_MAX_TRAINING_Q}; "
             "q -> infinity is plain RL (the paper's grid ends at 5)."
         )
     for name, low, high in (("gamma", 0.0, 1.0), ("tau", 0.0, 1.0)):
@@ -115,8 +120,11 @@ def check_alpha_target(config: RunConfig, act_dim: int) -> None:
     if config.alpha_mode != "auto" or config.target_entropy is not None:
         return
     q = max(config.q_range) if config.q_mode == "auto" else config.q
+    if config.lnq == "joint-batch-max":
+        return
+    _check_target_is_finite(config, q, act_dim)
     at_target = 1.0 if config.lnq == "per-dim" else float(act_dim)
-    if config.lnq == "joint-batch-max" or at_target < paper.density_log_cap(q, config.density_cap):
+    if at_target < paper.density_log_cap(q, config.density_cap):
         return
     remedies = [
         "give --target-entropy",
@@ -128,6 +136,25 @@ def check_alpha_target(config: RunConfig, act_dim: int) -> None:
         "the default target of E[ln_q pi] lies at the density cap (--density-cap "
         f"{config.density_cap}: 10^(8/(q-1)) per density), the largest value the capped ln_q "
         f"takes, so alpha could only fall; {', '.join(remedies[:-1])} or {remedies[-1]}."
+    )
+
+
+def _check_target_is_finite(config: RunConfig, q: float, act_dim: int) -> None:
+    """Without a density cap the default target's ln_q grows as e^((q-1) x) / (q-1) (x: the
+    target's log-density, 1 per dimension) and past float32's range it is inf: the temperature
+    loss would be inf and alpha NaN from the first update (--density-cap off with a large q)."""
+    import torch  # only where a run is about to train
+
+    from tacbench.tac.maths import coefficients, default_lnq_target
+
+    c = coefficients([q], [1.0], torch.device("cpu"), config.density_cap)
+    if bool(torch.isfinite(default_lnq_target(c, act_dim, config.lnq)).all()):
+        return
+    raise TacbenchError(
+        f"--alpha auto: at q = {q:g} with --lnq {config.lnq} on {act_dim} action dimensions and "
+        f"--density-cap {config.density_cap} the default target of E[ln_q pi] overflows "
+        "float32 (inf), so the temperature loss would be inf from the first update; give "
+        "--target-entropy, use a smaller q or leave the density cap on."
     )
 
 
@@ -162,7 +189,7 @@ def check_q_range(values: Sequence[float]) -> tuple[float, float]:
     if len(low_high) != 2 or not 0 < low_high[0] < low_high[1] <= MAX_TRAINING_Q:
         raise TacbenchError(
             f"--q-range must be LOW,HIGH with 0 < LOW < HIGH <= {MAX_TRAINING_Q:g} (got "
-            f"{low_high}): above {MAX_TRAINING_Q:g} ln_q overflows float32; the paper's grid "
+            f"{low_high}): above {MAX_TRAINING_Q:g} {ABOVE_MAX_TRAINING_Q}; the paper's grid "
             "is 0.5,5."
         )
     return low_high[0], low_high[1]

@@ -194,6 +194,23 @@ def test_a_default_target_at_the_density_cap_is_refused(lnq: str, q: float, refu
         check_alpha_target(config, act_dim=6)
 
 
+@pytest.mark.parametrize(("lnq", "q", "act_dim"), [("joint", 7.0, 17), ("per-dim", 100.0, 6)])
+def test_a_default_target_that_overflows_without_the_cap_is_refused(
+    lnq: str, q: float, act_dim: int
+) -> None:
+    """With --density-cap off the target ln_q(e^17) at q = 7 (Humanoid, joint) and 6 ln_q(e) at
+    q = 100 are past float32's range: inf, and alpha NaN at the first update."""
+    c = coefficients([q], [0.2], CPU, "off")
+    assert bool(torch.isinf(default_lnq_target(c, act_dim, lnq)).all())
+    config = RunConfig(
+        env="Humanoid-v4", q=q, alpha=0.2, alpha_mode="auto", lnq=lnq, density_cap="off"
+    )
+    with pytest.raises(TacbenchError, match=r"overflows float32 \(inf\).*--target-entropy"):
+        check_alpha_target(config, act_dim=act_dim)
+    check_alpha_target(dataclasses.replace(config, q=2.0), act_dim=act_dim)  # finite: e^17
+    check_alpha_target(dataclasses.replace(config, target_entropy=-6.0), act_dim=act_dim)
+
+
 def test_a_population_is_checked_at_the_top_of_its_q_range() -> None:
     auto = RunConfig(env="Hopper-v4", q=1.0, alpha=0.2, q_mode="auto", alpha_mode="auto")
     auto = dataclasses.replace(auto, q_range=(0.7, 30.0))

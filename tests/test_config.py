@@ -152,7 +152,7 @@ def test_the_density_cap_is_mentioned_where_its_rule_applies() -> None:
         ("target_entropy", float("nan"), "--target-entropy must be a finite"),
         ("target_entropy", 1e308, "a float32 holds"),
         ("log_std_max", 1e308, "finite float32 numbers"),
-        ("q", 1e308, "above 1000, where ln_q overflows"),
+        ("q", 1e308, r"above 1000, where the density cap \(below 1.02\) makes ln_q flat"),
         ("hidden_sizes", (), "hidden_sizes"),
         ("q_schedule_start", 0.95, "q_schedule_start"),
         ("q_schedule_start", 0.5, "--q-schedule-start shapes the linear q schedule; add"),

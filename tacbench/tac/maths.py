@@ -156,8 +156,8 @@ def lnq_of_policy(
     in the minibatch (each member's B rows; the maximum is differentiated too), floored alike.
     All equal ``log pi`` at q = 1 but the last, which is ``log pi`` minus the batch's largest.
     Each density is capped at ``exp(c.log_cap)`` (:func:`density_log_cap`) before the floor,
-    so for q >= 2 ``ln_q <= (10^8 - 1)/(q-1)``. A clamp passes the gradient only inside its
-    bounds.
+    so for q >= 2 each density's ``ln_q <= (10^8 - 1)/(q-1)`` (per-dim: A times that). A clamp
+    passes the gradient only inside its bounds.
     """
     if lnq == "per-dim":
         log_densities = log_prob_dims
