@@ -118,6 +118,18 @@ def test_error_bounds_reference_numbers() -> None:
     assert rows[0].J < rows[1].J < rows[1].upper_bound
 
 
+def test_error_bounds_j_of_the_tsallis_policy() -> None:
+    """J(pi*_q) as docs/theory.md quotes it, and the same from policy iteration's pi*_q at the
+    same alpha: before, nothing pinned it, and J of a TVI policy at alpha/2 passed every test."""
+    mdp = grid_world()
+    rows = error_bounds(mdp, [1.0, 2.0, 3.0, 10.0], GRID_ALPHA)
+    quoted = [-0.00017, 0.0401, 0.0649, 0.0958]
+    assert [row.J for row in rows] == pytest.approx(quoted, abs=5e-5)
+    for row in rows:
+        by_policy_iteration = tsallis_policy_iteration(mdp, row.q, GRID_ALPHA).policy
+        assert abs(row.J - expected_return(mdp, by_policy_iteration)) < 1e-8
+
+
 def test_tsallis_value_is_at_least_the_plain_optimum() -> None:
     """Lemma of theorem ``thm:error_bounds``: V*_q >= V* (q-max >= max)."""
     mdp = grid_world()
