@@ -101,11 +101,13 @@ def test_a_fixed_alpha_group_has_no_alpha_parameter_and_the_same_update() -> Non
     fixed = _agent([0], None)
     assert fixed.chunks[0].params.networks.log_alpha is None
     batch, eps = _batch(1)
-    metrics, grads = gradients(fixed, batch, eps, coefficients([1.5], [0.2], CPU))
+    metrics, grads = gradients(fixed, batch, eps, coefficients([1.5], [0.7], CPU))
     assert metrics.shape == (1, len(METRICS)) and "log_alpha" not in grads
-    learned = _agent([0], [0.2])  # same start: the same losses, one more metric pair
+    # a learned alpha starting at 0.7: the same losses, one more metric pair; the coefficients'
+    # alpha (0.2) is not the one in force
+    learned = _agent([0], [0.7])
     auto_metrics, auto_grads = gradients(learned, batch, eps, coefficients([1.5], [0.2], CPU))
-    # to rounding: exp(log(0.2)) is not 0.2 in float32
+    # to rounding: exp(log(0.7)) is not 0.7 in float32
     torch.testing.assert_close(auto_metrics[:, : len(METRICS)], metrics, rtol=1e-6, atol=0)
     for name, grad in grads.items():
         torch.testing.assert_close(auto_grads[name], grad, rtol=1e-5, atol=1e-8)
