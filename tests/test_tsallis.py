@@ -222,6 +222,9 @@ def test_vectorised_over_leading_axes() -> None:
         (lambda: tsallis_entropy([0.5, 0.6], 1.5), "sum to 1"),
         (lambda: log_q([-1.0], 1.5), "x >= 0"),
         (lambda: exp_q(1.0, float("nan")), "q must be"),
+        # was the uniform policy with q-max 0.5, below max f = 1 (thm:bound)
+        (lambda: q_max([0.0, 1.0], 1e300, alpha=1e10), r"alpha \* q = 1e\+10 \* 1e\+300 overflows"),
+        (lambda: q_softmax([0.0, 1.0], 1e308, alpha=2.0), "overflows float64"),
     ],
 )
 def test_bad_input_raises_the_project_error(call: object, message: str) -> None:

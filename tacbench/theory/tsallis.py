@@ -230,6 +230,11 @@ def _solve(f: ArrayLike, q: float, alpha: float, what: str) -> tuple[Array, Arra
     ``y = (f - max f) / (alpha q)`` so that huge value ranges keep full precision.
     """
     q, alpha = check_q(q), check_alpha(alpha)
+    if not np.isfinite(alpha * q):  # y would be 0 everywhere: the uniform policy, for any f
+        raise TacbenchError(
+            f"{what}: alpha * q = {alpha:g} * {q:g} overflows float64; use a smaller q or alpha "
+            "(q -> infinity is the plain maximum)."
+        )
     values = _as_values(f, what)
     f_max = np.max(values, axis=-1, keepdims=True)
     y = (values - f_max) / (alpha * q)
