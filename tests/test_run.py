@@ -161,6 +161,21 @@ def test_a_resume_without_a_checkpoint_says_it_trains_again_from_step_0(tmp_path
     assert again.exit_code == 0 and "no checkpoint yet" not in again.output
 
 
+def test_a_lost_checkpoint_is_refused_without_first_saying_the_run_trains_again(
+    tmp_path: Path,
+) -> None:
+    args = [*CLI_TINY, "--checkpoint-every", "100", "--out", str(tmp_path)]
+    runner = CliRunner()
+    assert runner.invoke(cli, ["run", *args]).exit_code == 0
+    run = tmp_path / "runs" / "tac" / "Hopper-v4" / "q2-a0.2-ls200" / "seed0"
+    shutil.rmtree(run / "checkpoint")
+    (run / "status.json").write_text('{"state": "interrupted", "step": 200}')
+    resumed = runner.invoke(cli, ["run", *args, "--resume"])
+    assert resumed.exit_code == 2, resumed.output
+    assert "status.json records step 200, but" in resumed.output
+    assert "no checkpoint yet" not in resumed.output and "trains again" not in resumed.output
+
+
 def test_a_new_member_beside_one_to_resume_is_refused_without_a_contrary_note(
     tmp_path: Path,
 ) -> None:

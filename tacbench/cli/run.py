@@ -225,6 +225,8 @@ def _say_what_starts_afresh(configs: Sequence[Any], out: Path) -> None:
                 "afresh (check --out and the settings if you meant another run)"
             )
         elif not has_checkpoint and resumes:
+            # progress that no checkpoint holds (one deleted) is refused, not trained again
+            runs.check_checkpoint(directory, runs.read_status(directory)["step"])
             every = config.checkpoint_every
             when = f"due every {every:,} steps" if every else "--checkpoint-every 0: at the end"
             click.echo(
