@@ -43,7 +43,7 @@ def test_non_finite_loss_marks_the_run_failed_and_keeps_the_checkpoint(
     assert "last checkpoint is kept" in status["reason"]
     assert checkpoint_state(outcome.directory)["step"] == 1000
     (again,) = train(tmp_path, configs, resume=True)
-    assert again.state == "skipped" and "failed at step 1200" in again.message
+    assert again.state == "failed" and again.message.startswith("skipped: failed at step 1200")
     (unkept,) = train(tmp_path / "unkept", tiny_configs("sac-sb3", checkpoint_every=0))
     assert unkept.message.endswith("; no checkpoint had been written yet")
 

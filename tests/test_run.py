@@ -75,7 +75,7 @@ def test_non_finite_loss_marks_the_run_failed_and_keeps_the_last_checkpoint(tmp_
     assert checkpoint["step"] == 500
     assert pd.read_csv(outcome.directory / "eval.csv")["step"].tolist() == [500]
     (again,) = _train(tmp_path, _config("Humanoid-v4", q=1.2, alpha=0.05, lnq="joint"), resume=True)
-    assert again.state == "skipped" and "failed at step 1000" in again.message
+    assert again.state == "failed" and again.message.startswith("skipped: failed at step 1000")
     # without a checkpoint before the failure, the reason does not promise one
     config = _config("Humanoid-v4", q=1.2, alpha=0.05, lnq="joint", checkpoint_every=0)
     (unkept,) = _train(tmp_path / "unkept", config)
@@ -159,6 +159,20 @@ def test_a_resume_without_a_checkpoint_says_it_trains_again_from_step_0(tmp_path
     assert (run / "eval.csv").read_text().count("\n") == rows.count("\n")
     again = runner.invoke(cli, ["run", *args, "--resume"])  # complete: skipped, nothing said
     assert again.exit_code == 0 and "no checkpoint yet" not in again.output
+
+
+def test_a_run_that_failed_before_is_not_trained_again_and_still_exits_1(tmp_path: Path) -> None:
+    """A rerun skipped a failed run and exited 0, so a script saw success."""
+    args = [*CLI_TINY, "--out", str(tmp_path)]
+    runner = CliRunner()
+    assert runner.invoke(cli, ["run", *args]).exit_code == 0
+    run = tmp_path / "runs" / "tac" / "Hopper-v4" / "q2-a0.2-ls200" / "seed0"
+    status = {"state": "failed", "step": 300, "reason": "non-finite loss_v"}
+    (run / "status.json").write_text(json.dumps(status))
+    for extra in ([], ["--resume"]):
+        again = runner.invoke(cli, ["run", *args, *extra])
+        assert again.exit_code == 1, again.output
+        assert f"seed 0: failed, {run} (skipped: failed at step 300: non-finite" in again.output
 
 
 def test_a_lost_checkpoint_is_refused_without_first_saying_the_run_trains_again(

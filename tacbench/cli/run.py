@@ -114,9 +114,9 @@ def run(
     """Train Tsallis Actor-Critic (or a baseline: --algo) on one task into a resumable run
     directory.
 
-    Exit status: 0 when every run is complete (or skipped), 1 when one failed (a non-finite
-    loss) or crashed, 130/143/129 when interrupted (Ctrl-C/SIGTERM/SIGHUP; rerun with
-    --resume), 2 for a usage error.
+    Exit status: 0 when every run is complete (or skipped as complete), 1 when one failed (a
+    non-finite loss, now or before: skipped) or crashed, 130/143/129 when interrupted
+    (Ctrl-C/SIGTERM/SIGHUP; rerun with --resume), 2 for a usage error.
     """
     from tacbench import envs, training  # torch only when this command runs
 

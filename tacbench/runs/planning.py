@@ -69,6 +69,7 @@ class DirectoryPlan:
 
     action: Literal["start", "resume", "skip"]
     message: str = ""
+    failed: bool = False  # skipped because its status.json records a failure
 
 
 def plan_run(
@@ -125,7 +126,7 @@ def plan_run(
             check_checkpoint(directory, step)
             return DirectoryPlan("resume", "resuming a crashed run from its last checkpoint")
         again = "--resume continues it, --force retrains it" if crashed else "--force retrains it"
-        return DirectoryPlan("skip", f"failed at step {step}: {reason}; {again}")
+        return DirectoryPlan("skip", f"failed at step {step}: {reason}; {again}", failed=True)
     if not resume:
         raise TacbenchError(
             f"{directory} holds an unfinished run (step {step}). Add --resume to continue it, "
@@ -263,8 +264,13 @@ def plan_runs(
             neutral=RESULT_NEUTRAL_FIELDS,
             read_as=config,
         )
-        if plan.action == "skip":
-            skipped.append(Outcome(config.seed, directory, "skipped", -1, plan.message))
+        if plan.action == "skip":  # a run failed before is still failed: the exit status says so
+            if plan.failed:
+                skipped.append(
+                    Outcome(config.seed, directory, "failed", -1, f"skipped: {plan.message}")
+                )
+            else:
+                skipped.append(Outcome(config.seed, directory, "skipped", -1, plan.message))
             continue
         if plan.action == "start" and directory.exists():
             shutil.rmtree(directory)
