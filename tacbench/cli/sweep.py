@@ -176,7 +176,8 @@ def _fixed_q(value: str) -> float:
     default=None,
     help="--until-decided: what each method is compared with: a method as the report names it "
     "('SAC (TAC q=1)', 'TD3') or q=1.5, best-q (TAC at the paper's best q), or pairs (every "
-    "pair).  [default: best-q when the grid has baselines, else q=1]",
+    "pair).  [default: best-q when the grid has TAC and baselines, q=1 for TAC alone, pairs for "
+    "baselines alone]",
 )
 @click.option("--dry-run", is_flag=True, help="Print the plan and cost estimate; train nothing.")
 @click.option(
