@@ -85,6 +85,9 @@ def test_local_sweep_with_members_then_rerun_skips_everything(tmp_path: Path) ->
     assert "6 runs: 6 complete" in again.output
     assert "priced at the start" not in again.output  # nothing to train, nothing to bill
     assert before == {p: p.stat().st_mtime_ns for p in tmp_path.glob("runs/**/*") if p.is_file()}
+    # the first sweep's bill stays (a rerun replaced it with a bill of nothing: wall_s 0)
+    assert "this sweep trained nothing; its bill is what the runs took" in again.output
+    assert json.loads((tmp_path / "sweep" / "summary.json").read_text()) == summary
     dry = runner.invoke(cli, [*args, "--dry-run"])
     assert "6 runs: 6 complete, 0 partial, 0 failed" in dry.output
     assert "0 units to train" in dry.output and "measured: 4 runs under" in dry.output

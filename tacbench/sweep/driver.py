@@ -15,6 +15,7 @@ recorded against its runs, which are retried.
 from __future__ import annotations
 
 import functools
+import json
 import os
 import time
 from collections import deque
@@ -186,8 +187,28 @@ def run_sweep(
             final, history, command=options.command, interrupted=interrupted, bill=bill
         )
         text = summary.summary_text(result, options.command)
-        summary.write_summary(out, result, text)
+        kept = _billed_summary(out, result) if not summary.counts(work)["to_train"] else None
+        if kept is None:
+            summary.write_summary(out, result, text)
+        else:
+            text += f"\nkept {kept}: this sweep trained nothing; its bill is what the runs took"
         return SweepResult(result, text, interrupted, tuple(work.warnings))
+
+
+def _billed_summary(out: Path, result: dict[str, Any]) -> Path | None:
+    """The summary.json of an earlier sweep that trained and left the runs as ``result`` finds
+    them: a sweep that trains nothing keeps it, so that its bill (what the runs took, the price
+    they had) is not replaced by a bill of nothing."""
+    path = state.sweep_dir(out) / "summary.json"
+    try:
+        earlier = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError):
+        return None
+    if not isinstance(earlier, dict) or earlier.get("counts") != result["counts"]:
+        return None
+    bill = earlier.get("bill")
+    priced = bill.get("priced_wall_s") if isinstance(bill, dict) else None
+    return path if isinstance(priced, (int, float)) and priced > 0 else None
 
 
 def _require_cuda() -> None:

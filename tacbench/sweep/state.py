@@ -6,7 +6,8 @@
       state.json     {"runs": {"<run key>": {"failures": [{"time", "host", "step", "reason"}],
                                              "node": "<Ray node id holding its checkpoint>"}}}
       lock           held (flock) while a sweep writes to <out>; {"pid", "host", "started"}
-      summary.json   the last sweep's counts by state and its failures with their reasons
+      summary.json   the last sweep's counts by state, its failures with their reasons and its
+                     bill (a sweep that trains nothing keeps the one before: its bill stays)
       summary.txt    the same, as printed at the end of the sweep
       logs/<unit>.log  each unit's output (progress lines, warnings, tracebacks), appended
 
