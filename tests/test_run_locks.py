@@ -100,3 +100,23 @@ def test_a_file_where_a_folder_of_the_run_path_goes_is_a_clear_error(tmp_path: P
     with pytest.raises(TacbenchError, match="lock: a file stands where a folder of "):
         train(tmp_path, [config])
     assert (tmp_path / "runs").read_text() == "mine"
+
+
+@pytest.mark.parametrize("what", ["a folder", "a link"])
+def test_a_folder_or_link_where_the_lock_file_goes_is_refused_untouched(
+    tmp_path: Path, what: str
+) -> None:
+    """A folder there was a traceback; a link was followed and its target overwritten."""
+    (config,) = tiny_configs("tac")
+    lock = lock_path(run_directory(tmp_path, config.algo, config.env, config.variant, config.seed))
+    lock.parent.mkdir(parents=True)
+    target = tmp_path / "someone's file"
+    target.write_text("mine")
+    if what == "a folder":
+        lock.mkdir()
+    else:
+        lock.symlink_to(target)
+    with pytest.raises(TacbenchError, match=f"lock is {what}, where tacbench keeps a lock file"):
+        train(tmp_path, [config])
+    assert target.read_text() == "mine"
+    assert not (lock.parent / f"seed{config.seed}").exists()

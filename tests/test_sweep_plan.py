@@ -447,6 +447,22 @@ def test_lock_refuses_a_live_sweep_and_is_free_once_it_is_killed(
         pass
 
 
+@pytest.mark.parametrize("where", ["sweep", "sweep/lock"])
+def test_a_file_or_folder_in_the_sweep_locks_place_is_a_clear_error(
+    tmp_path: Path, where: str
+) -> None:
+    """Both were tracebacks (FileExistsError, IsADirectoryError)."""
+    if where == "sweep":
+        (tmp_path / "sweep").write_text("mine")
+        message = "a file stands where the sweep's folder goes"
+    else:
+        (tmp_path / "sweep" / "lock").mkdir(parents=True)
+        message = "lock is a folder, where tacbench keeps a lock file"
+    with pytest.raises(TacbenchError, match=message):
+        state.Lock(tmp_path).__enter__()
+    assert where != "sweep" or (tmp_path / "sweep").read_text() == "mine"
+
+
 def test_reset_failed_and_stop_hook(tmp_path: Path) -> None:
     runs.atomic_write_json(
         tmp_path / "status.json", {"state": "failed", "step": 7, "reason": "nan", "updated": "x"}

@@ -13,6 +13,7 @@ files of the same name.
 
 from __future__ import annotations
 
+import errno
 import fcntl
 import os
 import socket
@@ -39,8 +40,18 @@ class Held(Exception):
 def hold(path: Path, record: str) -> int:
     """Take the exclusive ``flock`` on ``path`` (created if need be) without waiting, and write
     ``record`` (who holds it) in the file: the open descriptor, whose closing releases the
-    lock. :class:`Held` if another process holds it."""
-    descriptor = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    lock. :class:`Held` if another process holds it; a TacbenchError if a folder or a link
+    stands where the file goes (a link is not followed: its target would be overwritten)."""
+    try:
+        descriptor = os.open(path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o644)
+    except OSError as err:
+        if not (isinstance(err, IsADirectoryError) or err.errno == errno.ELOOP):
+            raise
+        what = "a folder" if isinstance(err, IsADirectoryError) else "a link"
+        raise TacbenchError(
+            f"{path} is {what}, where tacbench keeps a lock file; nothing was changed. Move it "
+            "away, or write somewhere else."
+        ) from None
     try:
         try:
             fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)

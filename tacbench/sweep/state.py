@@ -140,7 +140,13 @@ class Lock:
         self._descriptor: int | None = None
 
     def __enter__(self) -> Lock:
-        self.path.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+        except (FileExistsError, NotADirectoryError):
+            raise TacbenchError(
+                f"cannot create {self.path.parent}: a file stands where the sweep's folder goes; "
+                "nothing was changed. Move it away, or write somewhere else with --out."
+            ) from None
         me = {"pid": os.getpid(), "host": socket.gethostname(), "started": runs.now_iso()}
         try:
             self._descriptor = locks.hold(self.path, json.dumps(me))
