@@ -89,6 +89,23 @@ class LoadedPolicy:
 _RESTORE = "restore it from the run's sweep, or train the run again"
 
 
+def _check_renderable(env_id: str) -> None:
+    """Refuse a task that MuJoCo does not simulate (a classic-control one: Pendulum-v1): its
+    frames are another renderer's (pygame), which takes no --width and --height."""
+    from gymnasium.envs.mujoco.mujoco_env import MujocoEnv
+
+    env = envs.make_env(env_id)
+    try:
+        simulated = isinstance(env.unwrapped, MujocoEnv)
+    finally:
+        env.close()
+    if not simulated:
+        raise TacbenchError(
+            f"{env_id} is not a MuJoCo task, and tacbench video renders with MuJoCo's offscreen "
+            "renderer; record it with gymnasium's own wrappers (RecordVideo)."
+        )
+
+
 def load_policy(run: Path) -> LoadedPolicy:
     """The deterministic policy of run directory ``run`` at its newest intact checkpoint."""
     import torch
@@ -105,6 +122,7 @@ def load_policy(run: Path) -> LoadedPolicy:
             f"{run / 'config.json'} is not a run's config (no {', '.join(missing) or 'config'}); "
             f"{_RESTORE}."
         )
+    _check_renderable(str(metadata["env"]))
     folder = run / "checkpoint"
     steps, damaged = checkpoints.usable_steps(folder) if folder.is_dir() else ([], {})
     if damaged and not steps:

@@ -101,6 +101,11 @@ def test_bad_requests_are_clear_errors(tmp_path: Path) -> None:
     (tmp_path / "config.json").write_text('{"algo": "tac"}')
     result = CliRunner().invoke(cli, ["video", str(tmp_path), "--out", str(tmp_path / "x.mp4")])
     assert result.exit_code == 2 and "is not a run's config (no env, seed, config)" in result.output
+    (tmp_path / "config.json").write_text(  # was a TypeError traceback (width)
+        '{"algo": "tac", "env": "Pendulum-v1", "seed": 0, "config": {}}'
+    )
+    result = CliRunner().invoke(cli, ["video", str(tmp_path), "--out", str(tmp_path / "x.mp4")])
+    assert result.exit_code == 2 and "Pendulum-v1 is not a MuJoCo task" in result.output
     (tmp_path / "config.json").write_text(
         '{"algo": "tac", "env": "Hopper-v4", "seed": 0, "config": {}}'
     )
