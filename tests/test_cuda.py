@@ -1,8 +1,9 @@
-"""TAC on a GPU (skipped where none is visible, as in CI): the update on the GPU equals the
-CPU's to float32 rounding, eager and compiled (CUDA graphs), for members of several q; a short
-run with evaluation, losses and checkpoints completes, and so does a local sweep whose workers
-share the GPU; a run stopped twice and resumed writes the CSVs of an uninterrupted one; the
-bench's phases add up; and the update's profile names the GPU's kernels."""
+"""TAC on a GPU (skipped where none is visible, as in CI): the update on the GPU (its losses,
+gradients and weights) equals the CPU's to float32 rounding, eager and compiled (CUDA graphs),
+for members of several q; a short run with evaluation, losses and checkpoints completes, and so
+does a local sweep whose workers share the GPU; a run stopped twice and resumed writes the CSVs
+of an uninterrupted one; the bench's phases add up; and the update's profile names the GPU's
+kernels."""
 
 from __future__ import annotations
 
@@ -16,9 +17,16 @@ from click.testing import CliRunner
 from tacbench.bench import BenchOptions, run_bench
 from tacbench.cli import cli
 from tacbench.tac.agent import TacAgent
-from tacbench.tac.maths import coefficients
-from tacbench.tac.update import update
-from tests.helpers import assert_same_results, random_batch, tac_agent, tiny_configs, train
+from tacbench.tac.maths import METRICS, Batch, coefficients
+from tacbench.tac.update import gradients, update
+from tests.helpers import (
+    assert_close_per_member,
+    assert_same_results,
+    random_batch,
+    tac_agent,
+    tiny_configs,
+    train,
+)
 
 pytestmark = [
     pytest.mark.smoke,
@@ -49,6 +57,26 @@ def test_the_update_on_the_gpu_equals_the_cpus(compile: str) -> None:
     for cpu_member, gpu_member in zip(on_cpu, on_gpu, strict=True):
         for name, value in cpu_member.items():
             torch.testing.assert_close(gpu_member[name], value, rtol=1e-4, atol=1e-5, msg=name)
+
+
+@pytest.mark.parametrize("compile", ["off", "on"])
+def test_the_gpu_gradients_equal_the_cpus(compile: str) -> None:
+    """Each member's losses and gradients on one minibatch, to float32 rounding (1e-4 of each
+    member's largest value: the GPU sums in another order). The weights after Adam steps
+    cannot show a loss scaled per network: Adam's step does not change with the scale."""
+    cpu, cuda = torch.device("cpu"), torch.device("cuda")
+    on_cpu = tac_agent(OBS, ACT, SEEDS, hidden_sizes=(64,))
+    on_gpu = tac_agent(OBS, ACT, SEEDS, hidden_sizes=(64,), compile=compile, device=cuda.type)
+    batch, eps = random_batch(len(SEEDS), 100, OBS, ACT, seed=0, terminal=0.1)
+    alphas = [0.2, 0.1, 0.05]
+    expected, expected_grads = gradients(on_cpu, batch, eps, coefficients(QS, alphas, cpu))
+    moved = Batch(*(t.to(cuda) for t in batch))
+    metrics, grads = gradients(on_gpu, moved, eps.to(cuda), coefficients(QS, alphas, cuda))
+    for i, name in enumerate(METRICS):
+        assert_close_per_member(metrics[:, i].cpu(), expected[:, i], 1e-4, name)
+    assert sorted(grads) == sorted(expected_grads)
+    for name, grad in expected_grads.items():
+        assert_close_per_member(grads[name].cpu(), grad, 1e-4, name)
 
 
 def test_a_short_gpu_run_trains_evaluates_and_checkpoints(tmp_path: Path) -> None:
