@@ -176,6 +176,21 @@ def test_a_mixed_group_stopped_and_resumed_continues_every_member_exactly(
         assert_same_results(a.directory, b.directory)
 
 
+def test_updates_begun_in_the_warm_up_resume_exactly(tmp_path: Path) -> None:
+    """The step schedule with --warmup-updates on: updates begin at a member's first episode
+    end, in the warm-up, and go on every step; whether they have begun is checkpointed. The
+    profiles above recompute it every step (warm-up updates off) or at each episode end (the
+    episode schedule), so a resume that forgot it passed their tests and wrote other rows
+    here."""
+    settings: dict[str, Any] = {"update_schedule": "step", "warmup_updates": "on"}
+    configs = tiny_configs("tac", seeds=[0, 10], total_steps=900, **settings)
+    reference = train(tmp_path / "reference", configs)
+    resumed = _stopped_twice_then_resumed(tmp_path / "resumed", configs, (300, 610))
+    for a, b in zip(reference, resumed, strict=True):
+        assert b.state == "complete"
+        assert_same_results(a.directory, b.directory)
+
+
 def test_a_learned_alpha_stopped_and_resumed_continues_exactly(tmp_path: Path) -> None:
     configs = tiny_configs("tac", seeds=(0, 1), alpha_mode="auto")
     uninterrupted = train(tmp_path / "straight", configs)
