@@ -7,6 +7,7 @@ exits 130, and ``--resume`` completes it."""
 from __future__ import annotations
 
 import json
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -186,6 +187,22 @@ def test_updates_begun_in_the_warm_up_resume_exactly(tmp_path: Path) -> None:
     configs = tiny_configs("tac", seeds=[0, 10], total_steps=900, **settings)
     reference = train(tmp_path / "reference", configs)
     resumed = _stopped_twice_then_resumed(tmp_path / "resumed", configs, (300, 610))
+    for a, b in zip(reference, resumed, strict=True):
+        assert b.state == "complete"
+        assert_same_results(a.directory, b.directory)
+
+
+@pytest.mark.compile
+def test_a_compiled_group_stopped_and_resumed_continues_exactly(tmp_path: Path) -> None:
+    """Every study's runs compile (--compile auto from 20,000 learning steps), while the tests
+    above train eagerly: a compiled group stopped twice (each resume compiles again) writes the
+    CSVs of an uninterrupted compiled one."""
+    configs = tiny_configs("tac", seeds=[0, 10], qs=[1.0, 2.0], compile="on")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        reference = train(tmp_path / "reference", configs)
+        resumed = _stopped_twice_then_resumed(tmp_path / "resumed", configs)
+    assert not [w for w in caught if "torch.compile of TAC's update" in str(w.message)]
     for a, b in zip(reference, resumed, strict=True):
         assert b.state == "complete"
         assert_same_results(a.directory, b.directory)
