@@ -272,6 +272,24 @@ def test_compiled_update_equals_the_eager_one() -> None:
     assert not [w for w in caught if "torch.compile of TAC's update" in str(w.message)]
 
 
+@pytest.mark.compile
+def test_compiled_update_of_the_authors_numerics_equals_the_eager_one() -> None:
+    """The authors' profiles' options, which no other compiled test uses: ln_q of the density
+    over the minibatch's largest (its maximum differentiated too), a clipped Jacobian and a
+    Gaussian epsilon, across q = 1 and the cap."""
+    settings: dict[str, Any] = {
+        "lnq": "joint-batch-max",
+        "jacobian_clip": 1e-3,
+        "gaussian_eps": 1e-8,
+    }
+    compiled, plain = _agent(compile="on", **settings), _agent(**settings)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        for q in ([1.0, 1.5, 3.0], [1.2, 2.0, 5.0]):
+            _compare(compiled, plain, _c(q), 1e-5)
+    assert not [w for w in caught if "torch.compile of TAC's update" in str(w.message)]
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("lnq", ["per-dim", "joint"])
 def test_compiled_twin_q_update_equals_the_eager_one_across_q(lnq: str) -> None:
