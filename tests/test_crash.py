@@ -39,7 +39,7 @@ def test_a_crash_is_recorded_and_resume_continues_it(
     monkeypatch.setattr(loop, "update", real)
 
     [skipped] = train(tmp_path / "crash", configs)
-    assert skipped.state == "skipped" and "--resume continues it" in skipped.message
+    assert skipped.state == "failed" and "--resume continues it" in skipped.message
     [resumed] = train(tmp_path / "crash", configs, resume=True)
     assert resumed.state == "complete"
     train(tmp_path / "lone", configs)

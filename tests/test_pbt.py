@@ -245,7 +245,7 @@ def test_a_member_that_failed_after_the_checkpoint_is_named_on_resume(
         train(tmp_path, _population_configs())
     monkeypatch.setattr(loop, "update", real)
     resumed = train(tmp_path, _population_configs(), resume=True)
-    assert [o.state for o in resumed] == ["complete", "complete", "skipped", "complete"]
+    assert [o.state for o in resumed] == ["complete", "complete", "failed", "complete"]
     reason = json.loads((resumed[0].directory / "status.json").read_text())["reason"]
     assert "seed 2 failed at step 800, after step 500, and cannot rejoin" in reason
 
