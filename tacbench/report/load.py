@@ -25,6 +25,7 @@ import pandas as pd
 from tacbench.errors import TacbenchError, listing
 from tacbench.report.series import METRIC_SOURCES, Metric, Unreadable, read_series
 from tacbench.report.tables import run_scores
+from tacbench.runs import read_json
 
 CONTRACT_FILES = ("config.json", "status.json", "eval.csv", "train.csv")
 STATES = ("running", "interrupted", "complete", "failed")
@@ -107,8 +108,8 @@ def _refuse_regression_references(root: Path) -> None:
     so they are no run directories to mend."""
     for manifest in sorted(root.glob("**/manifest.json")):
         try:
-            tier = json.loads(manifest.read_text(encoding="utf-8")).get("tier")
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError, AttributeError):
+            tier = read_json(manifest).get("tier")
+        except TacbenchError:
             continue
         if isinstance(tier, str):
             raise TacbenchError(

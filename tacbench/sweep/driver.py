@@ -15,7 +15,6 @@ recorded against its runs, which are retried.
 from __future__ import annotations
 
 import functools
-import json
 import os
 import time
 from collections import deque
@@ -201,10 +200,10 @@ def _billed_summary(out: Path, result: dict[str, Any]) -> Path | None:
     they had) is not replaced by a bill of nothing."""
     path = state.sweep_dir(out) / "summary.json"
     try:
-        earlier = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, ValueError):
+        earlier = runs.read_json(path)
+    except TacbenchError:  # none yet, or damaged: this sweep's summary replaces it
         return None
-    if not isinstance(earlier, dict) or earlier.get("counts") != result["counts"]:
+    if earlier.get("counts") != result["counts"]:
         return None
     bill = earlier.get("bill")
     priced = bill.get("priced_wall_s") if isinstance(bill, dict) else None
