@@ -9,7 +9,7 @@ exact continuation depends on.
 - ``state-<step>.pt``: the step, which model file belongs to it, the global random generators
   SB3 draws from (torch, NumPy, Python) and the action space's, the environment's exact state
   (:func:`tacbench.envs.get_env_state`), the episode in progress, the ``VecNormalize``
-  statistics, the partial losses window and the wall-clock time.
+  statistics, the partial losses window and the run's clocks (wall and CPU seconds).
 
 Each file is written durably; the generation's manifest (sizes and checksums) is written
 last, so a crash mid-checkpoint leaves the previous generation usable, and a damaged file is
@@ -35,7 +35,7 @@ from baselines import algos
 from baselines.callbacks import LossLogger
 from baselines.config import BaselineConfig
 from tacbench import envs
-from tacbench.runs import checkpoints
+from tacbench.runs import RunClock, checkpoints
 from tacbench.runs.resume_checks import LogDigest
 from tacbench.seeding import run_streams
 
@@ -119,7 +119,7 @@ def save(
     dummy: DummyVecEnv,
     venv: VecEnv,
     losses: LossLogger,
-    wall_s: float,
+    clock: RunClock,
     chunks: list[Path],
     logs: Mapping[str, LogDigest],
 ) -> list[Path]:
@@ -150,7 +150,8 @@ def save(
         "episode": [recorder.episode_return, recorder.episode_length],
         "normalize": _normalizer_state(venv),
         "losses": losses.state(),
-        "wall_s": wall_s,
+        "wall_s": clock.wall_s,
+        "cpu_s": clock.cpu_s,
     }
     data = io.BytesIO()
     torch.save(state, data)

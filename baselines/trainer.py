@@ -11,7 +11,6 @@ one episode on each of ``eval_episodes`` separate env instances.
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -27,7 +26,7 @@ from tacbench.errors import TacbenchError
 from tacbench.hardware import configure_process
 from tacbench.interrupts import SecondSignal, StopCheck, resume_command, stop_signals
 from tacbench.progress import Progress
-from tacbench.runs import Outcome, checkpoints, planned_runs, read_status
+from tacbench.runs import Outcome, RunClock, checkpoints, planned_runs, read_status
 from tacbench.runs.checkpoints import disk_errors
 
 
@@ -152,7 +151,8 @@ class _Run:
         if state is None:  # SB3 refuses some settings as it builds: before anything is written
             self.model = algos.build_model(config, self.venv)
             self.writer.open(metadata(config, command), None)
-            self.step, self.wall_offset = 0, 0.0
+            offsets: tuple[float, float | None] = (0.0, 0.0)
+            self.step = 0
         else:
             step = int(state["step"])
             plan = self.writer.check_resume(step, config.to_dict())
@@ -170,18 +170,14 @@ class _Run:
                 self.venv,
                 self.losses,
             )
-            self.step, self.wall_offset = int(state["step"]), float(state["wall_s"])
+            self.step, offsets = int(state["step"]), (float(state["wall_s"]), state.get("cpu_s"))
         self.model.set_logger(self.losses)
         self.checkpoint_step = self.step
         label = f"{algos.DISPLAY_NAMES[config.algo]} {config.env} seed {config.seed}"
         self.progress = Progress(label, config.total_steps, self.step, config.eval_every, quiet)
         for note in notes:
             self.progress.message(f"{note}; resuming from step {self.step}")
-        self._t0 = time.perf_counter()
-
-    def wall_s(self) -> float:
-        """Wall-clock seconds of training so far, over every session of this run."""
-        return self.wall_offset + time.perf_counter() - self._t0
+        self.clock = RunClock(*offsets)  # a checkpoint without cpu_s predates it: None
 
     def evaluate(self, step: int) -> float:
         """TAC's evaluation protocol on the current policy; writes the eval.csv row."""
@@ -197,7 +193,7 @@ class _Run:
 
         seeds = envs.eval_seeds(self.config.seed, step, self.config.eval_episodes)
         [returns], [lengths] = envs.evaluate_members(policy, [self.eval_envs], [seeds])
-        self.writer.eval_row(step, self.wall_s(), returns.tolist(), lengths.tolist())
+        self.writer.eval_row(step, self.clock, returns.tolist(), lengths.tolist())
         return float(returns.mean())
 
     def save(self, step: int) -> None:
@@ -210,7 +206,7 @@ class _Run:
             self.dummy,
             self.venv,
             self.losses,
-            self.wall_s(),
+            self.clock,
             self.chunks,
             self.writer.log_digests(),
         )
@@ -232,7 +228,7 @@ class _Run:
             evaluate=self.evaluate,
             checkpoint=self.save,
             stop=stop,
-            wall_s=self.wall_s,
+            wall_s=lambda: self.clock.wall_s,
         )
         try:
             self.model.learn(

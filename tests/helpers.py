@@ -21,7 +21,7 @@ import torch
 from tacbench import trainers
 from tacbench.config import RunConfig
 from tacbench.paper import paper_task
-from tacbench.regress.manifest import without_wall_clock
+from tacbench.regress.manifest import without_clocks
 from tacbench.runs import Outcome
 from tacbench.tac.agent import TacAgent
 from tacbench.tac.maths import Batch
@@ -188,7 +188,7 @@ def train(out: Path, configs: Sequence[AnyConfig], **kwargs: Any) -> list[Outcom
 
 def results_of(run: Path) -> dict[str, str]:
     """A run directory's CSVs as text without their wall-clock column."""
-    return {name: without_wall_clock((run / name).read_text()) for name in RESULT_CSVS}
+    return {name: without_clocks((run / name).read_text()) for name in RESULT_CSVS}
 
 
 def assert_same_results(a: Path, b: Path) -> None:

@@ -56,10 +56,12 @@ def test_missing_rows_and_changed_columns_are_drift() -> None:
     assert "columns" in detail and "loss_pi" in detail
 
 
-def test_wall_clock_column_is_dropped_and_nothing_else() -> None:
+def test_clock_columns_are_dropped_and_nothing_else() -> None:
     text = "step,wall_s,return_mean\n500,0.091,32.48253645959404\n1000,0.789,48.1\n"
-    assert mf.without_wall_clock(text) == "step,return_mean\n500,32.48253645959404\n1000,48.1\n"
-    assert mf.without_wall_clock(CSV) == CSV
+    assert mf.without_clocks(text) == "step,return_mean\n500,32.48253645959404\n1000,48.1\n"
+    both = "step,wall_s,cpu_s,return_mean\n500,0.091,0.088,32.48253645959404\n1000,0.789,,48.1\n"
+    assert mf.without_clocks(both) == mf.without_clocks(text)
+    assert mf.without_clocks(CSV) == CSV
 
 
 # --- the permutation test on synthetic distributions -------------------------------------------

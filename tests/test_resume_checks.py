@@ -152,7 +152,7 @@ DAMAGES: dict[str, tuple[Callable[[Path], None], str]] = {
     ),
     "eval-deleted": (lambda run: (run / "eval.csv").unlink(), "eval.csv is missing"),
     "eval-duplicated-row": (_duplicate_first_row, "eval.csv line 3: step 500 repeats step 500"),
-    "eval-non-number": (_append("oops,1,2,3,4\n"), "eval.csv line 4 has the step 'oops'"),
+    "eval-non-number": (_append("oops,1,2,3,4,5\n"), "eval.csv line 4 has the step 'oops'"),
     "status-empty": (lambda run: (run / "status.json").write_text(""), "status.json is empty"),
     "checkpoint-and-status-deleted": (
         lambda run: [shutil.rmtree(run / "checkpoint"), (run / "status.json").unlink()],

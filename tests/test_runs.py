@@ -38,11 +38,12 @@ def test_atomic_json_leaves_no_temporary_file(tmp_path: Path) -> None:
 
 def test_csv_rows_are_flushed_at_once_and_keep_full_precision(tmp_path: Path) -> None:
     log = runs.CsvLog(tmp_path / "eval.csv", runs.EVAL_COLUMNS)
-    log.write([5000, 1.25, 0.1 + 0.2, 0.0, 57.0])
+    log.write([5000, 1.25, 1.5, 0.1 + 0.2, 0.0, 57.0])
     assert (tmp_path / "eval.csv").read_text() == (
-        "step,wall_s,return_mean,return_std,length_mean\n5000,1.25,0.30000000000000004,0.0,57.0\n"
+        "step,wall_s,cpu_s,return_mean,return_std,length_mean\n"
+        "5000,1.25,1.5,0.30000000000000004,0.0,57.0\n"
     )
-    with pytest.raises(ValueError, match="5 columns"):
+    with pytest.raises(ValueError, match="6 columns"):
         log.write([1, 2])
     log.close()
 

@@ -304,6 +304,26 @@ def test_measured_throughput_replaces_the_default(tmp_path: Path) -> None:
     assert cost.run_seconds_per_step(directory) is None
 
 
+def test_a_run_that_records_cpu_time_is_priced_by_it(tmp_path: Path) -> None:
+    """A rate from wall time carries forward the load the run trained under: a resumed TD3
+    sweep priced at 2.4x what it took, its partial runs measured beside CI and other sweeps.
+    CPU seconds, which other work stretches much less, price a run that records them; wall
+    time still prices a run begun before eval.csv had cpu_s, or one whose window lacks it."""
+    run = plan.build_runs(narrow(SMOKE, Narrowing(algos=("tac",))))[0]
+    directory = _fake_run(tmp_path, run, {"state": "complete", "step": 1000})
+    metadata = runs.read_json(directory / "config.json")
+    runs.atomic_write_json(
+        directory / "config.json",
+        {**metadata, "config": {**metadata["config"], "threads": 2}, "members": [0, 10]},
+    )
+    header = "step,wall_s,cpu_s,return_mean,return_std,length_mean\n"
+    # under load: the wall clock ran 6 s from step 500 to 1,000, the CPU clock 2 s (2 threads)
+    (directory / "eval.csv").write_text(header + "500,4.0,1.5,1,0,1\n1000,10.0,3.5,1,0,1\n")
+    assert cost.run_seconds_per_step(directory) == pytest.approx(2.0 / 500 / 2)
+    (directory / "eval.csv").write_text(header + "500,4.0,,1,0,1\n1000,10.0,3.5,1,0,1\n")
+    assert cost.run_seconds_per_step(directory) == pytest.approx(6.0 / 500 * 2 / 2)
+
+
 def test_only_runs_of_the_plans_kind_measure_its_price(tmp_path: Path) -> None:
     """Every run under --out priced the plan by algo and task alone: four 1,000-step smoke
     runs made the paper grid's price 13x its default. Runs of another kind (another setting

@@ -114,7 +114,7 @@ def update_exact(
             directory = _completed(spec.name, runner(spec.args, work / spec.name))
             (staging / spec.name).mkdir()
             for name in EXACT_FILES:
-                text = mf.without_wall_clock((directory / name).read_text())
+                text = mf.without_clocks((directory / name).read_text())
                 (staging / spec.name / name).write_text(text)
             status = runs.read_json(directory / "status.json")
             entries.append(
@@ -132,7 +132,7 @@ def update_exact(
         manifest = mf.provenance("exact", reference)
         manifest.update(
             files=list(EXACT_FILES),
-            ignored_columns=[mf.WALL_CLOCK],
+            ignored_columns=list(mf.CLOCKS),
             seconds=round(time.perf_counter() - start, 1),
             runs=entries,
         )
@@ -201,7 +201,7 @@ def check_exact(
             if not path.is_file():
                 rows.append(Row(name, file, "missing", "not written"))
                 continue
-            status, detail = compare_csv(expected, mf.without_wall_clock(path.read_text()))
+            status, detail = compare_csv(expected, mf.without_clocks(path.read_text()))
             rows.append(Row(name, file, status, detail))
         config = runs.read_json(directory / "config.json")["config"]
         reference_config = entry["config"]

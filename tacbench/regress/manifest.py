@@ -30,7 +30,7 @@ from tacbench.interrupts import STOP_SIGNALS
 FORMAT = 1  # the manifest layout; a reader refuses another
 RECORDED_PACKAGES = ("torch", "numpy", "gymnasium", "mujoco", "stable_baselines3", "sb3_contrib")
 MANIFEST = "manifest.json"
-WALL_CLOCK = "wall_s"
+CLOCKS = ("wall_s", "cpu_s")  # the run's wall and CPU seconds (runs.RunClock)
 
 
 def environment() -> dict[str, Any]:
@@ -282,14 +282,15 @@ def publish(staging: Path, manifest: Mapping[str, Any], reference: Path, tier: s
     return target / MANIFEST
 
 
-def without_wall_clock(text: str) -> str:
-    """A CSV's text with its ``wall_s`` column removed (the only column that is not
+def without_clocks(text: str) -> str:
+    """A CSV's text with its :data:`CLOCKS` columns removed (the only columns that are not
     deterministic); every other character is kept."""
     lines = text.splitlines()
-    if not lines or WALL_CLOCK not in lines[0].split(","):
+    header = lines[0].split(",") if lines else []
+    cols = {header.index(name) for name in CLOCKS if name in header}
+    if not cols:
         return text
-    col = lines[0].split(",").index(WALL_CLOCK)
-    kept = [",".join(v for i, v in enumerate(line.split(",")) if i != col) for line in lines]
+    kept = [",".join(v for i, v in enumerate(line.split(",")) if i not in cols) for line in lines]
     return "\n".join(kept) + "\n"
 
 

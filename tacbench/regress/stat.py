@@ -144,7 +144,7 @@ def update_stat(
                 )
             (staging / group.name).mkdir()
             for directory in result.directories:
-                text = mf.without_wall_clock((directory / "eval.csv").read_text())
+                text = mf.without_clocks((directory / "eval.csv").read_text())
                 (staging / group.name / f"{directory.name}-eval.csv").write_text(text)
             entries.append(
                 {

@@ -39,9 +39,12 @@ from tacbench.settings import REROUNDING_FIELDS
 
 if TYPE_CHECKING:
     from tacbench.interrupts import SecondSignal
+    from tacbench.runs.clock import RunClock
     from tacbench.runs.tensorboard import TensorBoardLog
 
-EVAL_COLUMNS = ("step", "wall_s", "return_mean", "return_std", "length_mean")
+EVAL_COLUMNS = ("step", "wall_s", "cpu_s", "return_mean", "return_std", "length_mean")
+# eval.csv of a run begun before tacbench logged cpu_s: such a run resumes in its own columns
+EVAL_COLUMNS_WITHOUT_CPU = tuple(c for c in EVAL_COLUMNS if c != "cpu_s")
 TRAIN_COLUMNS = ("step", "wall_s", "return", "length")
 State = Literal["running", "interrupted", "complete", "failed"]
 # the start of the reason of a run that an unexpected error ended (RunWriter.crashed): unlike a
@@ -201,6 +204,17 @@ def group_changes(recorded: Any, members: Sequence[Mapping[str, Any]]) -> list[s
     ]
 
 
+def _eval_columns(path: Path) -> tuple[str, ...]:
+    """The columns ``eval.csv`` at ``path`` continues in: :data:`EVAL_COLUMNS_WITHOUT_CPU` if it
+    begins with their header (an older run), else :data:`EVAL_COLUMNS`."""
+    older = (",".join(EVAL_COLUMNS_WITHOUT_CPU) + "\n").encode()
+    try:
+        with path.open("rb") as handle:
+            return EVAL_COLUMNS_WITHOUT_CPU if handle.readline() == older else EVAL_COLUMNS
+    except OSError:  # missing or unreadable: the resume check says what is wrong
+        return EVAL_COLUMNS
+
+
 class RunWriter:
     """Writes one run directory: config.json, status.json, the three CSVs and, with
     ``tensorboard``, TensorBoard event files of the same rows under ``<run>/tensorboard/``."""
@@ -221,6 +235,7 @@ class RunWriter:
         self._board: TensorBoardLog | None = None
         self._last_episode: tuple[int, float] | None = None  # (step, wall_s): for steps/s
         self._status_step = 0  # the step status.json holds
+        self._eval_columns: tuple[str, ...] = EVAL_COLUMNS  # or, resuming an older run, its own
 
     @property
     def checkpoint_dir(self) -> Path:
@@ -232,7 +247,7 @@ class RunWriter:
     def _csvs(self) -> dict[str, tuple[str, ...]]:
         """Every CSV of the run by name (``eval`` for ``eval.csv``), with its columns."""
         return {
-            "eval": EVAL_COLUMNS,
+            "eval": self._eval_columns,
             "train": TRAIN_COLUMNS,
             "losses": self.loss_columns,
             **{name: tuple(columns) for name, columns in self.extra.items()},
@@ -264,6 +279,7 @@ class RunWriter:
                 f"{step:,}, the newest checkpoint intact in every member: the steps after it are "
                 "trained again"
             )
+        self._eval_columns = _eval_columns(self.directory / "eval.csv")
         for name, columns in self._csvs().items():
             file = f"{name}.csv"
             digest = None if recorded is None else recorded.get(file)
@@ -298,13 +314,18 @@ class RunWriter:
         return {log.path.name: log.digest() for log in self._logs.values()}
 
     def eval_row(
-        self, step: int, wall_s: float, returns: Sequence[float], lengths: Sequence[float]
+        self, step: int, clock: RunClock, returns: Sequence[float], lengths: Sequence[float]
     ) -> None:
-        """One evaluation: mean and (population) std of the episode returns, mean length."""
+        """One evaluation: the run's clocks, mean and (population) std of the episode returns,
+        mean length. A CPU clock that earlier sessions did not keep leaves ``cpu_s`` empty."""
         mean = math.fsum(returns) / len(returns)
         std = math.sqrt(math.fsum((r - mean) ** 2 for r in returns) / len(returns))
         length = math.fsum(lengths) / len(lengths)
-        self._logs["eval"].write([step, round(wall_s, 3), mean, std, length])
+        cpu_s = clock.cpu_s
+        clocks: list[float | str] = [round(clock.wall_s, 3)]
+        if "cpu_s" in self._eval_columns:
+            clocks.append("" if cpu_s is None else round(cpu_s, 3))
+        self._logs["eval"].write([step, *clocks, mean, std, length])
         if self._board is not None:
             self._board.scalars("eval", step, {"return": mean, "return_std": std, "length": length})
 

@@ -2,11 +2,12 @@
 how much memory a unit of TAC members needs.
 
 Measured, where possible, from run directories already under ``--out`` of the plan's kind
-(:func:`rates`): a run's ``eval.csv`` ``wall_s`` (training, evaluation and checkpoints, summed
-over sessions) over its second half of evaluations, times its torch threads, divided by its
-members (K seeds sharing one process share its clock). The median over the runs of an (algo,
-env) is used. Where no run has two evaluations
-yet, the defaults below are used, and the plan says so.
+(:func:`rates`): a run's ``eval.csv`` ``cpu_s`` (the CPU seconds of its process's threads in
+training, evaluation and checkpoints, summed over sessions) over its second half of
+evaluations, divided by its members (K seeds sharing one process share its clocks); for a run
+begun before eval.csv logged ``cpu_s``, its ``wall_s`` times its torch threads, which other
+work on the machine stretches. The median over the runs of an (algo, env) is used. Where no run
+has two evaluations yet, the defaults below are used, and the plan says so.
 """
 
 from __future__ import annotations
@@ -142,13 +143,17 @@ def run_seconds_per_step(directory: Path) -> float | None:
 
 
 def _seconds_per_step(eval_csv: Path, metadata: dict[str, Any]) -> float | None:
-    """:func:`run_seconds_per_step` from the run's eval.csv and its config.json's contents (None
-    also when eval.csv or config.json is damaged, and when the window starts before the run
-    learns, its random warm-up being many times faster: a price does without that rate, and the
-    run's own resume check says what is wrong with it)."""
+    """:func:`run_seconds_per_step` from the run's eval.csv and its config.json's contents:
+    ``cpu_s`` over the window where both ends record it (the CPU seconds of every thread),
+    else ``wall_s`` times the threads. None also when eval.csv or config.json is damaged, and
+    when the window starts before the run learns, its random warm-up being many times faster: a
+    price does without that rate, and the run's own resume check says what is wrong with it."""
     try:
         with eval_csv.open(newline="") as handle:
-            rows = [(int(r["step"]), float(r["wall_s"])) for r in csv.DictReader(handle)]
+            rows = [
+                (int(r["step"]), float(r["wall_s"]), float(r.get("cpu_s") or "nan"))
+                for r in csv.DictReader(handle)
+            ]
         settings = metadata["config"]
         threads = int(settings.get("threads", 1))
         members = len(metadata.get("members", [0])) or 1
@@ -161,9 +166,11 @@ def _seconds_per_step(eval_csv: Path, metadata: dict[str, Any]) -> float | None:
         return None  # ValueError: undecodable, or a step, time or thread count not a number
     if len(rows) < 2:
         return None
-    (step_a, wall_a), (step_b, wall_b) = rows[(len(rows) - 1) // 2], rows[-1]
+    (step_a, wall_a, cpu_a), (step_b, wall_b, cpu_b) = rows[(len(rows) - 1) // 2], rows[-1]
     if step_b <= step_a or wall_b <= wall_a or step_a < start:
         return None
+    if cpu_b > cpu_a:  # both recorded (NaN where not: the comparison is False)
+        return (cpu_b - cpu_a) / (step_b - step_a) / members
     return (wall_b - wall_a) / (step_b - step_a) * threads / members
 
 

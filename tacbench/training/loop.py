@@ -19,7 +19,7 @@ from tacbench.config import RunConfig
 from tacbench.interrupts import SecondSignal, StopCheck, resume_command
 from tacbench.members import members_label
 from tacbench.progress import Progress
-from tacbench.runs import Outcome, checkpoints
+from tacbench.runs import Outcome, RunClock, checkpoints
 from tacbench.seeding import run_streams
 from tacbench.tac import METRICS, Coefficients, ReplayBuffer, TacAgent, coefficients
 from tacbench.tac.update import update
@@ -82,7 +82,7 @@ class GroupTrainer:
         self.losses = LossWindow(k, len(self.metrics), self.agent.device)
         self.updates_started = np.zeros(k, dtype=bool)  # training.schedule
         self.alive = list(range(k))  # live members, kept on the host (no device sync to read)
-        self.wall_offset = 0.0
+        self.clock_offsets: tuple[float, float | None] = (0.0, 0.0)  # a checkpoint's: RunClock
         self.phase_seconds = dict.fromkeys(PHASES, 0.0)  # since start, not kept by checkpoints
         self.finished_length = np.zeros(k, dtype=np.int64)  # length of episodes just ended
         self.chunk_added, self.chunk_rows = 0, np.zeros(k, dtype=np.int64)
@@ -94,7 +94,7 @@ class GroupTrainer:
         self.progress = Progress(label, config.total_steps, self.step, config.eval_every, quiet)
         for note in self.resume_notes:
             self.progress.message(f"{note}; resuming from step {self.step}")
-        self._t0 = time.perf_counter()
+        self.clock = RunClock(*self.clock_offsets)
 
     # --- start and resume ----------------------------------------------------------------
     def _resume_or_start(self, directories: list[Path]) -> None:
@@ -152,13 +152,10 @@ class GroupTrainer:
             self.updates_started[k] = state.updates_started
         if self.population is not None:
             self.population.load_member_states([s.pbt or {} for s in states])
-        self.wall_offset = states[0].wall_s
+        cpu = [s.cpu_s for s in states]
+        self.clock_offsets = states[0].wall_s, None if None in cpu else cpu[0]
 
     # --- the loop ---------------------------------------------------------------------------
-    @property
-    def wall_s(self) -> float:
-        return self.wall_offset + time.perf_counter() - self._t0
-
     def run(self, stop: StopCheck) -> list[Outcome]:
         """Step until done, stopped or every member failed (an error: crashed); then close."""
         outcomes = list[Outcome]()
@@ -241,9 +238,8 @@ class GroupTrainer:
         self.episode_return += reward
         self.episode_length += 1
         for k in np.flatnonzero(done).tolist():
-            self.writers[k].train_row(
-                self.step, self.wall_s, float(self.episode_return[k]), int(self.episode_length[k])
-            )
+            episode = float(self.episode_return[k]), int(self.episode_length[k])
+            self.writers[k].train_row(self.step, self.clock.wall_s, *episode)
             if self.population is not None:
                 self.population.episode_ended(k, float(self.episode_return[k]))
             next_obs[k] = self.envs[k].reset()[0]
@@ -359,7 +355,7 @@ class GroupTrainer:
             [envs.eval_seeds(self.seeds[k], step, n_eps) for k in alive],
         )
         for i, k in enumerate(alive):
-            self.writers[k].eval_row(step, self.wall_s, returns[i].tolist(), lengths[i].tolist())
+            self.writers[k].eval_row(step, self.clock, returns[i].tolist(), lengths[i].tolist())
         return float(returns.mean())
 
     def _checkpoint(self) -> None:
@@ -379,7 +375,8 @@ class GroupTrainer:
                 loss_sum=loss_sum,
                 loss_count=loss_count,
                 updates_started=bool(self.updates_started[k]),
-                wall_s=self.wall_s,
+                wall_s=self.clock.wall_s,
+                cpu_s=self.clock.cpu_s,
                 pbt=None if self.population is None else self.population.member_state(k),
             )
             since = (self.chunk_added, int(self.chunk_rows[k]))
