@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -197,6 +199,20 @@ def test_ties_minus_inf_and_huge_ranges(q: float) -> None:
     assert np.isfinite(q_max(huge, q)) and q_max(huge, q) >= 1e300
     tiny = np.array([1e-300, 0.0])
     assert np.allclose(q_softmax(tiny, q), 0.5)
+
+
+@pytest.mark.parametrize("q", Q_VALUES)
+def test_gaps_beyond_float64_weigh_nothing_and_warn_nothing(q: float) -> None:
+    """Values near +-1e308 differ by more than float64 holds: such an arm gets probability 0,
+    silently (numpy printed overflow warnings for results that were right)."""
+    edge = np.array([1.7e308, -1.7e308, 0.0])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        pi, value = q_softmax(edge, q), q_max(edge, q)
+        potential = q_potential(np.array([-1e308, -1e308, 0.0]), q)
+    assert pi[1:].tolist() == [0.0, 0.0] and pi[0] == pytest.approx(1.0)
+    assert value == pytest.approx(1.7e308)
+    assert potential == pytest.approx(0.0, abs=1e-12)  # one arm: psi_q = its value
 
 
 def test_vectorised_over_leading_axes() -> None:

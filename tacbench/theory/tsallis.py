@@ -121,7 +121,7 @@ def _sparsemax_threshold(y: Array) -> Array:
     """tau with ``sum_a [y_a - tau]_+ = 1`` (Euclidean projection onto the simplex), per row."""
     y_sorted = -np.sort(-y, axis=-1)
     k = np.arange(1, y.shape[-1] + 1, dtype=np.float64)
-    with np.errstate(invalid="ignore"):
+    with np.errstate(invalid="ignore", over="ignore"):  # sums past -1e308: -inf, outside
         cumsum = np.cumsum(y_sorted, axis=-1)
         in_support = 1.0 + k * y_sorted > cumsum
     support = np.sum(in_support, axis=-1, keepdims=True)
@@ -167,7 +167,8 @@ def _steep_solution(y: Array, q: float) -> tuple[Array, Array]:
     ``pi_(j) = (c_(j) - c_(K) + s^(q-1))^(1/(q-1))`` is then accurate.
     """
     expo = 1.0 / (q - 1.0)
-    c = -np.sort(-(q - 1.0) * y, axis=-1)
+    with np.errstate(over="ignore"):  # (q - 1) y past -1e308: -inf, an arm outside the support
+        c = -np.sort(-(q - 1.0) * y, axis=-1)
     n = c.shape[-1]
 
     def mass_at_breakpoint(k: npt.NDArray[np.intp]) -> Array:
@@ -237,7 +238,8 @@ def _solve(f: ArrayLike, q: float, alpha: float, what: str) -> tuple[Array, Arra
         )
     values = _as_values(f, what)
     f_max = np.max(values, axis=-1, keepdims=True)
-    y = (values - f_max) / (alpha * q)
+    with np.errstate(over="ignore"):  # a gap beyond float64 (inputs near +-1e308): -inf, weight 0
+        y = (values - f_max) / (alpha * q)
     if q == 1.0:
         psi = logsumexp(y, axis=-1, keepdims=True)
         pi = np.exp(y - psi)
@@ -280,6 +282,6 @@ def q_max(f: ArrayLike, q: float, alpha: float = 1.0) -> Array:
     ``max f <= q_max(f) <= max f - alpha ln_q(1/n)``.
     """
     values, f_max, _, pi = _solve(f, q, alpha, "q_max")
-    with np.errstate(invalid="ignore"):
+    with np.errstate(invalid="ignore", over="ignore"):  # -inf gaps have weight 0
         gap = np.sum(np.where(pi > 0, (values - f_max) * pi, 0.0), axis=-1, keepdims=True)
     return (f_max + gap + alpha * _entropy(pi, q))[..., 0]
