@@ -151,8 +151,7 @@ class _Run:
         if state is None:  # SB3 refuses some settings as it builds: before anything is written
             self.model = algos.build_model(config, self.venv)
             self.writer.open(metadata(config, command), None)
-            offsets: tuple[float, float | None] = (0.0, 0.0)
-            self.step = 0
+            self.step, offsets = 0, (0.0, 0.0)
         else:
             step = int(state["step"])
             plan = self.writer.check_resume(step, config.to_dict())
@@ -170,14 +169,17 @@ class _Run:
                 self.venv,
                 self.losses,
             )
-            self.step, offsets = int(state["step"]), (float(state["wall_s"]), state.get("cpu_s"))
+            self.step, offsets = (
+                int(state["step"]),
+                (float(state["wall_s"]), float(state.get("cpu_s", 0.0))),
+            )
         self.model.set_logger(self.losses)
         self.checkpoint_step = self.step
         label = f"{algos.DISPLAY_NAMES[config.algo]} {config.env} seed {config.seed}"
         self.progress = Progress(label, config.total_steps, self.step, config.eval_every, quiet)
         for note in notes:
             self.progress.message(f"{note}; resuming from step {self.step}")
-        self.clock = RunClock(*offsets)  # a checkpoint without cpu_s predates it: None
+        self.clock = RunClock(*offsets)  # a checkpoint without cpu_s predates the CPU clock
 
     def evaluate(self, step: int) -> float:
         """TAC's evaluation protocol on the current policy; writes the eval.csv row."""

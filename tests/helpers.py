@@ -187,12 +187,12 @@ def train(out: Path, configs: Sequence[AnyConfig], **kwargs: Any) -> list[Outcom
 
 
 def results_of(run: Path) -> dict[str, str]:
-    """A run directory's CSVs as text without their wall-clock column."""
+    """A run directory's CSVs as text without their clock columns (wall_s, cpu_s)."""
     return {name: without_clocks((run / name).read_text()) for name in RESULT_CSVS}
 
 
 def assert_same_results(a: Path, b: Path) -> None:
-    """Two run directories wrote the same CSVs, apart from wall-clock times."""
+    """Two run directories wrote the same CSVs, apart from their clocks."""
     ours, theirs = results_of(a), results_of(b)
     for name in RESULT_CSVS:
         assert ours[name] == theirs[name], name

@@ -5,32 +5,47 @@ both, so a resumed run counts on from where it stopped; a run begun before eval.
 from __future__ import annotations
 
 import itertools
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import pandas as pd
 import pytest
+import torch
 
+from tacbench.report.series import read_series
 from tacbench.runs import EVAL_COLUMNS, RunClock, clock, files
-from tests.helpers import assert_same_results, tiny_configs, train
+from tests.helpers import assert_same_results, checkpoint_state, tiny_configs, train
 
 pytestmark = pytest.mark.smoke
 
 
 def test_a_clock_counts_on_from_the_seconds_earlier_sessions_took() -> None:
-    fresh, resumed, older = RunClock(), RunClock(100.0, 40.0), RunClock(100.0, None)
+    fresh, resumed = RunClock(), RunClock(100.0, 40.0)
     sum(i * i for i in range(200_000))  # some CPU time
     assert 0.0 < fresh.cpu_s < 100.0 and 0.0 < fresh.wall_s < 100.0
     assert resumed.wall_s > 100.0 and 40.0 < resumed.cpu_s < 100.0
-    assert older.cpu_s is None and older.wall_s > 100.0
 
 
-def _fake_cpu(monkeypatch: pytest.MonkeyPatch, seconds: float) -> None:
-    """The CPU clock reads 0 when a trainer makes its clock and ``seconds`` ever after: each
-    session of a run adds exactly ``seconds``."""
-    readings: Iterator[float] = itertools.chain([0.0], itertools.repeat(seconds))
+def _fake_cpu(monkeypatch: pytest.MonkeyPatch, seconds: float, members: int = 1) -> None:
+    """The CPU clock reads 0 when a trainer makes its ``members`` clocks and ``seconds`` ever
+    after: each session of a run adds exactly ``seconds``."""
+    readings = itertools.chain([0.0] * members, itertools.repeat(seconds))
     monkeypatch.setattr(clock, "process_time", lambda: next(readings))
+
+
+def _as_before_the_cpu_clock(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Write runs as tacbench did before it kept CPU time: eval.csv without ``cpu_s``, and
+    checkpoints without it."""
+    monkeypatch.setattr(files, "EVAL_COLUMNS", files.EVAL_COLUMNS_WITHOUT_CPU)
+    save = torch.save
+
+    def save_without_cpu(state: Any, *args: Any, **kwargs: Any) -> None:
+        if isinstance(state, dict) and "cpu_s" in state:
+            state = {key: value for key, value in state.items() if key != "cpu_s"}
+        save(state, *args, **kwargs)
+
+    monkeypatch.setattr(torch, "save", save_without_cpu)
 
 
 def _run_dir(out: Path, configs: list[Any]) -> Path:
@@ -64,9 +79,10 @@ def test_a_run_begun_without_cpu_s_resumes_in_its_own_columns(
     learner: str,
 ) -> None:
     configs = tiny_configs(learner)
-    with monkeypatch.context() as older:  # as tacbench wrote eval.csv before it logged cpu_s
-        older.setattr(files, "EVAL_COLUMNS", files.EVAL_COLUMNS_WITHOUT_CPU)
+    with monkeypatch.context() as older:
+        _as_before_the_cpu_clock(older)
         (stopped,) = train(tmp_path, configs, stop=lambda step: step >= 730)
+    assert "cpu_s" not in checkpoint_state(_run_dir(tmp_path, configs))
     assert stopped.state == "interrupted"
     (outcome,) = train(tmp_path, configs, resume=True)
     assert outcome.state == "complete", outcome.message
@@ -75,3 +91,30 @@ def test_a_run_begun_without_cpu_s_resumes_in_its_own_columns(
     assert tuple(evals.columns) == files.EVAL_COLUMNS_WITHOUT_CPU
     assert evals["step"].tolist() == [500, 1000, 1500]
     assert_same_results(uninterrupted(learner), run)
+
+
+def test_members_resumed_together_keep_their_own_clocks(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Seed 0 trained alone before the CPU clock, seeds 10 and 20 together after it; seeds 0 and
+    10 resumed in one group: each goes on from its own checkpoint's clocks (the group took
+    member 0's: seed 10's cpu_s fell from 1,000 to 50, or its cells were left empty, which the
+    report cannot read), and seed 0 keeps its five columns."""
+    with monkeypatch.context() as older:
+        _as_before_the_cpu_clock(older)
+        (old,) = train(tmp_path, tiny_configs("tac", seeds=(0,)), stop=lambda step: step >= 730)
+    _fake_cpu(monkeypatch, 1000.0, members=2)
+    pair = train(tmp_path, tiny_configs("tac", seeds=(10, 20)), stop=lambda step: step >= 730)
+    _fake_cpu(monkeypatch, 50.0, members=2)
+    resumed = train(tmp_path, tiny_configs("tac", seeds=(0, 10)), resume=True)
+    assert [o.state for o in (old, *pair)] == ["interrupted"] * 3
+    assert [o.state for o in resumed] == ["complete"] * 2
+    seed0, seed10 = (o.directory for o in resumed)
+    assert tuple(pd.read_csv(seed0 / "eval.csv").columns) == files.EVAL_COLUMNS_WITHOUT_CPU
+    assert pd.read_csv(seed10 / "eval.csv")["cpu_s"].tolist() == [1000.0, 1050.0, 1050.0]
+    for run in (seed0, seed10):
+        assert read_series(run, "eval", "complete", 1500.0, "Hopper-v4").step.tolist() == [
+            500.0,
+            1000.0,
+            1500.0,
+        ]

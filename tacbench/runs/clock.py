@@ -15,11 +15,11 @@ from time import perf_counter, process_time
 
 
 class RunClock:
-    """Seconds since the clock was made, plus ``wall_s`` and ``cpu_s`` that earlier sessions
-    took (a checkpoint's). ``cpu_s`` None: the earlier sessions did not record CPU time (the
-    run's checkpoint predates the column), and :attr:`cpu_s` stays None."""
+    """Seconds since the clock was made, plus the ``wall_s`` and ``cpu_s`` that earlier sessions
+    took (a checkpoint's). A checkpoint from before tacbench kept CPU time gives ``cpu_s`` 0: its
+    run's ``eval.csv`` has no ``cpu_s`` column, so that count is never written."""
 
-    def __init__(self, wall_s: float = 0.0, cpu_s: float | None = 0.0) -> None:
+    def __init__(self, wall_s: float = 0.0, cpu_s: float = 0.0) -> None:
         self._wall_offset, self._cpu_offset = wall_s, cpu_s
         self._wall_0, self._cpu_0 = perf_counter(), process_time()
 
@@ -29,8 +29,6 @@ class RunClock:
         return self._wall_offset + perf_counter() - self._wall_0
 
     @property
-    def cpu_s(self) -> float | None:
-        """CPU seconds of training so far (None: earlier sessions did not record them)."""
-        if self._cpu_offset is None:
-            return None
+    def cpu_s(self) -> float:
+        """CPU seconds of training so far."""
         return self._cpu_offset + process_time() - self._cpu_0

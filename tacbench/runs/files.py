@@ -316,15 +316,14 @@ class RunWriter:
     def eval_row(
         self, step: int, clock: RunClock, returns: Sequence[float], lengths: Sequence[float]
     ) -> None:
-        """One evaluation: the run's clocks, mean and (population) std of the episode returns,
-        mean length. A CPU clock that earlier sessions did not keep leaves ``cpu_s`` empty."""
+        """One evaluation: the run's clocks (``cpu_s`` unless the run began without it), mean
+        and (population) std of the episode returns, mean length."""
         mean = math.fsum(returns) / len(returns)
         std = math.sqrt(math.fsum((r - mean) ** 2 for r in returns) / len(returns))
         length = math.fsum(lengths) / len(lengths)
-        cpu_s = clock.cpu_s
-        clocks: list[float | str] = [round(clock.wall_s, 3)]
+        clocks = [round(clock.wall_s, 3)]
         if "cpu_s" in self._eval_columns:
-            clocks.append("" if cpu_s is None else round(cpu_s, 3))
+            clocks.append(round(clock.cpu_s, 3))
         self._logs["eval"].write([step, *clocks, mean, std, length])
         if self._board is not None:
             self._board.scalars("eval", step, {"return": mean, "return_std": std, "length": length})

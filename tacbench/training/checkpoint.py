@@ -46,7 +46,7 @@ class MemberState:
     loss_count: int
     updates_started: bool  # training.schedule
     wall_s: float
-    cpu_s: float | None = None  # None: written before checkpoints kept CPU time (runs.RunClock)
+    cpu_s: float = 0.0  # absent from checkpoints older than the CPU clock (runs.RunClock)
     pbt: dict[str, Any] | None = None  # --q auto: the member's part of the population
 
     def to_dict(self) -> dict[str, Any]:

@@ -82,7 +82,7 @@ class GroupTrainer:
         self.losses = LossWindow(k, len(self.metrics), self.agent.device)
         self.updates_started = np.zeros(k, dtype=bool)  # training.schedule
         self.alive = list(range(k))  # live members, kept on the host (no device sync to read)
-        self.clock_offsets: tuple[float, float | None] = (0.0, 0.0)  # a checkpoint's: RunClock
+        self.clock_offsets = [(0.0, 0.0)] * k  # each member's checkpoint's: runs.RunClock
         self.phase_seconds = dict.fromkeys(PHASES, 0.0)  # since start, not kept by checkpoints
         self.finished_length = np.zeros(k, dtype=np.int64)  # length of episodes just ended
         self.chunk_added, self.chunk_rows = 0, np.zeros(k, dtype=np.int64)
@@ -94,7 +94,7 @@ class GroupTrainer:
         self.progress = Progress(label, config.total_steps, self.step, config.eval_every, quiet)
         for note in self.resume_notes:
             self.progress.message(f"{note}; resuming from step {self.step}")
-        self.clock = RunClock(*self.clock_offsets)
+        self.clocks = [RunClock(*offsets) for offsets in self.clock_offsets]
 
     # --- start and resume ----------------------------------------------------------------
     def _resume_or_start(self, directories: list[Path]) -> None:
@@ -152,8 +152,7 @@ class GroupTrainer:
             self.updates_started[k] = state.updates_started
         if self.population is not None:
             self.population.load_member_states([s.pbt or {} for s in states])
-        cpu = [s.cpu_s for s in states]
-        self.clock_offsets = states[0].wall_s, None if None in cpu else cpu[0]
+        self.clock_offsets = [(s.wall_s, s.cpu_s) for s in states]  # a member's own, in any group
 
     # --- the loop ---------------------------------------------------------------------------
     def run(self, stop: StopCheck) -> list[Outcome]:
@@ -239,7 +238,7 @@ class GroupTrainer:
         self.episode_length += 1
         for k in np.flatnonzero(done).tolist():
             episode = float(self.episode_return[k]), int(self.episode_length[k])
-            self.writers[k].train_row(self.step, self.clock.wall_s, *episode)
+            self.writers[k].train_row(self.step, self.clocks[k].wall_s, *episode)
             if self.population is not None:
                 self.population.episode_ended(k, float(self.episode_return[k]))
             next_obs[k] = self.envs[k].reset()[0]
@@ -355,7 +354,7 @@ class GroupTrainer:
             [envs.eval_seeds(self.seeds[k], step, n_eps) for k in alive],
         )
         for i, k in enumerate(alive):
-            self.writers[k].eval_row(step, self.clock, returns[i].tolist(), lengths[i].tolist())
+            self.writers[k].eval_row(step, self.clocks[k], returns[i].tolist(), lengths[i].tolist())
         return float(returns.mean())
 
     def _checkpoint(self) -> None:
@@ -375,8 +374,8 @@ class GroupTrainer:
                 loss_sum=loss_sum,
                 loss_count=loss_count,
                 updates_started=bool(self.updates_started[k]),
-                wall_s=self.clock.wall_s,
-                cpu_s=self.clock.cpu_s,
+                wall_s=self.clocks[k].wall_s,
+                cpu_s=self.clocks[k].cpu_s,
                 pbt=None if self.population is None else self.population.member_state(k),
             )
             since = (self.chunk_added, int(self.chunk_rows[k]))
