@@ -296,7 +296,9 @@ def test_measured_throughput_replaces_the_default(tmp_path: Path) -> None:
     ppo = next(r for r in plan.build_runs(SMOKE) if r.config.algo == "ppo")
     planned = {("tac", "Hopper-v4"): [run.config], ("ppo", "Hopper-v4"): [ppo.config]}
     rates = cost.rates(tmp_path, planned)
-    assert rates[("tac", "Hopper-v4")] == cost.Rate(0.002, f"measured: 1 run under {tmp_path}")
+    assert rates[("tac", "Hopper-v4")] == cost.Rate(
+        0.002, f"measured: 1 run under {tmp_path}, 1 by wall_s (eval.csv without cpu_s)"
+    )
     assert rates[("ppo", "Hopper-v4")].source == cost.DEFAULT_SOURCE
     assert rates[("ppo", "Hopper-v4")].seconds_per_step > 0
     with (directory / "eval.csv").open("a") as handle:  # a damaged log: the price goes without
@@ -320,6 +322,10 @@ def test_a_run_that_records_cpu_time_is_priced_by_it(tmp_path: Path) -> None:
     # under load: the wall clock ran 6 s from step 500 to 1,000, the CPU clock 2 s (2 threads)
     (directory / "eval.csv").write_text(header + "500,4.0,1.5,1,0,1\n1000,10.0,3.5,1,0,1\n")
     assert cost.run_seconds_per_step(directory) == pytest.approx(2.0 / 500 / 2)
+    planned = {("tac", "Hopper-v4"): [dataclasses.replace(run.config, threads=2)]}
+    assert cost.rates(tmp_path, planned)[("tac", "Hopper-v4")] == cost.Rate(
+        0.002, f"measured: 1 run under {tmp_path}"
+    )
     (directory / "eval.csv").write_text(header + "500,4.0,,1,0,1\n1000,10.0,3.5,1,0,1\n")
     assert cost.run_seconds_per_step(directory) == pytest.approx(6.0 / 500 * 2 / 2)
 

@@ -139,15 +139,17 @@ def run_seconds_per_step(directory: Path) -> float | None:
     eval_csv, config_json = directory / "eval.csv", directory / "config.json"
     if not eval_csv.exists() or not config_json.exists():
         return None
-    return _seconds_per_step(eval_csv, runs.read_json(config_json))
+    measured = _seconds_per_step(eval_csv, runs.read_json(config_json))
+    return None if measured is None else measured[0]
 
 
-def _seconds_per_step(eval_csv: Path, metadata: dict[str, Any]) -> float | None:
-    """:func:`run_seconds_per_step` from the run's eval.csv and its config.json's contents:
-    ``cpu_s`` over the window where both ends record it (the CPU seconds of every thread),
-    else ``wall_s`` times the threads. None also when eval.csv or config.json is damaged, and
-    when the window starts before the run learns, its random warm-up being many times faster: a
-    price does without that rate, and the run's own resume check says what is wrong with it."""
+def _seconds_per_step(eval_csv: Path, metadata: dict[str, Any]) -> tuple[float, str] | None:
+    """:func:`run_seconds_per_step` from the run's eval.csv and its config.json's contents, and
+    the clock it read: ``cpu_s`` over the window where both ends record it (the CPU seconds of
+    every thread), else ``wall_s`` times the threads. None also when eval.csv or config.json is
+    damaged, and when the window starts before the run learns, its random warm-up being many
+    times faster: a price does without that rate, and the run's own resume check says what is
+    wrong with it."""
     try:
         with eval_csv.open(newline="") as handle:
             rows = [
@@ -170,8 +172,8 @@ def _seconds_per_step(eval_csv: Path, metadata: dict[str, Any]) -> float | None:
     if step_b <= step_a or wall_b <= wall_a or step_a < start:
         return None
     if cpu_b > cpu_a:  # both recorded (NaN where not: the comparison is False)
-        return (cpu_b - cpu_a) / (step_b - step_a) / members
-    return (wall_b - wall_a) / (step_b - step_a) * threads / members
+        return (cpu_b - cpu_a) / (step_b - step_a) / members, "cpu_s"
+    return (wall_b - wall_a) / (step_b - step_a) * threads / members, "wall_s"
 
 
 PRICED_ALIKE = ("seed", "q", "alpha", "total_steps", "variant")
@@ -198,7 +200,7 @@ def rates(
         pair: [_kind((resolve_compile(c) if c.algo == "tac" else c).to_dict()) for c in configs]
         for pair, configs in planned.items()
     }
-    measured: dict[tuple[str, str], list[float]] = defaultdict(list)
+    measured: dict[tuple[str, str], list[tuple[float, str]]] = defaultdict(list)
     for config_json in Path(out).glob("runs/*/*/*/seed*/config.json"):
         eval_csv = config_json.parent / "eval.csv"
         if not eval_csv.exists():
@@ -222,10 +224,11 @@ def rates(
     result = {}
     for pair in planned:
         if measured.get(pair):
-            n = len(measured[pair])
+            n, by_wall = len(measured[pair]), sum(c == "wall_s" for _, c in measured[pair])
             result[pair] = Rate(
-                statistics.median(measured[pair]),
-                f"measured: {n} run{'s' if n > 1 else ''} under {out}",
+                statistics.median(value for value, _ in measured[pair]),
+                f"measured: {n} run{'s' if n > 1 else ''} under {out}"
+                + (f", {by_wall} by wall_s (eval.csv without cpu_s)" if by_wall else ""),
             )
         else:
             result[pair] = Rate(_default(*pair), DEFAULT_SOURCE)
