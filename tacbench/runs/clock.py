@@ -4,8 +4,8 @@ it (all its threads, shared by the members it trains together), which ``eval.csv
 ``cpu_s``. A checkpoint keeps both, so a resumed run's clocks go on where they stopped.
 
 Other work on the machine stretches the wall clock by about the share of the cores it takes; the
-CPU clock much less (caches and memory bandwidth still slow it, by 30-60 % on two busy cores),
-so the dry run prices steps left from CPU seconds where a run records them
+CPU clock much less (only through the caches and memory bandwidth it shares: docs/sweep.md), so
+the dry run prices steps left from CPU seconds where a run records them
 (:mod:`tacbench.sweep.cost`).
 """
 
