@@ -215,6 +215,30 @@ def test_gaps_beyond_float64_weigh_nothing_and_warn_nothing(q: float) -> None:
     assert potential == pytest.approx(0.0, abs=1e-12)  # one arm: psi_q = its value
 
 
+@pytest.mark.parametrize("q", [0.5, 1.0, 1.5, 3.0])
+def test_a_gap_past_float64_is_scaled_before_it_overflows(q: float) -> None:
+    """1.7e308 - (-1.7e308) overflows float64, but over alpha * q it need not: the arm keeps
+    its weight (it was given 0, and q-max the best value alone)."""
+    f, alpha = np.array([1.7e308, -1.7e308]), 1e307
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        pi, value = q_softmax(f, q, alpha), q_max(f, q, alpha)
+    assert pi == pytest.approx(q_softmax(f / alpha, q), rel=1e-12)
+    assert value == pytest.approx(alpha * q_max(f / alpha, q), rel=1e-12)
+    assert pi[1] > 0.0 or q > 1.0  # q > 1: the arm lies beyond the support, weight 0
+    assert q_softmax(f, 1.0, 1e308) == pytest.approx(softmax([1.7, -1.7]), rel=1e-12)
+
+
+def test_weights_too_small_for_float64_that_q_below_one_counts_are_refused() -> None:
+    """At q < 1, S_q counts a weight p as about p^q: at q = 0.001 an arm 1e306 below the best
+    adds 0.49 to q-max although its weight (about 1e-309) rounds to 0, and q-max came out 0."""
+    assert q_max([0.0, -1e304], 1e-3) == pytest.approx(0.4928, abs=1e-4)  # weight 1e-307: kept
+    with pytest.raises(TacbenchError, match=r"1 arm\(s\) lie so far below .* adds up to 0.49"):
+        q_max([0.0, -1e306], 1e-3)
+    # at q = 0.1 the share lost (about 1e-33) is below the value's rounding
+    assert q_max([0.0, -1e306], 0.1) == pytest.approx(0.0, abs=1e-12)
+
+
 def test_vectorised_over_leading_axes() -> None:
     rng = np.random.default_rng(1)
     f = rng.normal(size=(3, 4, 6))

@@ -14,6 +14,12 @@ sparsemax); otherwise it is found by vectorised bisection: on psi inside the exa
 ``[max z, max z - ln_q(1/n)]`` for q < 2, and for q > 2 (where exp_q is infinitely steep at the
 edge of its support) on the smallest supported probability once the support is known.
 
+Values near +-1e308 may differ by more than float64 holds: the difference is then taken after
+scaling by 1/(alpha q), and an arm whose scaled gap is still past float64 gets weight 0. That is
+exact for q >= 1; at q < 1, where S_q counts a weight p as about p^q, ``q_max`` refuses inputs
+whose weights float64 cannot hold when they would change its value beyond rounding (q below
+about 0.05).
+
 TAC's torch version, ``ln_q`` of a density given its log with q per member, is
 :func:`tacbench.tac.maths.log_q_of_log`.
 """
@@ -238,8 +244,12 @@ def _solve(f: ArrayLike, q: float, alpha: float, what: str) -> tuple[Array, Arra
         )
     values = _as_values(f, what)
     f_max = np.max(values, axis=-1, keepdims=True)
-    with np.errstate(over="ignore"):  # a gap beyond float64 (inputs near +-1e308): -inf, weight 0
-        y = (values - f_max) / (alpha * q)
+    with np.errstate(over="ignore", invalid="ignore"):  # inputs near +-1e308: a gap may lie
+        gap = values - f_max  # past float64's range (inf - inf: only where np.where drops it)
+        y = gap / (alpha * q)
+        past = np.isneginf(gap) & np.isfinite(values)
+        if np.any(past):  # scaled first, y may be in range (else -inf: a weight float64 lacks)
+            y = np.where(past, values / (alpha * q) - f_max / (alpha * q), y)
     if q == 1.0:
         psi = logsumexp(y, axis=-1, keepdims=True)
         pi = np.exp(y - psi)
@@ -282,6 +292,29 @@ def q_max(f: ArrayLike, q: float, alpha: float = 1.0) -> Array:
     ``max f <= q_max(f) <= max f - alpha ln_q(1/n)``.
     """
     values, f_max, _, pi = _solve(f, q, alpha, "q_max")
-    with np.errstate(invalid="ignore", over="ignore"):  # -inf gaps have weight 0
-        gap = np.sum(np.where(pi > 0, (values - f_max) * pi, 0.0), axis=-1, keepdims=True)
+    if q < 1.0:
+        _check_lost_weights(values, f_max, pi, q, alpha)
+    with np.errstate(invalid="ignore", over="ignore"):  # a gap past float64: weighed apart
+        diff = values - f_max
+        past = np.isneginf(diff) & np.isfinite(values)
+        terms = np.where(past, values * pi - f_max * pi, diff * pi)
+        gap = np.sum(np.where(pi > 0, terms, 0.0), axis=-1, keepdims=True)
     return (f_max + gap + alpha * _entropy(pi, q))[..., 0]
+
+
+def _check_lost_weights(values: Array, f_max: Array, pi: Array, q: float, alpha: float) -> None:
+    """At q < 1 every arm has weight, and S_q counts a weight p as about p^q, which stays large
+    for small q however small p is. An arm whose weight float64 cannot hold (its scaled gap past
+    float64's range, or the weight below the smallest subnormal) is dropped, and the q-maximum
+    with it by up to ``alpha p^q``: refused where that exceeds the value's rounding."""
+    lost = np.sum((pi == 0.0) & np.isfinite(values), axis=-1, keepdims=True)
+    huge = np.finfo(np.float64).max
+    log_p = max(np.log(np.nextafter(0.0, 1.0)), -np.log((1.0 - q) * huge) / (1.0 - q))
+    share = alpha * np.exp(q * log_p)  # what one lost arm may carry, at most
+    rounding = np.finfo(np.float64).eps * np.maximum(np.abs(f_max), alpha)
+    if np.any(lost * share > rounding):
+        raise TacbenchError(
+            f"q_max: at q = {q:g}, {int(lost.max())} arm(s) lie so far below the best (their "
+            f"gap over alpha * q beyond float64) that their weights round to 0, yet each adds "
+            f"up to {share:.2g} to the q-maximum; scale f down, or use a larger alpha or q."
+        )
