@@ -297,7 +297,7 @@ def test_measured_throughput_replaces_the_default(tmp_path: Path) -> None:
     planned = {("tac", "Hopper-v4"): [run.config], ("ppo", "Hopper-v4"): [ppo.config]}
     rates = cost.rates(tmp_path, planned)
     assert rates[("tac", "Hopper-v4")] == cost.Rate(
-        0.002, f"measured: 1 run under {tmp_path}, 1 by wall_s (eval.csv without cpu_s)"
+        0.002, f"measured: 1 run under {tmp_path}, 1 by wall_s (no cpu_s over the window)"
     )
     assert rates[("ppo", "Hopper-v4")].source == cost.DEFAULT_SOURCE
     assert rates[("ppo", "Hopper-v4")].seconds_per_step > 0
@@ -328,6 +328,9 @@ def test_a_run_that_records_cpu_time_is_priced_by_it(tmp_path: Path) -> None:
     )
     (directory / "eval.csv").write_text(header + "500,4.0,,1,0,1\n1000,10.0,3.5,1,0,1\n")
     assert cost.run_seconds_per_step(directory) == pytest.approx(6.0 / 500 * 2 / 2)
+    assert cost.rates(tmp_path, planned)[("tac", "Hopper-v4")].source == (
+        f"measured: 1 run under {tmp_path}, 1 by wall_s (no cpu_s over the window)"
+    )
 
 
 def test_only_runs_of_the_plans_kind_measure_its_price(tmp_path: Path) -> None:

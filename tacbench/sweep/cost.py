@@ -228,7 +228,7 @@ def rates(
             result[pair] = Rate(
                 statistics.median(value for value, _ in measured[pair]),
                 f"measured: {n} run{'s' if n > 1 else ''} under {out}"
-                + (f", {by_wall} by wall_s (eval.csv without cpu_s)" if by_wall else ""),
+                + (f", {by_wall} by wall_s (no cpu_s over the window)" if by_wall else ""),
             )
         else:
             result[pair] = Rate(_default(*pair), DEFAULT_SOURCE)
