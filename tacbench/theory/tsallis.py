@@ -26,6 +26,8 @@ TAC's torch version, ``ln_q`` of a density given its log with q per member, is
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 import numpy.typing as npt
 from scipy.special import logsumexp
@@ -231,11 +233,20 @@ def _root(d: Array, s: Array, q: float) -> Array:
     return np.where(normal, direct, through_logs)
 
 
-def _solve(f: ArrayLike, q: float, alpha: float, what: str) -> tuple[Array, Array, Array, Array]:
-    """Shared core, keepdims: (f, max f, shifted potential psi' of y, maximiser pi).
+class _Solution(NamedTuple):
+    """:func:`_solve`'s parts, each keepdims over the last axis."""
 
-    ``y = (f - max f) / (alpha q)`` so that huge value ranges keep full precision.
-    """
+    values: Array  # f
+    f_max: Array
+    gap: Array  # f - max f: -inf where the difference lies past float64's range (``past``)
+    past: npt.NDArray[np.bool_]  # finite inputs near +-1e308 whose gap overflowed
+    psi: Array  # the shifted potential psi' of y
+    pi: Array  # the maximiser
+
+
+def _solve(f: ArrayLike, q: float, alpha: float, what: str) -> _Solution:
+    """Shared core: ``y = (f - max f) / (alpha q)``, so that huge value ranges keep full
+    precision, its potential and the maximiser."""
     q, alpha = check_q(q), check_alpha(alpha)
     if not np.isfinite(alpha * q):  # y would be 0 everywhere: the uniform policy, for any f
         raise TacbenchError(
@@ -262,7 +273,7 @@ def _solve(f: ArrayLike, q: float, alpha: float, what: str) -> tuple[Array, Arra
         pi = exp_q(y - psi, q)
     else:
         psi, pi = _steep_solution(y, q)
-    return values, f_max, psi, pi
+    return _Solution(values, f_max, gap, past, psi, pi)
 
 
 def q_potential(z: ArrayLike, q: float) -> Array:
@@ -270,8 +281,8 @@ def q_potential(z: ArrayLike, q: float) -> Array:
 
     The paper writes it at ``z = r / q`` (``def:qpoten``); q = 1 gives log-sum-exp.
     """
-    _, z_max, psi, _ = _solve(z, q, 1.0 / check_q(q), "q_potential")
-    return (z_max + psi)[..., 0]
+    solved = _solve(z, q, 1.0 / check_q(q), "q_potential")
+    return (solved.f_max + solved.psi)[..., 0]
 
 
 def q_softmax(f: ArrayLike, q: float, alpha: float = 1.0) -> Array:
@@ -280,7 +291,7 @@ def q_softmax(f: ArrayLike, q: float, alpha: float = 1.0) -> Array:
     Softmax of ``f/alpha`` at q = 1, sparsemax of ``f/(2 alpha)`` at q = 2; -inf entries get
     probability 0. Rows along the last axis sum to 1.
     """
-    return _solve(f, q, alpha, "q_softmax")[3]
+    return _solve(f, q, alpha, "q_softmax").pi
 
 
 def q_max(f: ArrayLike, q: float, alpha: float = 1.0) -> Array:
@@ -291,15 +302,13 @@ def q_max(f: ArrayLike, q: float, alpha: float = 1.0) -> Array:
     gradient in f is pi). Bounds (theorem ``thm:bound``):
     ``max f <= q_max(f) <= max f - alpha ln_q(1/n)``.
     """
-    values, f_max, _, pi = _solve(f, q, alpha, "q_max")
+    values, f_max, gap, past, _, pi = _solve(f, q, alpha, "q_max")
     if q < 1.0:
         _check_lost_weights(values, f_max, pi, q, alpha)
     with np.errstate(invalid="ignore", over="ignore"):  # a gap past float64: weighed apart
-        diff = values - f_max
-        past = np.isneginf(diff) & np.isfinite(values)
-        terms = np.where(past, values * pi - f_max * pi, diff * pi)
-        gap = np.sum(np.where(pi > 0, terms, 0.0), axis=-1, keepdims=True)
-    return (f_max + gap + alpha * _entropy(pi, q))[..., 0]
+        terms = np.where(past, values * pi - f_max * pi, gap * pi)
+        mean_gap = np.sum(np.where(pi > 0, terms, 0.0), axis=-1, keepdims=True)
+    return (f_max + mean_gap + alpha * _entropy(pi, q))[..., 0]
 
 
 def _check_lost_weights(values: Array, f_max: Array, pi: Array, q: float, alpha: float) -> None:
