@@ -169,10 +169,8 @@ class _Run:
                 self.venv,
                 self.losses,
             )
-            self.step, offsets = (
-                int(state["step"]),
-                (float(state["wall_s"]), float(state.get("cpu_s", 0.0))),
-            )
+            self.step = int(state["step"])
+            offsets = float(state["wall_s"]), float(state.get("cpu_s", 0.0))
         self.model.set_logger(self.losses)
         self.checkpoint_step = self.step
         label = f"{algos.DISPLAY_NAMES[config.algo]} {config.env} seed {config.seed}"

@@ -265,12 +265,10 @@ def plan_runs(
             read_as=config,
         )
         if plan.action == "skip":  # a run failed before is still failed: the exit status says so
-            if plan.failed:
-                skipped.append(
-                    Outcome(config.seed, directory, "failed", -1, f"skipped: {plan.message}")
-                )
-            else:
-                skipped.append(Outcome(config.seed, directory, "skipped", -1, plan.message))
+            state, message = (
+                ("failed", f"skipped: {plan.message}") if plan.failed else ("skipped", plan.message)
+            )
+            skipped.append(Outcome(config.seed, directory, state, -1, message))
             continue
         if plan.action == "start" and directory.exists():
             shutil.rmtree(directory)
