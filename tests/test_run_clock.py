@@ -55,11 +55,6 @@ def _as_before_the_cpu_clock(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(torch, "save", save_without_cpu)
 
 
-def _run_dir(out: Path, configs: list[Any]) -> Path:
-    c = configs[0]
-    return out / "runs" / c.algo / "Hopper-v4" / c.variant / "seed0"
-
-
 @pytest.mark.parametrize("learner", ["tac", "ddpg"])
 def test_a_resumed_run_counts_cpu_time_on_from_its_checkpoint(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, learner: str
@@ -71,7 +66,7 @@ def test_a_resumed_run_counts_cpu_time_on_from_its_checkpoint(
     _fake_clocks(monkeypatch, 1000.0)
     (outcome,) = train(tmp_path, configs, resume=True)
     assert outcome.state == "complete"
-    evals = pd.read_csv(_run_dir(tmp_path, configs) / "eval.csv")
+    evals = pd.read_csv(outcome.directory / "eval.csv")
     assert tuple(evals.columns) == EVAL_COLUMNS
     # step 500 in the first session; 1,000 and 1,500 in the second, on top of the first's
     assert evals["cpu_s"].tolist() == evals["wall_s"].tolist() == [1000.0, 2000.0, 2000.0]
@@ -88,11 +83,11 @@ def test_a_run_begun_without_cpu_s_resumes_in_its_own_columns(
     with monkeypatch.context() as older:
         _as_before_the_cpu_clock(older)
         (stopped,) = train(tmp_path, configs, stop=lambda step: step >= 730)
-    assert "cpu_s" not in checkpoint_state(_run_dir(tmp_path, configs))
+    assert "cpu_s" not in checkpoint_state(stopped.directory)
     assert stopped.state == "interrupted"
     (outcome,) = train(tmp_path, configs, resume=True)
     assert outcome.state == "complete", outcome.message
-    run = _run_dir(tmp_path, configs)
+    run = outcome.directory
     evals = pd.read_csv(run / "eval.csv")
     assert tuple(evals.columns) == files.EVAL_COLUMNS_WITHOUT_CPU
     assert evals["step"].tolist() == [500, 1000, 1500]
