@@ -23,7 +23,7 @@ from tacbench.cli import cli
 from tacbench.errors import TacbenchError
 from tacbench.members import resolve_compile
 from tacbench.runs import Outcome
-from tacbench.sweep import cost, driver, plan, state, summary, worker
+from tacbench.sweep import cost, driver, dry_run, plan, state, summary, worker
 from tacbench.sweep.presets import Narrowing, get_preset, narrow
 
 pytestmark = pytest.mark.unit
@@ -84,7 +84,7 @@ def test_counts_and_steps_left_match_a_hand_count(smoke_out: tuple[Path, list[pl
     assert len(work.units) == 6  # the two new TAC runs (q2, both seeds) are members of one
     retry = [u for u in work.units if u.retry]
     assert retry == [plan.Unit((all_runs[4],), retry=(all_runs[4].key,))]
-    text = summary.describe_plan(work, workers=2, group="none")
+    text = dry_run.describe_plan(work, workers=2, group="none")
     assert "8 runs: 1 complete, 1 partial, 1 failed (1 to retry, 0 given up" in text
     assert "5 not started" in text
     assert "environment steps left: 5,800 of 8,000 (1,000 per run)" in text
@@ -203,7 +203,7 @@ def test_grouping_makes_member_units_at_equal_resume_steps(tmp_path: Path) -> No
         ]
     )
     assert by_task.units[0].key.startswith("runs/tac/Hopper-v4/members3-")
-    text = summary.describe_plan(by_task, 1, "task")
+    text = dry_run.describe_plan(by_task, 1, "task")
     assert "4 units to train (one process or Ray task each; --group task: TAC runs" in text
     assert "  tac Hopper-v4: 2 units of 1-3 members, up to 0.1 GiB each" in text
     alone = driver.load_plan(tac, tmp_path, driver.Options(group="none"), save=False)[0]
@@ -578,9 +578,9 @@ def test_the_dry_run_prices_the_wall_time_by_its_units(tmp_path: Path) -> None:
     work = driver.load_plan(five, tmp_path, driver.Options(members=3), save=False)[0]
     assert [len(u.runs) for u in work.units] == [3, 2]
     per_step = {("tac", "Hopper-v4"): 1e-3}
-    assert summary.wall_seconds(work, per_step, 2) == pytest.approx(3 * 10_000 * 1e-3)
-    assert summary.wall_seconds(work, per_step, 1) == pytest.approx(5 * 10_000 * 1e-3)
-    assert "(one core per worker; each unit on one worker" in summary.describe_plan(work, 2, "task")
+    assert dry_run.wall_seconds(work, per_step, 2) == pytest.approx(3 * 10_000 * 1e-3)
+    assert dry_run.wall_seconds(work, per_step, 1) == pytest.approx(5 * 10_000 * 1e-3)
+    assert "(one core per worker; each unit on one worker" in dry_run.describe_plan(work, 2, "task")
 
 
 def test_the_summary_compares_the_bill_with_the_price_only_for_a_whole_plan() -> None:
@@ -794,7 +794,7 @@ def test_a_run_given_up_counts_as_failed_whatever_its_status_says(tmp_path: Path
     work = _plan(tmp_path, driver.Options(max_retries=2))
     counts = summary.counts(work)
     assert (counts["failed"], counts["given_up"], counts["partial"]) == (1, 1, 0)
-    text = summary.describe_plan(work, workers=2, group="none")
+    text = dry_run.describe_plan(work, workers=2, group="none")
     assert "0 partial, 1 failed (0 to retry, 1 given up" in text
 
 

@@ -14,7 +14,7 @@ from click.testing import CliRunner
 
 from tacbench.cli import cli
 from tacbench.errors import TacbenchError
-from tacbench.sweep import driver, options, plan, presets, slurm, summary
+from tacbench.sweep import driver, dry_run, options, plan, presets, slurm
 from tacbench.sweep.plan import Unit
 
 pytestmark = pytest.mark.unit
@@ -322,7 +322,7 @@ def test_a_gpu_sweep_plans_cuda_runs_and_refuses_to_start_without_a_gpu(
     options = driver.Options(gpus_per_run=0.5)
     work, _ = driver.load_plan(presets.get_preset("smoke"), tmp_path, options, save=False)
     assert {unit.runs[0].config.device for unit in work.units} == {"cuda"}
-    assert "every figure above prices CPU cores" in summary.describe_plan(work, 2, "task")
+    assert "every figure above prices CPU cores" in dry_run.describe_plan(work, 2, "task")
     monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
     with pytest.raises(TacbenchError, match="--gpus-per-run trains on a CUDA GPU"):
         driver.run_sweep(presets.get_preset("smoke"), tmp_path, options)

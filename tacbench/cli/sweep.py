@@ -195,7 +195,7 @@ def sweep(ctx: click.Context, preset: str, **p: Any) -> None:
     times, 130/143/129 when interrupted (Ctrl-C/SIGTERM/SIGHUP; rerun to resume), 2 for a usage
     error.
     """
-    from tacbench.sweep import driver, summary  # torch only when this command runs
+    from tacbench.sweep import driver, dry_run  # torch only when this command runs
 
     grid, options = _grid_and_options(ctx, preset, p)
     if warning := options.oversubscribed():
@@ -234,7 +234,7 @@ def sweep(ctx: click.Context, preset: str, **p: Any) -> None:
                 calibration.unit_configs(work), report=lambda line: click.echo(line, err=True)
             )
         workers = options.worker_count()
-        click.echo(summary.describe_plan(work, workers, options.group, options.workers_source()))
+        click.echo(dry_run.describe_plan(work, workers, options.group, options.workers_source()))
         return
     result = driver.run_sweep(grid, p["out"], options)
     click.echo(result.text)

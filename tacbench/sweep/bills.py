@@ -13,7 +13,7 @@ A sweep with a run that did not reach its budget (failed, interrupted or still r
 compared with its price: the price trains every run to its budget.
 
 Repricing a command plans it into an empty folder, so that runs already trained do not price
-it, and prices that plan as the dry run does (:func:`tacbench.sweep.summary.price`), with the
+it, and prices that plan as the dry run does (:func:`tacbench.sweep.dry_run.price`), with the
 calibrations stored for this class.
 """
 
@@ -29,7 +29,7 @@ from typing import Any
 
 from tacbench import runs
 from tacbench.errors import TacbenchError
-from tacbench.sweep import calibration, driver, summary
+from tacbench.sweep import calibration, driver, dry_run
 from tacbench.sweep.options import Options
 from tacbench.sweep.presets import Preset
 
@@ -205,11 +205,11 @@ def reprice(
         if report is not None:
             calibration.calibrate(calibration.unit_configs(plan), report=report)
         workers = options.worker_count()
-        price = summary.price(plan, workers)
+        price = dry_run.price(plan, workers)
     return Repriced(
         price.wall_seconds,
         price.core_seconds / 3600,
-        all(g.source == summary.CALIBRATED for g in price.groups),
+        all(g.source == dry_run.CALIBRATED for g in price.groups),
         workers,
         len(plan.runs),
     )

@@ -27,7 +27,7 @@ from tacbench import envs, hardware, runs, trainers
 from tacbench.errors import TacbenchError
 from tacbench.interrupts import exit_status, stop_signals
 from tacbench.runs.checkpoints import DiskError, disk_errors
-from tacbench.sweep import cost, executors, plan, slurm, state, summary, worker
+from tacbench.sweep import cost, dry_run, executors, plan, slurm, state, summary, worker
 from tacbench.sweep.options import Options
 from tacbench.sweep.presets import Preset
 from tacbench.sweep.progress import SweepProgress
@@ -157,7 +157,7 @@ def run_sweep(
         work, history = load_plan(preset, out, options)
         check_sizes(work, options)
         workers = options.worker_count()
-        priced = summary.price(work, workers)
+        priced = dry_run.price(work, workers)
         started = time.monotonic()
         executor = _executor(out, options)
         driver = _Driver(work, history, executor, options, stream, told)

@@ -34,7 +34,7 @@ from tacbench.sequential import (
     decision_table,
     decision_text,
 )
-from tacbench.sweep import driver, state, summary
+from tacbench.sweep import driver, dry_run, state, summary
 from tacbench.sweep.options import Options
 from tacbench.sweep.presets import Preset
 from tacbench.sweep.sequential_design import (
@@ -291,5 +291,5 @@ def describe_design(preset: Preset, out: Path, options: Options, design: Design)
         f"{fixed}); fewer as comparisons are decided. The most it can still cost:"
     )
     workers, source = options.worker_count(), options.workers_source()
-    lines.append(summary.describe_plan(work, workers, options.group, source))
+    lines.append(dry_run.describe_plan(work, workers, options.group, source))
     return "\n".join(lines)
