@@ -185,7 +185,9 @@ def test_a_failing_run_is_recorded_and_retried_and_the_others_complete(tmp_path:
 def test_a_member_with_a_damaged_csv_fails_alone_and_its_unit_trains_on(tmp_path: Path) -> None:
     """One member's eval.csv changed before its checkpoint: that run cannot resume, but the
     healthy member of its unit completes in the same attempt (it used to fail every attempt
-    with it and be given up), and the failure is recorded against the damaged run alone."""
+    with it and be given up), and the failure is recorded against the damaged run alone. The
+    damaged run is not retried (it used to be, until given up, though every attempt is refused
+    alike), and once its CSV is restored the same command completes it."""
     tiny = {"total_steps": 400, "learning_starts": 100, "batch_size": 32, "eval_every": 100}
     tiny |= {"eval_episodes": 1, "checkpoint_every": 100, "log_every": 100}
     preset = Preset(
@@ -195,17 +197,27 @@ def test_a_member_with_a_damaged_csv_fails_alone_and_its_unit_trains_on(tmp_path
     stopped = training.train([healthy, damaged], tmp_path, stop=lambda step: step >= 300)
     assert [o.state for o in stopped] == ["interrupted", "interrupted"]
     eval_csv = stopped[1].directory / "eval.csv"
-    rows = eval_csv.read_text().splitlines(keepends=True)
+    original = eval_csv.read_text()
+    rows = original.splitlines(keepends=True)
     changed = rows[0] + rows[1].replace(",", ",9", 2) + "".join(rows[2:])
     eval_csv.write_text(changed)
-    result = driver.run_sweep(preset, tmp_path, driver.Options(workers=1, max_retries=0))
+    result = driver.run_sweep(preset, tmp_path, driver.Options(workers=1))
     assert result.exit_code == 1
     counts = result.summary["counts"]
-    assert (counts["complete"], counts["failed"], counts["given_up"]) == (1, 1, 1)
+    assert (counts["complete"], counts["given_up"], counts["cannot_resume"]) == (1, 0, 1)
+    assert "1 run cannot resume from its files, so the sweep did not retry it" in result.text
     status = run_status(stopped[0].directory)
     assert (status["state"], status["step"]) == ("complete", 400)
     (failed,) = result.summary["unfinished"]
     assert failed["run"] == str(stopped[1].directory.relative_to(tmp_path))
+    assert failed["state"] == "cannot resume"
     (failure,) = failed["failures"]
     assert failure["reason"].startswith(f"DamagedRun: cannot resume: {eval_csv} differs from")
     assert eval_csv.read_text() == changed  # nothing was changed
+    eval_csv.write_text(original)
+    again = driver.run_sweep(preset, tmp_path, driver.Options(workers=1))
+    assert again.exit_code == 0
+    assert (run_status(stopped[1].directory)["state"], again.summary["unfinished"]) == (
+        "complete",
+        [],
+    )

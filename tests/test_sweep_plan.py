@@ -72,7 +72,9 @@ def test_counts_and_steps_left_match_a_hand_count(smoke_out: tuple[Path, list[pl
         "to_retry": 1,
         "given_up": 0,
         "to_train": 7,
+        "cannot_resume": 0,
     }
+    assert summary.counts(work, refused={all_runs[1].key, all_runs[0].key})["cannot_resume"] == 1
     assert work.steps_left() == 5 * 1000 + (1000 - 500) + (1000 - 700) == 5800
     assert [p.action for p in work.runs] == [
         "skip",
@@ -589,7 +591,7 @@ def test_the_summary_compares_the_bill_with_the_price_only_for_a_whole_plan() ->
     base = {
         "preset": "p",
         "out": "o",
-        "counts": {**counts, "to_retry": 0, "to_train": 0},
+        "counts": {**counts, "to_retry": 0, "to_train": 0, "cannot_resume": 0},
         "unfinished": [],
     }
     base["counts"]["recovered_after_failures"] = 0
@@ -609,24 +611,27 @@ def test_the_summary_compares_the_bill_with_the_price_only_for_a_whole_plan() ->
 
 
 @pytest.mark.parametrize(
-    ("partial", "given_up", "to_train", "advice"),
+    ("partial", "given_up", "to_train", "cannot_resume", "advice"),
     [
-        (1, 1, 0, "given up"),  # an interrupted run given up: the same command trains nothing
-        (1, 0, 1, "to continue"),
-        (0, 0, 0, None),
+        (1, 1, 0, 0, {"given up"}),  # an interrupted run given up: the same command trains nothing
+        (1, 0, 1, 0, {"to continue"}),
+        (0, 0, 0, 0, set()),
+        (1, 0, 1, 1, {"fix"}),  # the same command alone would be refused again
+        (2, 0, 2, 1, {"fix", "to continue"}),
     ],
 )
 def test_the_summary_says_what_continues_a_sweep(
-    partial: int, given_up: int, to_train: int, advice: str | None
+    partial: int, given_up: int, to_train: int, cannot_resume: int, advice: set[str]
 ) -> None:
     counts = dict.fromkeys(("runs", "complete", "failed", "new", "to_retry"), 0)
     counts |= {"partial": partial, "given_up": given_up, "to_train": to_train}
+    counts |= {"cannot_resume": cannot_resume, "recovered_after_failures": 0}
     record = {"preset": "p", "out": "o", "counts": counts, "unfinished": [], "interrupted": False}
-    text = summary.summary_text(
-        {**record, "counts": {**counts, "recovered_after_failures": 0}}, "c"
-    )
-    assert ("to continue, run the same command again: c" in text) == (advice == "to continue")
-    assert ("a larger --max-retries to try again" in text) == (advice == "given up")
+    text = summary.summary_text(record, "c")
+    assert ("to continue, run the same command again: c" in text) == ("to continue" in advice)
+    assert ("a larger --max-retries to try again" in text) == ("given up" in advice)
+    fix = "1 run cannot resume from its files, so the sweep did not retry it (every attempt"
+    assert (fix in text) == ("fix" in advice)
 
 
 class _DiedOfCtrlC:
@@ -921,3 +926,18 @@ def test_the_sweep_warns_of_runs_that_never_update(tmp_path: Path) -> None:
         result = CliRunner().invoke(cli, [*grid, "--out", str(tmp_path / "grid")])
     assert result.exit_code == 0, result.output
     assert "WARNING" not in result.output
+
+
+def test_a_rerun_that_trains_nothing_keeps_a_bill_written_before_a_count_was_added(
+    tmp_path: Path,
+) -> None:
+    """A summary written before ``cannot_resume`` counted lacks it: 0 there, so the rerun keeps
+    that sweep's bill rather than replacing it with a bill of nothing."""
+    counts = {"runs": 2, "complete": 2, "to_train": 0, "cannot_resume": 0}
+    earlier = {"counts": {**counts}, "bill": {"priced_wall_s": 60.0, "wall_s": 70.0}}
+    del earlier["counts"]["cannot_resume"]
+    path = state.sweep_dir(tmp_path) / "summary.json"
+    path.parent.mkdir(parents=True)
+    path.write_text(json.dumps(earlier))
+    assert driver._billed_summary(tmp_path, {"counts": counts}) == path
+    assert driver._billed_summary(tmp_path, {"counts": {**counts, "cannot_resume": 1}}) is None

@@ -63,11 +63,11 @@ class FakeTrain:
             if plan.read_status(out, run).state == "complete":
                 continue
             if self.stop_after is not None and len(self.trained) >= self.stop_after:
-                counts = {"given_up": 0, "failed": 0}
+                counts = {"given_up": 0, "failed": 0, "cannot_resume": 0}
                 return driver.SweepResult({"counts": counts}, "stopped", interrupted=True)
             _write_complete(out, run, level(run.config.q, run.config.seed))
             self.trained.append(run.key)
-        counts = {"given_up": 0, "failed": 0}
+        counts = {"given_up": 0, "failed": 0, "cannot_resume": 0}
         return driver.SweepResult({"counts": counts}, "done", False, self.warnings)
 
 
@@ -167,7 +167,7 @@ def test_runs_given_up_are_told_to_rerun_with_more_retries(tmp_path: Path) -> No
     'rerun the same command' (which trains nothing and gives up again)."""
 
     def gives_up(grid: Preset, out: Path, *args: Any, **kw: Any) -> driver.SweepResult:
-        counts = {"given_up": 2, "failed": 2}
+        counts = {"given_up": 2, "failed": 2, "cannot_resume": 0}
         return driver.SweepResult({"counts": counts}, "2 failed (2 given up)", False)
 
     outcome = run_until_decided(HOPPER, tmp_path, driver.Options(), Design(), train=gives_up)
@@ -176,6 +176,22 @@ def test_runs_given_up_are_told_to_rerun_with_more_retries(tmp_path: Path) -> No
         "with a larger --max-retries to continue."
     )
     assert "rerun the same command" not in outcome.text
+
+
+def test_runs_that_cannot_resume_are_told_to_be_fixed(tmp_path: Path) -> None:
+    """A run refused for its damaged files is not retried: the same command alone would be
+    refused again, so the command says to fix them first."""
+
+    def refuses(grid: Preset, out: Path, *args: Any, **kw: Any) -> driver.SweepResult:
+        counts = {"given_up": 0, "failed": 0, "cannot_resume": 1}
+        return driver.SweepResult({"counts": counts}, "1 run cannot resume", False)
+
+    outcome = run_until_decided(HOPPER, tmp_path, driver.Options(), Design(), train=refuses)
+    assert outcome.exit_code == 1
+    assert outcome.text.endswith(
+        "interim 1 could not resume every run from its files; see why above, fix them, then "
+        "rerun the same command to continue it."
+    )
 
 
 def test_a_decided_comparison_stops_spending_runs(tmp_path: Path) -> None:

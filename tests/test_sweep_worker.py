@@ -134,6 +134,19 @@ def test_a_unit_whose_only_member_is_damaged_reports_it_as_that_runs_error(
     assert result.run_errors == {unit.runs[0].key: message}
 
 
+def test_a_unit_whose_only_member_has_no_usable_checkpoint_reports_it_as_that_runs_error(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Its error used to end the unit like a crash, which the driver retried though every
+    attempt meets the same damaged checkpoints."""
+    unit = _unit((0,))
+    refusal = NoCommonCheckpoint("no usable checkpoint to resume from: ... damaged")
+    monkeypatch.setattr(trainers, "trainer_for", lambda algo: _Refusing(refusal, 0))
+    result = worker.execute(worker.Job(unit, tmp_path, tmp_path / "log"), lambda step: False)
+    assert (result.outcomes, result.error) == ((), "")
+    assert result.run_errors == {unit.runs[0].key: f"NoCommonCheckpoint: {refusal}"}
+
+
 def test_a_damaged_members_error_stays_its_own_when_the_rest_then_fail(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -48,7 +48,8 @@ class SweepResult:
         :func:`tacbench.interrupts.exit_status`), 1 a run failed for good, else 0."""
         if self.interrupted:
             return exit_status()
-        return 1 if self.summary["counts"]["given_up"] or self.summary["counts"]["failed"] else 0
+        counts = self.summary["counts"]
+        return 1 if counts["given_up"] or counts["failed"] or counts["cannot_resume"] else 0
 
 
 def load_plan(
@@ -183,7 +184,12 @@ def run_sweep(
             )
         final, history = load_plan(preset, out, options)
         result = summary.summarize(
-            final, history, command=options.command, interrupted=interrupted, bill=bill
+            final,
+            history,
+            refused=driver.refused,
+            command=options.command,
+            interrupted=interrupted,
+            bill=bill,
         )
         text = summary.summary_text(result, options.command)
         kept = _billed_summary(out, result) if not summary.counts(work)["to_train"] else None
@@ -203,7 +209,11 @@ def _billed_summary(out: Path, result: dict[str, Any]) -> Path | None:
         earlier = runs.read_json(path)
     except TacbenchError:  # none yet, or damaged: this sweep's summary replaces it
         return None
-    if earlier.get("counts") != result["counts"]:
+    counts = earlier.get("counts")  # a count added since that summary was written is 0 there
+    if (
+        not isinstance(counts, dict)
+        or {**dict.fromkeys(result["counts"], 0), **counts} != result["counts"]
+    ):
         return None
     bill = earlier.get("bill")
     priced = bill.get("priced_wall_s") if isinstance(bill, dict) else None
@@ -270,6 +280,8 @@ class _Driver:
                 self.progress.message(warning)
         self.stopping = self.forced = False
         self.disk_full = ""  # the unit that found the disk full: the sweep stops
+        # runs refused before training (their files cannot resume): not retried in this sweep
+        self.refused: set[str] = set()
         # what else this machine ran meanwhile, for the bill (a local sweep's units run here)
         self.load = hardware.LoadMeter() if options.executor == "local" else None
         self.unit_runs: dict[str, list[str]] = {}  # the runs of each submitted unit, by its key
@@ -352,6 +364,11 @@ class _Driver:
             if n > self.options.max_retries:
                 self.ended.add(run.key)
                 self.progress.message(f"failed ({n} attempts, giving up): {run.key}: {reason}")
+            elif result is not None and run.key in result.run_errors:
+                # checked before anything was written: every attempt would be refused alike
+                self.ended.add(run.key)
+                self.refused.add(run.key)
+                self.progress.message(f"cannot resume, not retried: {run.key}: {reason}")
             elif not self.stopping:
                 self.progress.message(f"failed (attempt {n}, retrying): {run.key}: {reason}")
                 (retry if status.state == "failed" else again).append(run)

@@ -4,7 +4,7 @@ counts by state and by what a rerun does, every unfinished run with its failures
 from __future__ import annotations
 
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -20,31 +20,42 @@ def shown_state(planned: PlannedRun) -> str:
     return "failed" if planned.action == "give-up" else planned.status.state
 
 
-def counts(plan: SweepPlan) -> dict[str, int]:
+def counts(plan: SweepPlan, refused: Collection[str] = ()) -> dict[str, int]:
     """Runs by state (complete, partial, failed, new: :func:`shown_state`), failed runs by what
-    happens next, and the runs that the same command would train (``to_train``: new, partial
-    or to retry, none of them given up)."""
+    happens next, the runs that the same command would train (``to_train``: new, partial or to
+    retry, none of them given up) and of those the runs that a sweep found unable to resume
+    from their files (``cannot_resume``: the keys in ``refused``)."""
     by_state = Counter(shown_state(p) for p in plan.runs)
+    to_train = [p for p in plan.runs if p.action in ("train", "retry")]
     return {
         "runs": len(plan.runs),
         **{name: by_state.get(name, 0) for name in ("complete", "partial", "failed", "new")},
         "to_retry": plan.count(action="retry"),
         "given_up": plan.count(action="give-up"),
-        "to_train": plan.count(action="train") + plan.count(action="retry"),
+        "to_train": len(to_train),
+        "cannot_resume": sum(p.run.key in refused for p in to_train),
     }
 
 
-def summarize(plan: SweepPlan, sweep_state: state.SweepState, **fields: Any) -> dict[str, Any]:
+def summarize(
+    plan: SweepPlan,
+    sweep_state: state.SweepState,
+    *,
+    refused: Collection[str] = (),
+    **fields: Any,
+) -> dict[str, Any]:
     """The summary of a finished (or stopped) sweep as a JSON-ready dict: ``fields`` (command,
-    interrupted, ...), counts by state, and every run not complete with its failures."""
+    interrupted, ...), counts by state, and every run not complete with its failures; the runs
+    in ``refused`` (by key) could not resume from their files in this sweep."""
     unfinished = []
     for p in plan.runs:
         if p.status.state == "complete":
             continue
+        shown = "cannot resume" if p.run.key in refused else p.status.state
         unfinished.append(
             {
                 "run": p.run.key,
-                "state": "given up" if p.action == "give-up" else p.status.state,
+                "state": "given up" if p.action == "give-up" else shown,
                 "step": p.status.step,
                 "total_steps": p.run.total_steps,
                 "failures": [vars(f) for f in sweep_state.failures(p.run.key)],
@@ -58,7 +69,7 @@ def summarize(plan: SweepPlan, sweep_state: state.SweepState, **fields: Any) -> 
         "preset": plan.preset.name,
         "out": str(plan.out),
         "finished": runs.now_iso(),
-        "counts": {**counts(plan), "recovered_after_failures": recovered},
+        "counts": {**counts(plan, refused), "recovered_after_failures": recovered},
         "unfinished": unfinished,
     }
 
@@ -123,7 +134,14 @@ def summary_text(summary: dict[str, Any], command: str) -> str:
             "--max-retries failures: fix what the failures say, then run the same command with "
             "a larger --max-retries to try again"
         )
-    if c["to_train"]:
+    if n := c["cannot_resume"]:
+        its, it = ("their", "them") if n > 1 else ("its", "it")
+        lines.append(
+            f"{n} run{'s' if n > 1 else ''} cannot resume from {its} files, so the sweep did not "
+            f"retry {it} (every attempt would be refused alike): fix what the failures say, then "
+            "run the same command"
+        )
+    if c["to_train"] > c["cannot_resume"]:
         lines.append(
             f"to continue, run the same command again: {command}"
             if command

@@ -189,13 +189,17 @@ def run_until_decided(
         last = train(_grid(preset, chosen), out, options, stream, told=frozenset(told))
         told.update(last.warnings)
         if last.exit_code:
-            given_up = 0 if last.interrupted else last.summary["counts"]["given_up"]
+            counts = last.summary["counts"]
+            given_up = 0 if last.interrupted else counts["given_up"]
             why = (
                 "stopped; rerun the same command to continue it"
                 if last.interrupted
                 else f"gave up on {given_up} run{'s' if given_up != 1 else ''} after too many "
                 "failures; see why above, then rerun it with a larger --max-retries to continue"
                 if given_up
+                else "could not resume every run from its files; see why above, fix them, then "
+                "rerun the same command to continue it"
+                if counts["cannot_resume"]
                 else "could not train every run; rerun the same command to continue it"
             )
             text = f"{last.text}\ninterim {k} {why}."

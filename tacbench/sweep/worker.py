@@ -133,16 +133,14 @@ def _train(job: Job, stop: StopHook, damaged: dict[str, str]) -> list[Outcome]:
             rest = [run for run in members if run not in left_out]
             return call(rest) if rest else []
         except NoCommonCheckpoint as err:  # one member has none, or only damaged ones
-            if len(members) == 1:
-                raise
+            if len(members) == 1:  # every checkpoint of its own damaged: its error
+                print(f"left out of its unit: {err}", file=sys.stderr, flush=True)
+                damaged[members[0].key] = one_line(err)
+                return []
             print(f"training the members one at a time: {err}", file=sys.stderr, flush=True)
         outcomes: list[Outcome] = []
         for run in members:
-            try:
-                outcomes += call([run])
-            except NoCommonCheckpoint as err:  # every checkpoint of its own damaged: its error
-                print(f"left out of its unit: {err}", file=sys.stderr, flush=True)
-                damaged[run.key] = one_line(err)
+            outcomes += call([run])
             if any(outcome.state == "interrupted" for outcome in outcomes):
                 break
         return outcomes
