@@ -33,11 +33,26 @@ def test_a_clock_counts_on_from_the_seconds_earlier_sessions_took(
     assert (resumed.wall_s, resumed.cpu_s) == (103.0, 42.5)
 
 
+def test_members_share_their_process_cpu_time_while_they_train(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Three members split each CPU second three ways; once member 1 stops (its loss no longer
+    finite) the other two split what follows, so each run's cpu_s is what it cost."""
+    monkeypatch.setattr(clock, "process_time", iter([0.0, 30.0, 30.0, 50.0, 50.0, 50.0]).__next__)
+    shares = clock.CpuShares(3)
+    runs = [RunClock(0.0, 100.0 * k, shares, k) for k in range(3)]
+    assert runs[0].cpu_s == 10.0  # process time 30
+    runs[1].stop()  # 30
+    assert (runs[1].cpu_s, runs[2].cpu_s) == (110.0, 220.0)  # 50, then 50
+    assert runs[0].cpu_s == 20.0
+
+
 def _fake_clocks(monkeypatch: pytest.MonkeyPatch, seconds: float, members: int = 1) -> None:
-    """Both clocks read 0 when a trainer makes its ``members`` clocks and ``seconds`` ever
-    after: each session of a run adds exactly ``seconds`` to each."""
-    for name in ("perf_counter", "process_time"):
-        readings = itertools.chain([0.0] * members, itertools.repeat(seconds))
+    """Both clocks read 0 when a trainer makes its ``members`` clocks (the CPU clock once: its
+    members share it) and ``seconds`` ever after: each session of a run adds exactly
+    ``seconds`` to the wall clock of each member and ``seconds / members`` to its CPU clock."""
+    for name, first in (("perf_counter", members), ("process_time", 1)):
+        readings = itertools.chain([0.0] * first, itertools.repeat(seconds))
         monkeypatch.setattr(clock, name, readings.__next__)
 
 
@@ -99,8 +114,9 @@ def test_members_resumed_together_keep_their_own_clocks(
 ) -> None:
     """Seed 0 trained alone before the CPU clock, seeds 10 and 20 together after it; seeds 0 and
     10 resumed in one group: each goes on from its own checkpoint's clocks (the group took
-    member 0's: seed 10's cpu_s fell from 1,000 to 50, or its cells were left empty, which the
-    report cannot read), and seed 0 keeps its five columns."""
+    member 0's: seed 10's cpu_s fell from 500 to 25, or its cells were left empty, which the
+    report cannot read), and seed 0 keeps its five columns. Each member's cpu_s is its half of
+    its process's."""
     with monkeypatch.context() as older:
         _as_before_the_cpu_clock(older)
         (old,) = train(tmp_path, tiny_configs("tac", seeds=(0,)), stop=lambda step: step >= 730)
@@ -113,10 +129,38 @@ def test_members_resumed_together_keep_their_own_clocks(
     seed0, seed10 = (o.directory for o in resumed)
     assert tuple(pd.read_csv(seed0 / "eval.csv").columns) == files.EVAL_COLUMNS_WITHOUT_CPU
     clocks = pd.read_csv(seed10 / "eval.csv")
-    assert clocks["cpu_s"].tolist() == clocks["wall_s"].tolist() == [1000.0, 1050.0, 1050.0]
+    assert clocks["wall_s"].tolist() == [1000.0, 1050.0, 1050.0]
+    assert clocks["cpu_s"].tolist() == [500.0, 525.0, 525.0]
     for run in (seed0, seed10):
         assert read_series(run, "eval", "complete", 1500.0, "Hopper-v4").step.tolist() == [
             500.0,
             1000.0,
             1500.0,
         ]
+
+
+def test_a_member_that_fails_leaves_its_cpu_share_to_the_others(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Member 0's loss turns non-finite at its first update: from then on member 1 alone is
+    charged its process's CPU time."""
+    from tacbench.tac import update as tac_update
+    from tacbench.training import loop
+
+    def failing(agent: Any, sample: Any, c: Any, subset: Any) -> Any:
+        metrics = tac_update.update(agent, sample, c, subset)
+        metrics[:1] = float("nan")
+        return metrics
+
+    stopped: list[int] = []
+    stop = clock.CpuShares.stop
+
+    def recorded(shares: clock.CpuShares, run: int) -> None:
+        stopped.append(run)
+        stop(shares, run)
+
+    monkeypatch.setattr(loop, "update", failing)
+    monkeypatch.setattr(clock.CpuShares, "stop", recorded)
+    outcomes = train(tmp_path, tiny_configs("tac", seeds=(0, 10)))
+    assert [o.state for o in outcomes] == ["failed", "complete"]
+    assert stopped == [0]

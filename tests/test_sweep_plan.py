@@ -310,8 +310,9 @@ def test_measured_throughput_replaces_the_default(tmp_path: Path) -> None:
 
 def test_a_run_that_records_cpu_time_is_priced_by_it(tmp_path: Path) -> None:
     """A rate from wall time carries forward the load the run trained under: a resumed TD3
-    sweep priced at 2.4x what it took, its partial runs measured beside CI and other sweeps.
-    CPU seconds, which other work stretches much less, price a run that records them; wall
+    sweep priced at 2.5x what it took, its partial runs measured beside CI and other sweeps.
+    CPU seconds, which other work stretches much less, price a run that records them (its
+    share already: a run resumed in a group of another size is priced by what it took); wall
     time still prices a run begun before eval.csv had cpu_s, or one whose window lacks it."""
     run = plan.build_runs(narrow(SMOKE, Narrowing(algos=("tac",))))[0]
     directory = _fake_run(tmp_path, run, {"state": "complete", "step": 1000})
@@ -321,9 +322,10 @@ def test_a_run_that_records_cpu_time_is_priced_by_it(tmp_path: Path) -> None:
         {**metadata, "config": {**metadata["config"], "threads": 2}, "members": [0, 10]},
     )
     header = "step,wall_s,cpu_s,return_mean,return_std,length_mean\n"
-    # under load: the wall clock ran 6 s from step 500 to 1,000, the CPU clock 2 s (2 threads)
-    (directory / "eval.csv").write_text(header + "500,4.0,1.5,1,0,1\n1000,10.0,3.5,1,0,1\n")
-    assert cost.run_seconds_per_step(directory) == pytest.approx(2.0 / 500 / 2)
+    # under load: the wall clock ran 6 s from step 500 to 1,000; this member's share of its
+    # process's CPU seconds (2 threads, 2 members) 1 s
+    (directory / "eval.csv").write_text(header + "500,4.0,1.5,1,0,1\n1000,10.0,2.5,1,0,1\n")
+    assert cost.run_seconds_per_step(directory) == pytest.approx(1.0 / 500)
     planned = {("tac", "Hopper-v4"): [dataclasses.replace(run.config, threads=2)]}
     assert cost.rates(tmp_path, planned)[("tac", "Hopper-v4")] == cost.Rate(
         0.002, f"measured: 1 run under {tmp_path}"

@@ -7,7 +7,7 @@ here knows about torch or TAC; every trainer (TAC and the baselines) writes thro
 - ``planning``: where a run goes, and whether a command starts, resumes, skips or refuses it;
 - ``locks``: one writer per run directory;
 - ``files``: atomic JSON, row-by-row CSVs, the writer of one run (:class:`RunWriter`);
-- ``clock``: a run's wall and CPU seconds, summed over its sessions;
+- ``clock``: a run's wall and CPU seconds (its share of its process's), summed over its sessions;
 - ``provenance``: versions, git commit and host, as config.json records them;
 - ``checkpoints``: checkpoint generations (durable writes, manifests, choosing what to resume);
 - ``tensorboard``: event files of the same rows.
@@ -15,7 +15,7 @@ here knows about torch or TAC; every trainer (TAC and the baselines) writes thro
 docs/results-schema.md describes every file, column and field.
 """
 
-from tacbench.runs.clock import RunClock
+from tacbench.runs.clock import CpuShares, RunClock
 from tacbench.runs.files import (
     EVAL_COLUMNS,
     TRAIN_COLUMNS,
@@ -48,6 +48,7 @@ __all__ = [
     "EVAL_COLUMNS",
     "TRAIN_COLUMNS",
     "VERSIONED_PACKAGES",
+    "CpuShares",
     "CsvLog",
     "DirectoryPlan",
     "Outcome",

@@ -2,10 +2,10 @@
 how much memory a unit of TAC members needs.
 
 Measured, where possible, from run directories already under ``--out`` of the plan's kind
-(:func:`rates`): a run's ``eval.csv`` ``cpu_s`` (the CPU seconds of its process's threads in
-training, evaluation and checkpoints, summed over sessions) over its second half of
-evaluations, divided by its members (K seeds sharing one process share its clocks); for a run
-begun before eval.csv logged ``cpu_s``, its ``wall_s`` times its torch threads, which other
+(:func:`rates`): a run's ``eval.csv`` ``cpu_s`` (its share of the CPU seconds of its process's
+threads in training, evaluation and checkpoints, summed over sessions) over its second half of
+evaluations; for a run begun before eval.csv logged ``cpu_s``, its ``wall_s`` times its torch
+threads divided by its members (K seeds sharing one process share its wall clock), which other
 work on the machine stretches. The median over the runs of an (algo, env) is used. Where no run
 has two evaluations yet, the defaults below are used, and the plan says so.
 """
@@ -145,11 +145,12 @@ def run_seconds_per_step(directory: Path) -> float | None:
 
 def _seconds_per_step(eval_csv: Path, metadata: dict[str, Any]) -> tuple[float, str] | None:
     """:func:`run_seconds_per_step` from the run's eval.csv and its config.json's contents, and
-    the clock it read: ``cpu_s`` over the window where both ends record it (the CPU seconds of
-    every thread), else ``wall_s`` times the threads. None also when eval.csv or config.json is
-    damaged, and when the window starts before the run learns, its random warm-up being many
-    times faster: a price does without that rate, and the run's own resume check says what is
-    wrong with it."""
+    the clock it read: ``cpu_s`` over the window where both ends record it (the run's share of
+    every thread's CPU seconds), else ``wall_s`` times the threads over the members that
+    config.json lists (the run's first group: a run resumed in a group of another size is
+    priced as if in that one). None also when eval.csv or config.json is damaged, and when the
+    window starts before the run learns, its random warm-up being many times faster: a price
+    does without that rate, and the run's own resume check says what is wrong with it."""
     try:
         with eval_csv.open(newline="") as handle:
             rows = [
@@ -172,7 +173,7 @@ def _seconds_per_step(eval_csv: Path, metadata: dict[str, Any]) -> tuple[float, 
     if step_b <= step_a or wall_b <= wall_a or step_a < start:
         return None
     if cpu_b > cpu_a:  # both recorded (NaN where not: the comparison is False)
-        return (cpu_b - cpu_a) / (step_b - step_a) / members, "cpu_s"
+        return (cpu_b - cpu_a) / (step_b - step_a), "cpu_s"
     return (wall_b - wall_a) / (step_b - step_a) * threads / members, "wall_s"
 
 

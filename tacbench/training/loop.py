@@ -19,7 +19,7 @@ from tacbench.config import RunConfig
 from tacbench.interrupts import SecondSignal, StopCheck, resume_command
 from tacbench.members import members_label
 from tacbench.progress import Progress
-from tacbench.runs import Outcome, RunClock, checkpoints
+from tacbench.runs import CpuShares, Outcome, RunClock, checkpoints
 from tacbench.seeding import run_streams
 from tacbench.tac import METRICS, Coefficients, ReplayBuffer, TacAgent, coefficients
 from tacbench.tac.update import update
@@ -94,7 +94,8 @@ class GroupTrainer:
         self.progress = Progress(label, config.total_steps, self.step, config.eval_every, quiet)
         for note in self.resume_notes:
             self.progress.message(f"{note}; resuming from step {self.step}")
-        self.clocks = [RunClock(*offsets) for offsets in self.clock_offsets]
+        shares = CpuShares(len(self.configs))  # the process's CPU time, split between members
+        self.clocks = [RunClock(w, c, shares, i) for i, (w, c) in enumerate(self.clock_offsets)]
 
     # --- start and resume ----------------------------------------------------------------
     def _resume_or_start(self, directories: list[Path]) -> None:
@@ -314,6 +315,7 @@ class GroupTrainer:
                 )
             reason += f"; {checkpoints.KEPT if self.chunk_added else checkpoints.NONE_KEPT}"
             self.writers[k].status("failed", self.step, reason)
+            self.clocks[k].stop()
             self.progress.message(f"seed {self.seeds[k]} failed: {reason}")
             outcomes.append(
                 Outcome(self.seeds[k], self.writers[k].directory, "failed", self.step, reason)
