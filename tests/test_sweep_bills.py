@@ -148,6 +148,32 @@ def test_the_bills_command_gives_each_sweeps_ratio_once_calibrated(tmp_path: Pat
     after = CliRunner().invoke(cli, ["study", "bills", str(on_time), str(late)])
     assert "took 1.00x the price, the price within 25 % of it" in after.output
     assert "took 2.00x the price, the price outside 25 % of it" in after.output
+    assert "CPU time" not in after.output  # runs begun before eval.csv logged cpu_s
+
+
+def test_the_runs_cpu_time_is_set_beside_the_price_where_every_run_records_it(
+    tmp_path: Path,
+) -> None:
+    """The late sweep shared the machine: twice its price in wall time, but its runs' CPU
+    seconds (1.5 s each) show the price's rates 1.2x short, not 2x."""
+    header = "step,wall_s,cpu_s,return_mean,return_std,length_mean\n"
+    for key in SMOKE_RUNS:
+        _run(tmp_path / key, SMOKE, "2026-12-05T01:00:00+00:00", "2026-12-05T01:00:10+00:00")
+        (tmp_path / key / "eval.csv").write_text(header + "500,4,0.5,1,0,1\n1000,9,1.5,1,0,1\n")
+    _calibrate_smoke()
+    result = CliRunner().invoke(cli, ["study", "bills", str(tmp_path)])
+    assert result.exit_code == 0, result.output
+    assert "took 2.00x the price" in result.output
+    assert "its runs' CPU time (eval.csv cpu_s): 0m06s of one core, 1.20x the price's 0m05s" in (
+        result.output
+    )
+    (tmp_path / SMOKE_RUNS[0] / "eval.csv").write_text(
+        header.replace(",cpu_s", "") + "500,4,1,0,1\n"
+    )
+    assert "CPU time" not in CliRunner().invoke(cli, ["study", "bills", str(tmp_path)]).output
+    (tmp_path / SMOKE_RUNS[0] / "eval.csv").write_text(header + "500,4,x,1,0,1\n")
+    damaged = CliRunner().invoke(cli, ["study", "bills", str(tmp_path)])
+    assert damaged.exit_code == 2 and "eval.csv cannot be read" in damaged.output
 
 
 def test_runs_the_recorded_command_does_not_plan_are_not_compared(tmp_path: Path) -> None:

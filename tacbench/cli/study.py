@@ -277,6 +277,12 @@ def bills(results: tuple[Path, ...], calibrate: bool) -> None:
             line += f"calibrated): took {ratio:.2f}x the price, the price {verdict} 25 % of it"
             if took.cpu_class not in (None, here):
                 line += " (another class: not the test)"
+            if took.cpu_s is not None:  # what other work stretches much less than the wall time
+                core_s = priced.core_hours * 3600
+                line += (
+                    f"\n  its runs' CPU time (eval.csv cpu_s): {duration(took.cpu_s)} of one core, "
+                    f"{took.cpu_s / core_s:.2f}x the price's {duration(core_s)}"
+                )
         load = load_note(took.load_average, took.cores, took.workers or 0)  # a bill's, or ""
         if load:
             line += f"\n  while it ran, {load}"

@@ -12,6 +12,11 @@ it in words).
 A sweep with a run that did not reach its budget (failed, interrupted or still running) is not
 compared with its price: the price trains every run to its budget.
 
+The runs' own CPU seconds (``eval.csv``'s ``cpu_s`` at their last evaluation, each run's share
+of its process's) add up to the core-hours the sweep spent, where every run records them: other
+work on the machine stretches them much less than the wall time, so they test the price's rates
+also for a sweep that shared the machine.
+
 Repricing a command plans it into an empty folder, so that runs already trained do not price
 it, and prices that plan as the dry run does (:func:`tacbench.sweep.dry_run.price`), with the
 calibrations stored for this class.
@@ -19,6 +24,7 @@ calibrations stored for this class.
 
 from __future__ import annotations
 
+import csv
 import datetime
 import tempfile
 from collections import Counter, defaultdict
@@ -55,6 +61,7 @@ class Took:
     unfinished: Mapping[str, int] = field(default_factory=dict)  # state -> runs, if not complete
     load_average: float | None = None  # a local sweep's bill: the machine's mean load meanwhile
     cores: int | None = None  # and its cores
+    cpu_s: float | None = None  # the runs' CPU seconds (eval.csv); None if one does not record it
 
     @property
     def comparable(self) -> bool:
@@ -74,6 +81,7 @@ def sweeps(results: Path) -> list[Took]:
     updated: dict[str, list[datetime.datetime]] = defaultdict(list)
     keys: dict[str, set[str]] = defaultdict(set)
     unfinished: dict[str, Counter[str]] = defaultdict(Counter)
+    cpu: dict[str, list[float | None]] = defaultdict(list)
     for config_path in sorted(results.rglob("config.json")):
         status_path = config_path.with_name("status.json")
         if not status_path.exists():
@@ -84,6 +92,7 @@ def sweeps(results: Path) -> list[Took]:
             continue
         created[command].append(_time(config, "created", config_path))
         keys[command].add(_key(config_path.parent))
+        cpu[command].append(_cpu_seconds(config_path.with_name("eval.csv")))
         status = runs.read_json(status_path, ADVICE)
         updated[command].append(_time(status, "updated", status_path))
         if status.get("state") != "complete":
@@ -93,6 +102,8 @@ def sweeps(results: Path) -> list[Took]:
     for command in sorted(created, key=lambda c: min(created[c])):
         bill, found = bills.get(command), frozenset(keys[command])
         left = dict(sorted(unfinished[command].items()))
+        recorded = [s for s in cpu[command] if s is not None]
+        cpu_s = sum(recorded) if len(recorded) == len(cpu[command]) else None
         if bill is not None and _created_every_run(bill, min(created[command])):
             took.append(
                 Took(
@@ -106,12 +117,26 @@ def sweeps(results: Path) -> list[Took]:
                     left,
                     bill.get("load_average"),
                     bill.get("cores"),
+                    cpu_s,
                 )
             )
         else:  # no bill, or one of a sweep that resumed runs another had started
             wall = (max(updated[command]) - min(created[command])).total_seconds()
-            took.append(Took(command, found, wall, None, RUN_RECORDS, unfinished=left))
+            took.append(Took(command, found, wall, None, RUN_RECORDS, unfinished=left, cpu_s=cpu_s))
     return took
+
+
+def _cpu_seconds(eval_csv: Path) -> float | None:
+    """The run's CPU seconds at its last evaluation, or None: no eval.csv, no row, or a run
+    begun before eval.csv logged ``cpu_s`` (an unreadable file says so in its own words)."""
+    if not eval_csv.exists():
+        return None
+    try:
+        with eval_csv.open(newline="") as handle:
+            rows = list(csv.DictReader(handle))
+        return float(rows[-1]["cpu_s"]) if rows and rows[-1].get("cpu_s") else None
+    except (OSError, csv.Error, ValueError) as err:
+        raise TacbenchError(f"{eval_csv} cannot be read ({err}); {ADVICE}.") from None
 
 
 def _time(record: Mapping[str, Any], name: str, path: Path) -> datetime.datetime:
