@@ -128,7 +128,7 @@ def sweeps(results: Path) -> list[Took]:
 
 def _cpu_seconds(eval_csv: Path) -> float | None:
     """The run's CPU seconds at its last evaluation, or None: no eval.csv, no row, or a run
-    begun before eval.csv logged ``cpu_s`` (an unreadable file says so in its own words)."""
+    begun before eval.csv logged ``cpu_s``. A file that cannot be read is a TacbenchError."""
     if not eval_csv.exists():
         return None
     try:
