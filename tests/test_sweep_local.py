@@ -187,7 +187,8 @@ def test_a_member_with_a_damaged_csv_fails_alone_and_its_unit_trains_on(tmp_path
     healthy member of its unit completes in the same attempt (it used to fail every attempt
     with it and be given up), and the failure is recorded against the damaged run alone. The
     damaged run is not retried (it used to be, until given up, though every attempt is refused
-    alike), and once its CSV is restored the same command completes it."""
+    alike), and a refusal does not count towards --max-retries: even with none allowed, once
+    its CSV is restored the same command completes it."""
     tiny = {"total_steps": 400, "learning_starts": 100, "batch_size": 32, "eval_every": 100}
     tiny |= {"eval_episodes": 1, "checkpoint_every": 100, "log_every": 100}
     preset = Preset(
@@ -201,11 +202,14 @@ def test_a_member_with_a_damaged_csv_fails_alone_and_its_unit_trains_on(tmp_path
     rows = original.splitlines(keepends=True)
     changed = rows[0] + rows[1].replace(",", ",9", 2) + "".join(rows[2:])
     eval_csv.write_text(changed)
-    result = driver.run_sweep(preset, tmp_path, driver.Options(workers=1))
+    result = driver.run_sweep(preset, tmp_path, driver.Options(workers=1, max_retries=0))
     assert result.exit_code == 1
     counts = result.summary["counts"]
     assert (counts["complete"], counts["given_up"], counts["cannot_resume"]) == (1, 0, 1)
     assert "1 run cannot resume from its files, so the sweep did not retry it" in result.text
+    assert "0 failed (0 given up), 1 partial, 0 not started; 1 cannot resume from its files" in (
+        result.text
+    )
     status = run_status(stopped[0].directory)
     assert (status["state"], status["step"]) == ("complete", 400)
     (failed,) = result.summary["unfinished"]
@@ -213,9 +217,10 @@ def test_a_member_with_a_damaged_csv_fails_alone_and_its_unit_trains_on(tmp_path
     assert failed["state"] == "cannot resume"
     (failure,) = failed["failures"]
     assert failure["reason"].startswith(f"DamagedRun: cannot resume: {eval_csv} differs from")
+    assert failure["refused"] is True
     assert eval_csv.read_text() == changed  # nothing was changed
     eval_csv.write_text(original)
-    again = driver.run_sweep(preset, tmp_path, driver.Options(workers=1))
+    again = driver.run_sweep(preset, tmp_path, driver.Options(workers=1, max_retries=0))
     assert again.exit_code == 0
     assert (run_status(stopped[1].directory)["state"], again.summary["unfinished"]) == (
         "complete",

@@ -108,6 +108,22 @@ def test_a_run_failed_more_than_max_retries_is_given_up(
     assert _plan(out, driver.Options(max_retries=2)).count(action="retry") == 1
 
 
+def test_refusals_of_a_runs_files_do_not_count_towards_max_retries(tmp_path: Path) -> None:
+    """A refused run needs its files fixed, not more retries: counted, it was given up after
+    three sweeps (or at once with --max-retries 0) and stayed given up once they were fixed.
+    A failure recorded before refusals were marked still reads, and counts."""
+    (tmp_path / "sweep").mkdir()
+    older = {"time": "2026-12-05T01:00:00+00:00", "host": "vm", "step": 300, "reason": "nan"}
+    (tmp_path / "sweep" / "state.json").write_text(
+        json.dumps({"runs": {"r": {"failures": [older]}}})
+    )
+    history = state.SweepState(tmp_path)
+    history.add_failure("r", 300, "DamagedRun: cannot resume: ...", refused=True)
+    history.add_failure("r", 300, "DamagedRun: cannot resume: ...", refused=True)
+    assert [f.refused for f in state.SweepState(tmp_path).failures("r")] == [False, True, True]
+    assert history.failure_counts() == {"r": 1} and history.attempts_failed("r") == 1
+
+
 def test_a_failure_in_status_json_already_recorded_is_not_counted_again(tmp_path: Path) -> None:
     """A retry whose worker died before it reset status.json leaves the earlier failure there,
     behind the worker's own: it was counted again, and the run given up an attempt early."""

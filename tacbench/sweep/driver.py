@@ -209,11 +209,9 @@ def _billed_summary(out: Path, result: dict[str, Any]) -> Path | None:
         earlier = runs.read_json(path)
     except TacbenchError:  # none yet, or damaged: this sweep's summary replaces it
         return None
-    counts = earlier.get("counts")  # a count added since that summary was written is 0 there
-    if (
-        not isinstance(counts, dict)
-        or {**dict.fromkeys(result["counts"], 0), **counts} != result["counts"]
-    ):
+    counts = earlier.get("counts")
+    zeros = dict.fromkeys(result["counts"], 0)  # a count added since that summary is 0 there
+    if not isinstance(counts, dict) or {**zeros, **counts} != result["counts"]:
         return None
     bill = earlier.get("bill")
     priced = bill.get("priced_wall_s") if isinstance(bill, dict) else None
@@ -359,16 +357,18 @@ class _Driver:
                 reason = f"its worker ended at step {status.step:,}; the sweep did not stop it"
             if not failed_now and (not reason or self.stopping):
                 continue  # interrupted (or never started): resumes with the next sweep
-            self.history.add_failure(run.key, status.step, reason, self._host(finished))
-            n = len(self.history.failures(run.key))
-            if n > self.options.max_retries:
-                self.ended.add(run.key)
-                self.progress.message(f"failed ({n} attempts, giving up): {run.key}: {reason}")
-            elif result is not None and run.key in result.run_errors:
-                # checked before anything was written: every attempt would be refused alike
+            # checked before anything was written: every attempt would be refused alike
+            refused = result is not None and run.key in result.run_errors
+            host = self._host(finished)
+            self.history.add_failure(run.key, status.step, reason, host, refused=refused)
+            n = self.history.attempts_failed(run.key)
+            if refused:
                 self.ended.add(run.key)
                 self.refused.add(run.key)
                 self.progress.message(f"cannot resume, not retried: {run.key}: {reason}")
+            elif n > self.options.max_retries:
+                self.ended.add(run.key)
+                self.progress.message(f"failed ({n} attempts, giving up): {run.key}: {reason}")
             elif not self.stopping:
                 self.progress.message(f"failed (attempt {n}, retrying): {run.key}: {reason}")
                 (retry if status.state == "failed" else again).append(run)

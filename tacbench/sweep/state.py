@@ -54,12 +54,14 @@ def make_log_folder(out: Path) -> None:
 
 @dataclass(frozen=True)
 class Failure:
-    """One failed attempt of a run: when, where, at which step and why."""
+    """One failed attempt of a run: when, where, at which step and why; ``refused``: its files
+    could not resume, so nothing trained (not counted towards ``--max-retries``)."""
 
     time: str
     host: str
     step: int
     reason: str
+    refused: bool = False
 
 
 class SweepState:
@@ -78,12 +80,19 @@ class SweepState:
         return [Failure(**f) for f in self.runs.get(key, {}).get("failures", [])]
 
     def failure_counts(self) -> dict[str, int]:
-        """How many failures each run has had."""
-        return {key: len(entry.get("failures", [])) for key, entry in self.runs.items()}
+        """How many failures each run has had that count towards ``--max-retries``."""
+        return {key: self.attempts_failed(key) for key in self.runs}
 
-    def add_failure(self, key: str, step: int, reason: str, host: str = "") -> None:
-        """Record a failed attempt and save."""
-        self._append(key, step, reason, host or socket.gethostname())
+    def attempts_failed(self, key: str) -> int:
+        """How many of the run's attempts failed, refusals of its files left out: fixing them
+        is what a refused run needs, not more retries."""
+        return sum(not f.refused for f in self.failures(key))
+
+    def add_failure(
+        self, key: str, step: int, reason: str, host: str = "", *, refused: bool = False
+    ) -> None:
+        """Record a failed attempt (``refused``: its files could not resume) and save."""
+        self._append(key, step, reason, host or socket.gethostname(), refused)
         self.save()
 
     def note_failed_status(self, key: str, step: int, reason: str) -> None:
@@ -94,8 +103,8 @@ class SweepState:
         if all((f.step, f.reason) != (step, reason) for f in self.failures(key)):
             self._append(key, step, reason, "(from status.json)")
 
-    def _append(self, key: str, step: int, reason: str, host: str) -> None:
-        failure = Failure(runs.now_iso(), host, step, reason)
+    def _append(self, key: str, step: int, reason: str, host: str, refused: bool = False) -> None:
+        failure = Failure(runs.now_iso(), host, step, reason, refused)
         self.runs.setdefault(key, {}).setdefault("failures", []).append(vars(failure))
 
     def node(self, key: str) -> str | None:
@@ -117,12 +126,15 @@ class SweepState:
 
 def _well_formed(entries: Any) -> bool:
     """Whether ``entries`` is state.json's ``runs``: by run key, failures like :class:`Failure`
-    and, optionally, a node."""
+    (``refused`` absent from those recorded before it was) and, optionally, a node."""
     fields = set(Failure.__dataclass_fields__)
     return isinstance(entries, dict) and all(
         isinstance(entry, dict)
         and isinstance(entry.get("failures", []), list)
-        and all(isinstance(f, dict) and set(f) == fields for f in entry.get("failures", []))
+        and all(
+            isinstance(f, dict) and set(f) in (fields, fields - {"refused"})
+            for f in entry.get("failures", [])
+        )
         for entry in entries.values()
     )
 

@@ -98,6 +98,12 @@ def summary_text(summary: dict[str, Any], command: str) -> str:
         f"{c['complete']} complete, {c['failed']} failed ({c['given_up']} given up), "
         f"{c['partial']} partial, {c['new']} not started"
         + (
+            f"; {c['cannot_resume']} cannot resume from "
+            f"{'its' if c['cannot_resume'] == 1 else 'their'} files"
+            if c["cannot_resume"]
+            else ""
+        )
+        + (
             f"; {c['recovered_after_failures']} completed after failed attempts"
             if c["recovered_after_failures"]
             else ""
