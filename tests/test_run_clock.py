@@ -14,6 +14,7 @@ import pandas as pd
 import pytest
 import torch
 
+from tacbench import runs
 from tacbench.report.series import read_series
 from tacbench.runs import EVAL_COLUMNS, RunClock, clock, files
 from tests.helpers import assert_same_results, checkpoint_state, tiny_configs, train
@@ -47,11 +48,14 @@ def test_members_share_their_process_cpu_time_while_they_train(
     assert runs[0].cpu_s == 20.0
 
 
-def _fake_clocks(monkeypatch: pytest.MonkeyPatch, seconds: float, members: int = 1) -> None:
+def _fake_clocks(
+    monkeypatch: pytest.MonkeyPatch, seconds: float, members: int = 1, cpu_clocks: int = 1
+) -> None:
     """Both clocks read 0 when a trainer makes its ``members`` clocks (the CPU clock once: its
-    members share it) and ``seconds`` ever after: each session of a run adds exactly
-    ``seconds`` to the wall clock of each member and ``seconds / members`` to its CPU clock."""
-    for name, first in (("perf_counter", members), ("process_time", 1)):
+    members share it; ``cpu_clocks`` times where they do not) and ``seconds`` ever after: each
+    session of a run adds exactly ``seconds`` to the wall clock of each member and ``seconds /
+    members`` to its CPU clock (``seconds`` where it logs the whole process's)."""
+    for name, first in (("perf_counter", members), ("process_time", cpu_clocks)):
         readings = itertools.chain([0.0] * first, itertools.repeat(seconds))
         monkeypatch.setattr(clock, name, readings.__next__)
 
@@ -142,25 +146,48 @@ def test_members_resumed_together_keep_their_own_clocks(
 def test_a_member_that_fails_leaves_its_cpu_share_to_the_others(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """Member 0's loss turns non-finite at its first update: from then on member 1 alone is
-    charged its process's CPU time."""
+    """Each update costs one CPU second (a fake clock), and member 0's loss turns non-finite at
+    the first: the two split that second, and member 1 alone is charged every later one."""
     from tacbench.tac import update as tac_update
     from tacbench.training import loop
+
+    updates = [0]
 
     def failing(agent: Any, sample: Any, c: Any, subset: Any) -> Any:
         metrics = tac_update.update(agent, sample, c, subset)
         metrics[:1] = float("nan")
+        updates[0] += 1
         return metrics
 
-    stopped: list[int] = []
-    stop = clock.CpuShares.stop
-
-    def recorded(shares: clock.CpuShares, run: int) -> None:
-        stopped.append(run)
-        stop(shares, run)
-
     monkeypatch.setattr(loop, "update", failing)
-    monkeypatch.setattr(clock.CpuShares, "stop", recorded)
+    monkeypatch.setattr(clock, "process_time", lambda: float(updates[0]))
     outcomes = train(tmp_path, tiny_configs("tac", seeds=(0, 10)))
     assert [o.state for o in outcomes] == ["failed", "complete"]
-    assert stopped == [0]
+    survivor = pd.read_csv(outcomes[1].directory / "eval.csv")["cpu_s"].tolist()
+    assert updates[0] > 100 and survivor[-1] == updates[0] - 0.5
+
+
+def test_a_run_begun_before_members_split_cpu_s_goes_on_logging_its_process(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Its config.json has no cpu_clock, and its first session logged the whole process's CPU
+    seconds: resumed, it goes on doing so, rather than switch to a share within one column."""
+    from tacbench.training import loop
+
+    configs = tiny_configs("tac", seeds=(0, 10))
+    with monkeypatch.context() as older:
+        metadata = runs.run_metadata
+
+        def without_the_clock(*args: Any, **kwargs: Any) -> dict[str, Any]:
+            return {k: v for k, v in metadata(*args, **kwargs).items() if k != "cpu_clock"}
+
+        older.setattr(runs, "run_metadata", without_the_clock)
+        older.setattr(loop, "RunClock", lambda wall_s, cpu_s, *shared: RunClock(wall_s, cpu_s))
+        _fake_clocks(older, 1000.0, members=2, cpu_clocks=3)  # the group's, then each member's
+        stopped = train(tmp_path, configs, stop=lambda step: step >= 730)
+    _fake_clocks(monkeypatch, 50.0, members=2, cpu_clocks=3)
+    resumed = train(tmp_path, configs, resume=True)
+    assert [o.state for o in (*stopped, *resumed)] == ["interrupted"] * 2 + ["complete"] * 2
+    for outcome in resumed:
+        evals = pd.read_csv(outcome.directory / "eval.csv")
+        assert evals["cpu_s"].tolist() == evals["wall_s"].tolist() == [1000.0, 1050.0, 1050.0]

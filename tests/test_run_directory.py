@@ -24,7 +24,7 @@ from tests.helpers import LEARNERS, assert_tensorboard_matches_csvs, tiny_config
 pytestmark = pytest.mark.smoke
 
 METADATA_KEYS = {"algo", "env", "variant", "seed", "q", "alpha", "total_steps", "command"}
-METADATA_KEYS |= {"versions", "git_commit", "host", "created", "config"}
+METADATA_KEYS |= {"cpu_clock", "versions", "git_commit", "host", "created", "config"}
 TASKS = ("Hopper-v4", "Pusher-v5")
 
 

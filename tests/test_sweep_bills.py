@@ -167,6 +167,11 @@ def test_the_runs_cpu_time_is_set_beside_the_price_where_every_run_records_it(
     assert "its runs' CPU time (eval.csv cpu_s): 0m06s of one core, 1.20x the price's 0m05s" in (
         result.output
     )
+    for key in SMOKE_RUNS:  # begun before members split cpu_s: each logged its pair's
+        config = json.loads((tmp_path / key / "config.json").read_text())
+        (tmp_path / key / "config.json").write_text(json.dumps({**config, "members": [0, 10]}))
+    halved = CliRunner().invoke(cli, ["study", "bills", str(tmp_path)]).output
+    assert "its runs' CPU time (eval.csv cpu_s): 0m03s of one core, 0.60x the price's" in halved
     (tmp_path / SMOKE_RUNS[0] / "eval.csv").write_text(
         header.replace(",cpu_s", "") + "500,4,1,0,1\n"
     )

@@ -333,10 +333,9 @@ def test_a_run_that_records_cpu_time_is_priced_by_it(tmp_path: Path) -> None:
     run = plan.build_runs(narrow(SMOKE, Narrowing(algos=("tac",))))[0]
     directory = _fake_run(tmp_path, run, {"state": "complete", "step": 1000})
     metadata = runs.read_json(directory / "config.json")
-    runs.atomic_write_json(
-        directory / "config.json",
-        {**metadata, "config": {**metadata["config"], "threads": 2}, "members": [0, 10]},
-    )
+    settings = {**metadata["config"], "threads": 2}
+    older = {**metadata, "config": settings, "members": [0, 10]}  # before members split cpu_s
+    runs.atomic_write_json(directory / "config.json", {**older, "cpu_clock": "share"})
     header = "step,wall_s,cpu_s,return_mean,return_std,length_mean\n"
     # under load: the wall clock ran 6 s from step 500 to 1,000; this member's share of its
     # process's CPU seconds (2 threads, 2 members) 1 s
@@ -346,6 +345,8 @@ def test_a_run_that_records_cpu_time_is_priced_by_it(tmp_path: Path) -> None:
     assert cost.rates(tmp_path, planned)[("tac", "Hopper-v4")] == cost.Rate(
         0.002, f"measured: 1 run under {tmp_path}"
     )
+    runs.atomic_write_json(directory / "config.json", older)  # its cpu_s: the whole process's
+    assert cost.run_seconds_per_step(directory) == pytest.approx(1.0 / 500 / 2)
     (directory / "eval.csv").write_text(header + "500,4.0,,1,0,1\n1000,10.0,3.5,1,0,1\n")
     assert cost.run_seconds_per_step(directory) == pytest.approx(6.0 / 500 * 2 / 2)
     assert cost.rates(tmp_path, planned)[("tac", "Hopper-v4")].source == (

@@ -12,7 +12,27 @@ the dry run prices steps left from CPU seconds where a run records them
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from time import perf_counter, process_time
+from typing import Any
+
+CPU_CLOCK = "share"
+"""config.json's ``cpu_clock`` in a run whose ``cpu_s`` is its share of its process's CPU seconds.
+A run begun without it (on 7 December 2026, before members split them) logged the whole
+process's; it goes on doing so, and a reader divides by the members config.json lists."""
+
+
+def shares_cpu(metadata: Mapping[str, Any]) -> bool:
+    """Whether the run of config.json's ``metadata`` logs its share of its process's CPU seconds
+    (else the whole process's, which its members, as config.json lists them, shared)."""
+    return metadata.get("cpu_clock") == CPU_CLOCK
+
+
+def members_sharing(metadata: Mapping[str, Any]) -> int:
+    """What divides the run's ``cpu_s`` into its own: 1, or its first group's members where it
+    logged the whole process's (:func:`shares_cpu`)."""
+    members = metadata.get("members")
+    return 1 if shares_cpu(metadata) or not isinstance(members, list) else max(1, len(members))
 
 
 class CpuShares:

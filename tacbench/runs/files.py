@@ -28,6 +28,7 @@ from typing import IO, TYPE_CHECKING, Any, Literal
 
 from tacbench.errors import TacbenchError, one_line
 from tacbench.runs.checkpoints import DISK_ERRNOS, recorded_logs, write_durably
+from tacbench.runs.clock import shares_cpu
 from tacbench.runs.resume_checks import (
     START_OVER,
     DamagedRun,
@@ -236,6 +237,7 @@ class RunWriter:
         self._last_episode: tuple[int, float] | None = None  # (step, wall_s): for steps/s
         self._status_step = 0  # the step status.json holds
         self._eval_columns: tuple[str, ...] = EVAL_COLUMNS  # or, resuming an older run, its own
+        self.shares_cpu = True  # cpu_s is the run's share of its process's (runs.clock.CPU_CLOCK)
 
     @property
     def checkpoint_dir(self) -> Path:
@@ -280,6 +282,7 @@ class RunWriter:
                 "trained again"
             )
         self._eval_columns = _eval_columns(self.directory / "eval.csv")
+        self.shares_cpu = shares_cpu(metadata)
         for name, columns in self._csvs().items():
             file = f"{name}.csv"
             digest = None if recorded is None else recorded.get(file)

@@ -10,6 +10,7 @@ import subprocess
 from pathlib import Path
 from typing import Any, Protocol
 
+from tacbench.runs.clock import CPU_CLOCK
 from tacbench.runs.files import now_iso
 
 VERSIONED_PACKAGES = ("torch", "gymnasium", "mujoco", "stable_baselines3", "numpy")
@@ -78,6 +79,7 @@ def run_metadata(
         "alpha": config.alpha,
         "total_steps": config.total_steps,
         **fields,
+        "cpu_clock": CPU_CLOCK,
         "command": command,
         "versions": package_versions(),
         "git_commit": git_commit(),

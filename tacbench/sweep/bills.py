@@ -35,6 +35,7 @@ from typing import Any
 
 from tacbench import runs
 from tacbench.errors import TacbenchError
+from tacbench.runs.clock import members_sharing
 from tacbench.sweep import calibration, driver, dry_run
 from tacbench.sweep.options import Options
 from tacbench.sweep.presets import Preset
@@ -92,7 +93,8 @@ def sweeps(results: Path) -> list[Took]:
             continue
         created[command].append(_time(config, "created", config_path))
         keys[command].add(_key(config_path.parent))
-        cpu[command].append(_cpu_seconds(config_path.with_name("eval.csv")))
+        seconds = _cpu_seconds(config_path.with_name("eval.csv"))
+        cpu[command].append(None if seconds is None else seconds / members_sharing(config))
         status = runs.read_json(status_path, ADVICE)
         updated[command].append(_time(status, "updated", status_path))
         if status.get("state") != "complete":

@@ -95,7 +95,10 @@ class GroupTrainer:
         for note in self.resume_notes:
             self.progress.message(f"{note}; resuming from step {self.step}")
         shares = CpuShares(len(self.configs))  # the process's CPU time, split between members
-        self.clocks = [RunClock(w, c, shares, i) for i, (w, c) in enumerate(self.clock_offsets)]
+        self.clocks = [  # a run begun before the split logs the whole process's (runs.clock)
+            RunClock(w, c, shares, i) if self.writers[i].shares_cpu else RunClock(w, c)
+            for i, (w, c) in enumerate(self.clock_offsets)
+        ]
 
     # --- start and resume ----------------------------------------------------------------
     def _resume_or_start(self, directories: list[Path]) -> None:
