@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import pytest
 from click.testing import CliRunner
@@ -297,3 +298,26 @@ def test_a_recorded_command_this_tacbench_refuses_does_not_hide_the_other_bills(
     assert result.exit_code == 0, result.output
     assert f"{bogus}\n  cannot be priced here: this tacbench does not accept" in result.output
     assert result.output.count(SMOKE) == 1  # a folder given twice is read once
+
+
+def test_recalibrate_measures_each_kind_of_unit_once_for_every_sweep(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Two sweeps of one kind of unit: measured again once, replacing the stored calibration,
+    and both priced by the new one."""
+    _calibrate_smoke()
+    measured: list[int] = []
+
+    def measure(configs: Any) -> Calibration:
+        measured.append(len(configs))
+        return Calibration(2e-4, 4e-3, 1e-4, "2026-12-07", len(configs))
+
+    monkeypatch.setattr(calibration, "measure", measure)
+    for folder in ("first", "second"):
+        for key in SMOKE_RUNS:
+            _run(tmp_path / folder / key, SMOKE, "2026-12-05T01:00:00Z", "2026-12-05T01:00:10Z")
+    args = ["study", "bills", str(tmp_path / "first"), str(tmp_path / "second")]
+    result = CliRunner().invoke(cli, [*args, "--recalibrate"])
+    assert result.exit_code == 0, result.output
+    assert len(measured) == 1  # the smoke preset's TAC units are of one kind
+    assert result.output.count("took 1.00x the price, the price within 25 % of it") == 2

@@ -111,11 +111,37 @@ def test_the_dry_run_uses_the_calibration_of_every_unit_and_says_so(tmp_path: Pa
     assert f"{per_run / 1_000 * 1e3:.2f}" in row
 
 
-def test_calibrate_needs_a_dry_run(tmp_path: Path) -> None:
-    result = CliRunner().invoke(
-        cli, ["sweep", "--preset", "smoke", "--calibrate", "--out", str(tmp_path)]
+@pytest.mark.parametrize("flag", ["--calibrate", "--recalibrate"])
+def test_calibrate_needs_a_dry_run(tmp_path: Path, flag: str) -> None:
+    result = CliRunner().invoke(cli, ["sweep", "--preset", "smoke", flag, "--out", str(tmp_path)])
+    assert result.exit_code == 2 and f"{flag} prices a plan: give it with --dry-run" in (
+        result.output
     )
-    assert result.exit_code == 2 and "give it with --dry-run" in result.output
+
+
+def test_recalibrate_measures_every_unit_again_and_replaces_it(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A calibration of 6 December priced TRPO on HalfCheetah 1.4x short on 7 December on a
+    machine of the same class: --calibrate measured nothing (the unit was known), and only
+    deleting the store would measure it again. Each kind of unit is measured once."""
+    measured: list[int] = []
+
+    def measure(configs: Any) -> Calibration:
+        measured.append(len(configs))
+        return Calibration(2e-4, 3e-3, 6e-5, "2026-12-07", len(configs))
+
+    monkeypatch.setattr(calibration, "measure", measure)
+    configs = smoke_tac_unit()[:2]
+    key = calibration.unit_key(configs)
+    calibration.save({key: Calibration(1e-4, 2e-3, 5e-5, "2026-12-06", 2)})
+    assert calibration.calibrate([configs], report=lambda line: None)[key].learn == 2e-3
+    assert measured == []
+    args = ["sweep", "--preset", "smoke", "--algo", "tac", "--dry-run", "--out", str(tmp_path)]
+    result = CliRunner().invoke(cli, [*args, "--recalibrate"])
+    assert result.exit_code == 0, result.output
+    assert measured == [2] and calibration.load()[key].learn == 3e-3
+    assert "calibrating 1/1: tac Hopper-v4, 2 member(s)" in result.output
 
 
 def test_a_short_measurement_times_random_and_learning_steps(

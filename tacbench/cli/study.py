@@ -222,7 +222,13 @@ def sequential_analyse(results: Path, reps: int, out: Path | None) -> None:
     help="First calibrate, on this CPU class, the units it has not calibrated (a few minutes "
     "per kind of unit), as `tacbench sweep --dry-run --calibrate` does.",
 )
-def bills(results: tuple[Path, ...], calibrate: bool) -> None:
+@click.option(
+    "--recalibrate",
+    is_flag=True,
+    help="First measure every unit again, replacing this class's calibrations, as `tacbench "
+    "sweep --dry-run --recalibrate` does.",
+)
+def bills(results: tuple[Path, ...], calibrate: bool, recalibrate: bool) -> None:
     """What each sweep that trained the runs under RESULTS took, against what the dry run
     prices its command at on this CPU class (docs/sweep.md, "The price and the bill")."""
     from tacbench.cli.sweep import recorded_sweep
@@ -232,7 +238,6 @@ def bills(results: tuple[Path, ...], calibrate: bool) -> None:
     from tacbench.sweep.summary import load_note
 
     here = cpu_class()
-    report = (lambda line: click.echo(line, err=True)) if calibrate else None
     resolved = dict.fromkeys(folder.resolve() for folder in results)
     folders = [f for f in resolved if not any(p in resolved for p in f.parents)]  # each run once
     found = [took for folder in folders for took in sweep_bills.sweeps(folder)]
@@ -241,6 +246,7 @@ def bills(results: tuple[Path, ...], calibrate: bool) -> None:
             f"no run under {', '.join(map(str, results))} was trained by a tacbench sweep; "
             "name the folders of a sweep's runs (tacbench run's are not priced)."
         )
+    priceable = []
     for took in found:
         try:
             grid, options = recorded_sweep(took.command, Path("unused"))
@@ -249,7 +255,17 @@ def bills(results: tuple[Path, ...], calibrate: bool) -> None:
             continue
         if took.workers is not None:  # what it ran on, whatever the command left to the machine
             options = dataclasses.replace(options, workers=took.workers)
-        priced = sweep_bills.reprice(grid, options, took.keys, report)
+        priceable.append((took, grid, options))
+    if calibrate or recalibrate:  # each kind of unit once, whichever sweeps share it
+        from tacbench.sweep import calibration
+
+        calibration.calibrate(
+            [u for took, g, o in priceable for u in sweep_bills.units(g, o, took.keys)],
+            report=lambda line: click.echo(line, err=True),
+            again=recalibrate,
+        )
+    for took, grid, options in priceable:
+        priced = sweep_bills.reprice(grid, options, took.keys)
         runs = f"{took.runs} run{'s' if took.runs != 1 else ''}"
         ran_on = took.cpu_class or "CPU class not recorded"
         line = f"  took {duration(took.wall_s)} ({took.source}; {ran_on}"

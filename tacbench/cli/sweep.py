@@ -186,6 +186,12 @@ def _fixed_q(value: str) -> float:
     help="With --dry-run: first measure, by a short training of each kind of unit, what the "
     "plan's units cost on this CPU class, and keep it for later dry runs (a few minutes).",
 )
+@click.option(
+    "--recalibrate",
+    is_flag=True,
+    help="With --dry-run: measure the plan's units again, replacing what this class stored "
+    "(the same class on another host or day can run at another speed).",
+)
 @click.pass_context
 def sweep(ctx: click.Context, preset: str, **p: Any) -> None:
     """Train a preset grid of runs (or what is left of it) locally, on Ray or on Slurm; rerun
@@ -207,7 +213,7 @@ def sweep(ctx: click.Context, preset: str, **p: Any) -> None:
                 "--until-decided takes its seeds from the design (--interim-runs per interim, "
                 "the preset's seeds first): leave --seed out."
             )
-        if p["calibrate"]:
+        if p["calibrate"] or p["recalibrate"]:
             raise click.UsageError(
                 "--calibrate prices a plain sweep's plan: run the same sweep without "
                 "--until-decided with --dry-run --calibrate first; this dry run then prices the "
@@ -219,19 +225,22 @@ def sweep(ctx: click.Context, preset: str, **p: Any) -> None:
     if given:
         verb = "applies" if len(given) == 1 else "apply"
         raise click.UsageError(f"{' and '.join(given)} only {verb} with --until-decided.")
-    if p["calibrate"] and not p["dry_run"]:
-        raise click.UsageError("--calibrate prices a plan: give it with --dry-run.")
+    for flag in ("calibrate", "recalibrate"):
+        if p[flag] and not p["dry_run"]:
+            raise click.UsageError(f"--{flag} prices a plan: give it with --dry-run.")
     if p["dry_run"]:
         from tacbench.runs.files import check_writable
 
         check_writable(p["out"])  # as the sweep itself would, though the dry run writes nothing
         work, _ = driver.load_plan(grid, p["out"], options, save=False)
         driver.check_sizes(work, options)
-        if p["calibrate"]:
+        if p["calibrate"] or p["recalibrate"]:
             from tacbench.sweep import calibration
 
             calibration.calibrate(
-                calibration.unit_configs(work), report=lambda line: click.echo(line, err=True)
+                calibration.unit_configs(work),
+                report=lambda line: click.echo(line, err=True),
+                again=p["recalibrate"],
             )
         workers = options.worker_count()
         click.echo(dry_run.describe_plan(work, workers, options.group, options.workers_source()))

@@ -28,7 +28,7 @@ import csv
 import datetime
 import tempfile
 from collections import Counter, defaultdict
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -217,20 +217,20 @@ class Repriced:
     runs: int
 
 
-def reprice(
-    grid: Preset,
-    options: Options,
-    only: frozenset[str] | None = None,
-    report: Callable[[str], None] | None = None,
-) -> Repriced:
-    """The price of ``grid``'s plan with ``options`` (only the runs of keys ``only``: a study
-    may keep some of a sweep's runs), as the dry run gives it before the first run trains. With
-    ``report``, the plan's units this class has not calibrated are calibrated first
-    (``--dry-run --calibrate``), reporting their progress there."""
+def units(grid: Preset, options: Options, only: frozenset[str] | None = None) -> list[list[Any]]:
+    """The configs of each unit of ``grid``'s plan with ``options`` (only the runs of keys
+    ``only``), from scratch: what ``--calibrate`` measures for :func:`reprice`."""
     with tempfile.TemporaryDirectory(prefix="tacbench-reprice-") as empty:
         plan, _ = driver.load_plan(grid, Path(empty), options, save=False, only=only)
-        if report is not None:
-            calibration.calibrate(calibration.unit_configs(plan), report=report)
+    return calibration.unit_configs(plan)
+
+
+def reprice(grid: Preset, options: Options, only: frozenset[str] | None = None) -> Repriced:
+    """The price of ``grid``'s plan with ``options`` (only the runs of keys ``only``: a study
+    may keep some of a sweep's runs), as the dry run gives it before the first run trains, from
+    this class's calibrations."""
+    with tempfile.TemporaryDirectory(prefix="tacbench-reprice-") as empty:
+        plan, _ = driver.load_plan(grid, Path(empty), options, save=False, only=only)
         workers = options.worker_count()
         price = dry_run.price(plan, workers)
     return Repriced(

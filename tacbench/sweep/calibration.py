@@ -324,17 +324,18 @@ def env_step_seconds(env_id: str, steps: int | None = None) -> float:
 
 
 def calibrate(
-    units: Sequence[Sequence[Any]], report: Callable[[str], None] = print
+    units: Sequence[Sequence[Any]], report: Callable[[str], None] = print, *, again: bool = False
 ) -> dict[str, Calibration]:
-    """Measure every unit (a sequence of its configs) whose key this class has not calibrated,
-    store the results and return all of this class's calibrations. A unit that cannot be
-    measured (every member failed before the timed window) is reported and left out; the others
-    are stored."""
+    """Measure every unit (a sequence of its configs) whose key this class has not calibrated
+    (``again``: every unit, replacing what was stored: the same class on another host, or on a
+    busier day, can run at another speed), store the results and return all of this class's
+    calibrations. A unit that cannot be measured (every member failed before the timed window)
+    is reported and left out, a calibration stored before it kept; the others are stored."""
     known = load()
     todo: dict[str, Sequence[Any]] = {}
     for configs in units:
         key = unit_key(configs)
-        if key not in known and key not in todo:
+        if (again or key not in known) and key not in todo:
             todo[key] = configs
     if todo:  # before minutes of measuring whose results would have nowhere to go
         runs.check_writable(store_path().parent, "TACBENCH_CALIBRATION")
