@@ -43,7 +43,7 @@ def test_members_share_their_process_cpu_time_while_they_train(
     shares = clock.CpuShares(3)
     runs = [RunClock(0.0, 100.0 * k, shares, k) for k in range(3)]
     assert runs[0].cpu_s == 10.0  # process time 30
-    runs[1].stop()  # 30
+    shares.stop(1)  # 30
     assert (runs[1].cpu_s, runs[2].cpu_s) == (110.0, 220.0)  # 50, then 50
     assert runs[0].cpu_s == 20.0
 
@@ -143,28 +143,68 @@ def test_members_resumed_together_keep_their_own_clocks(
         ]
 
 
-def test_a_member_that_fails_leaves_its_cpu_share_to_the_others(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    """Each update costs one CPU second (a fake clock), and member 0's loss turns non-finite at
-    the first: the two split that second, and member 1 alone is charged every later one."""
+def _updates_cost_a_cpu_second(monkeypatch: pytest.MonkeyPatch, fail_member_0: bool) -> list[int]:
+    """Each update costs one CPU second (a fake process clock that counts them); with
+    ``fail_member_0``, member 0's loss turns non-finite at its first. Returns the counter."""
     from tacbench.tac import update as tac_update
     from tacbench.training import loop
 
     updates = [0]
 
-    def failing(agent: Any, sample: Any, c: Any, subset: Any) -> Any:
+    def counted(agent: Any, sample: Any, c: Any, subset: Any) -> Any:
         metrics = tac_update.update(agent, sample, c, subset)
-        metrics[:1] = float("nan")
+        if fail_member_0:
+            metrics[:1] = float("nan")
         updates[0] += 1
         return metrics
 
-    monkeypatch.setattr(loop, "update", failing)
+    monkeypatch.setattr(loop, "update", counted)
     monkeypatch.setattr(clock, "process_time", lambda: float(updates[0]))
+    return updates
+
+
+def _as_before_members_split_cpu_s(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Start runs as tacbench did before members split their process's CPU seconds: no
+    cpu_clock in config.json, and each member's cpu_s the whole process's."""
+    from tacbench.training import loop
+
+    metadata = runs.run_metadata
+
+    def without_the_clock(*args: Any, **kwargs: Any) -> dict[str, Any]:
+        return {k: v for k, v in metadata(*args, **kwargs).items() if k != "cpu_clock"}
+
+    monkeypatch.setattr(runs, "run_metadata", without_the_clock)
+    monkeypatch.setattr(loop, "RunClock", lambda wall_s, cpu_s, *shared: RunClock(wall_s, cpu_s))
+
+
+def test_a_member_that_fails_leaves_its_cpu_share_to_the_others(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Member 0's loss turns non-finite at the first update: the two split that update's
+    second, and member 1 alone is charged every later one."""
+    updates = _updates_cost_a_cpu_second(monkeypatch, fail_member_0=True)
     outcomes = train(tmp_path, tiny_configs("tac", seeds=(0, 10)))
     assert [o.state for o in outcomes] == ["failed", "complete"]
     survivor = pd.read_csv(outcomes[1].directory / "eval.csv")["cpu_s"].tolist()
     assert updates[0] > 100 and survivor[-1] == updates[0] - 0.5
+
+
+def test_a_failed_member_begun_before_the_split_leaves_its_share_too(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Seed 0 begun before members split cpu_s, seed 10 after, resumed as one group: seed 0
+    fails at the group's first update, and seed 10 is charged every later second (seed 0 kept
+    its slot in the split, and its share went to no one)."""
+    with monkeypatch.context() as older:
+        _as_before_members_split_cpu_s(older)
+        train(tmp_path, tiny_configs("tac", seeds=(0,)), stop=lambda step: step >= 730)
+    (alone,) = train(tmp_path, tiny_configs("tac", seeds=(10,)), stop=lambda step: step >= 730)
+    before = checkpoint_state(alone.directory)["cpu_s"]  # at step 730
+    updates = _updates_cost_a_cpu_second(monkeypatch, fail_member_0=True)
+    resumed = train(tmp_path, tiny_configs("tac", seeds=(0, 10)), resume=True)
+    assert [o.state for o in resumed] == ["failed", "complete"]
+    last = pd.read_csv(resumed[1].directory / "eval.csv")["cpu_s"].tolist()[-1]
+    assert updates[0] > 100 and last == pytest.approx(before + updates[0] - 0.5, abs=1e-3)
 
 
 def test_a_run_begun_before_members_split_cpu_s_goes_on_logging_its_process(
@@ -172,17 +212,9 @@ def test_a_run_begun_before_members_split_cpu_s_goes_on_logging_its_process(
 ) -> None:
     """Its config.json has no cpu_clock, and its first session logged the whole process's CPU
     seconds: resumed, it goes on doing so, rather than switch to a share within one column."""
-    from tacbench.training import loop
-
     configs = tiny_configs("tac", seeds=(0, 10))
     with monkeypatch.context() as older:
-        metadata = runs.run_metadata
-
-        def without_the_clock(*args: Any, **kwargs: Any) -> dict[str, Any]:
-            return {k: v for k, v in metadata(*args, **kwargs).items() if k != "cpu_clock"}
-
-        older.setattr(runs, "run_metadata", without_the_clock)
-        older.setattr(loop, "RunClock", lambda wall_s, cpu_s, *shared: RunClock(wall_s, cpu_s))
+        _as_before_members_split_cpu_s(older)
         _fake_clocks(older, 1000.0, members=2, cpu_clocks=3)  # the group's, then each member's
         stopped = train(tmp_path, configs, stop=lambda step: step >= 730)
     _fake_clocks(monkeypatch, 50.0, members=2, cpu_clocks=3)

@@ -86,8 +86,3 @@ class RunClock:
     def cpu_s(self) -> float:
         """This run's CPU seconds of training so far."""
         return self._cpu_offset + self._shares.share(self._run)
-
-    def stop(self) -> None:
-        """The run stopped training in this process; the runs trained with it share what the
-        process spends from now."""
-        self._shares.stop(self._run)

@@ -94,9 +94,9 @@ class GroupTrainer:
         self.progress = Progress(label, config.total_steps, self.step, config.eval_every, quiet)
         for note in self.resume_notes:
             self.progress.message(f"{note}; resuming from step {self.step}")
-        shares = CpuShares(len(self.configs))  # the process's CPU time, split between members
+        self.cpu_shares = CpuShares(len(self.configs))  # the process's CPU, split by members
         self.clocks = [  # a run begun before the split logs the whole process's (runs.clock)
-            RunClock(w, c, shares, i) if self.writers[i].shares_cpu else RunClock(w, c)
+            RunClock(w, c, self.cpu_shares, i) if self.writers[i].shares_cpu else RunClock(w, c)
             for i, (w, c) in enumerate(self.clock_offsets)
         ]
 
@@ -318,7 +318,7 @@ class GroupTrainer:
                 )
             reason += f"; {checkpoints.KEPT if self.chunk_added else checkpoints.NONE_KEPT}"
             self.writers[k].status("failed", self.step, reason)
-            self.clocks[k].stop()
+            self.cpu_shares.stop(k)  # the members still training share its CPU from now
             self.progress.message(f"seed {self.seeds[k]} failed: {reason}")
             outcomes.append(
                 Outcome(self.seeds[k], self.writers[k].directory, "failed", self.step, reason)
