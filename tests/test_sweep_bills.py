@@ -4,6 +4,7 @@ bills``): bills and run records, the repricing of a recorded command, and the ve
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 from typing import Any
 
@@ -168,9 +169,21 @@ def test_the_runs_cpu_time_is_set_beside_the_price_where_every_run_records_it(
     assert "its runs' CPU time (eval.csv cpu_s): 0m06s of one core, 1.20x the price's 0m05s" in (
         result.output
     )
+    copy = tmp_path / "copy" / SMOKE_RUNS[0]  # one run found twice counts once
+    copy.parent.mkdir(parents=True)
+    shutil.copytree(tmp_path / SMOKE_RUNS[0], copy)
+    twice = CliRunner().invoke(cli, ["study", "bills", str(tmp_path)]).output
+    assert "0m06s of one core, 1.20x the price's 0m05s" in twice
+    shutil.rmtree(tmp_path / "copy")
+    for key in SMOKE_RUNS:  # runs that say their cpu_s is their share: never divided
+        config = json.loads((tmp_path / key / "config.json").read_text())
+        shared = {**config, "members": [0, 10], "cpu_clock": "share"}
+        (tmp_path / key / "config.json").write_text(json.dumps(shared))
+    assert "0m06s of one core" in CliRunner().invoke(cli, ["study", "bills", str(tmp_path)]).output
     for key in SMOKE_RUNS:  # begun before members split cpu_s: each logged its pair's
         config = json.loads((tmp_path / key / "config.json").read_text())
-        (tmp_path / key / "config.json").write_text(json.dumps({**config, "members": [0, 10]}))
+        del config["cpu_clock"]
+        (tmp_path / key / "config.json").write_text(json.dumps(config))
     halved = CliRunner().invoke(cli, ["study", "bills", str(tmp_path)]).output
     assert "its runs' CPU time (eval.csv cpu_s): 0m03s of one core, 0.60x the price's" in halved
     (tmp_path / SMOKE_RUNS[0] / "eval.csv").write_text(

@@ -82,7 +82,7 @@ def sweeps(results: Path) -> list[Took]:
     updated: dict[str, list[datetime.datetime]] = defaultdict(list)
     keys: dict[str, set[str]] = defaultdict(set)
     unfinished: dict[str, Counter[str]] = defaultdict(Counter)
-    cpu: dict[str, list[float | None]] = defaultdict(list)
+    cpu: dict[str, dict[str, float | None]] = defaultdict(dict)  # by run key: a copy counts once
     for config_path in sorted(results.rglob("config.json")):
         status_path = config_path.with_name("status.json")
         if not status_path.exists():
@@ -92,9 +92,10 @@ def sweeps(results: Path) -> list[Took]:
         if not isinstance(command, str) or not command.startswith("tacbench sweep "):
             continue
         created[command].append(_time(config, "created", config_path))
-        keys[command].add(_key(config_path.parent))
+        key = _key(config_path.parent)
+        keys[command].add(key)
         seconds = _cpu_seconds(config_path.with_name("eval.csv"))
-        cpu[command].append(None if seconds is None else seconds / members_sharing(config))
+        cpu[command][key] = None if seconds is None else seconds / members_sharing(config)
         status = runs.read_json(status_path, ADVICE)
         updated[command].append(_time(status, "updated", status_path))
         if status.get("state") != "complete":
@@ -104,7 +105,7 @@ def sweeps(results: Path) -> list[Took]:
     for command in sorted(created, key=lambda c: min(created[c])):
         bill, found = bills.get(command), frozenset(keys[command])
         left = dict(sorted(unfinished[command].items()))
-        recorded = [s for s in cpu[command] if s is not None]
+        recorded = [s for s in cpu[command].values() if s is not None]
         cpu_s = sum(recorded) if len(recorded) == len(cpu[command]) else None
         if bill is not None and _created_every_run(bill, min(created[command])):
             took.append(
