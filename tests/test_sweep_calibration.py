@@ -144,6 +144,24 @@ def test_recalibrate_measures_every_unit_again_and_replaces_it(
     assert "calibrating 1/1: tac Hopper-v4, 2 member(s)" in result.output
 
 
+def test_a_unit_that_cannot_be_measured_again_keeps_its_calibration_and_says_so(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    def fails(configs: Any) -> Calibration:
+        raise TacbenchError("every member failed before the timed window")
+
+    monkeypatch.setattr(calibration, "measure", fails)
+    configs = smoke_tac_unit()[:2]
+    key = calibration.unit_key(configs)
+    calibration.save({key: Calibration(1e-4, 2e-3, 5e-5, "2026-12-06", 2)})
+    lines: list[str] = []
+    assert calibration.calibrate([configs], lines.append, again=True)[key].learn == 2e-3
+    assert calibration.load()[key].measured == "2026-12-06"
+    assert lines[-1].endswith(
+        "failed before the timed window; the calibration of 2026-12-06 is kept"
+    )
+
+
 def test_a_short_measurement_times_random_and_learning_steps(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:

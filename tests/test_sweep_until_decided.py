@@ -314,8 +314,9 @@ def test_sequential_flags_need_until_decided() -> None:
     decided = ["sweep", "--preset", "smoke", "--until-decided", "--dry-run"]
     result = CliRunner().invoke(cli, [*decided, "--seed", "0"])
     assert result.exit_code == 2 and "leave --seed out" in result.output
-    result = CliRunner().invoke(cli, [*decided, "--calibrate"])
-    assert result.exit_code == 2 and "--calibrate prices a plain sweep's plan" in result.output
+    for flag in ("--calibrate", "--recalibrate"):
+        result = CliRunner().invoke(cli, [*decided, flag])
+        assert result.exit_code == 2 and f"{flag} prices a plain sweep's plan" in result.output
 
 
 def test_q_auto_is_refused_in_one_line_saying_where_populations_train(tmp_path: Path) -> None:

@@ -213,10 +213,10 @@ def sweep(ctx: click.Context, preset: str, **p: Any) -> None:
                 "--until-decided takes its seeds from the design (--interim-runs per interim, "
                 "the preset's seeds first): leave --seed out."
             )
-        if p["calibrate"] or p["recalibrate"]:
+        if flag := next((f for f in ("calibrate", "recalibrate") if p[f]), None):
             raise click.UsageError(
-                "--calibrate prices a plain sweep's plan: run the same sweep without "
-                "--until-decided with --dry-run --calibrate first; this dry run then prices the "
+                f"--{flag} prices a plain sweep's plan: run the same sweep without "
+                f"--until-decided with --dry-run --{flag} first; this dry run then prices the "
                 "same kinds of unit from the rates it stored."
             )
         _until_decided(ctx, grid, p["out"], options, sequential, p["dry_run"])

@@ -350,7 +350,8 @@ def calibrate(
         try:
             new[key] = measure(configs)
         except TacbenchError as err:  # the other units' measurements are still stored
-            report(f"  not calibrated: {err}")
+            kept = f"; the calibration of {known[key].measured} is kept" if key in known else ""
+            report(f"  not calibrated: {err}{kept}")
             continue
         except KeyboardInterrupt:  # a stop signal, or a second one: keep what was measured
             kept = f"the units measured before it are stored in {save(new)}" if new else ""
