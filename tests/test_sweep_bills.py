@@ -116,14 +116,14 @@ def test_a_recorded_command_is_repriced_from_scratch_as_the_dry_run_prices_it(
     tmp_path: Path,
 ) -> None:
     grid, options = recorded_sweep(SMOKE, tmp_path / "ignored")
-    assert not bills.reprice(grid, options).calibrated  # this class has no calibration yet
+    assert not bills.reprice(bills.fresh_plan(grid, options), options).calibrated  # none yet
     per_run = _calibrate_smoke()
-    priced = bills.reprice(grid, options)
+    priced = bills.reprice(bills.fresh_plan(grid, options), options)
     assert priced.calibrated and priced.workers == 1
     assert priced.wall_s == pytest.approx(4 * per_run)  # one unit: two q times two seeds
     assert priced.core_hours == pytest.approx(4 * per_run / 3600)
     assert priced.runs == 4
-    kept = bills.reprice(grid, options, only=frozenset(SMOKE_RUNS[:2]))  # a study kept two
+    kept = bills.reprice(bills.fresh_plan(grid, options, frozenset(SMOKE_RUNS[:2])), options)
     assert kept.runs == 2 and not kept.calibrated  # a unit of two members: another calibration
 
 

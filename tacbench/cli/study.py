@@ -255,17 +255,17 @@ def bills(results: tuple[Path, ...], calibrate: bool, recalibrate: bool) -> None
             continue
         if took.workers is not None:  # what it ran on, whatever the command left to the machine
             options = dataclasses.replace(options, workers=took.workers)
-        priceable.append((took, grid, options))
+        priceable.append((took, sweep_bills.fresh_plan(grid, options, took.keys), options))
     if calibrate or recalibrate:  # each kind of unit once, whichever sweeps share it
         from tacbench.sweep import calibration
 
         calibration.calibrate(
-            [u for took, g, o in priceable for u in sweep_bills.units(g, o, took.keys)],
+            [unit for _, work, _ in priceable for unit in calibration.unit_configs(work)],
             report=lambda line: click.echo(line, err=True),
             again=recalibrate,
         )
-    for took, grid, options in priceable:
-        priced = sweep_bills.reprice(grid, options, took.keys)
+    for took, work, options in priceable:
+        priced = sweep_bills.reprice(work, options)
         runs = f"{took.runs} run{'s' if took.runs != 1 else ''}"
         ran_on = took.cpu_class or "CPU class not recorded"
         line = f"  took {duration(took.wall_s)} ({took.source}; {ran_on}"

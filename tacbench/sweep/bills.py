@@ -36,8 +36,9 @@ from typing import Any
 from tacbench import runs
 from tacbench.errors import TacbenchError
 from tacbench.runs.clock import members_sharing
-from tacbench.sweep import calibration, driver, dry_run
+from tacbench.sweep import driver, dry_run
 from tacbench.sweep.options import Options
+from tacbench.sweep.plan import SweepPlan
 from tacbench.sweep.presets import Preset
 
 BILL = "bill"
@@ -218,28 +219,26 @@ class Repriced:
     runs: int
 
 
-def units(grid: Preset, options: Options, only: frozenset[str] | None = None) -> list[list[Any]]:
-    """The configs of each unit of ``grid``'s plan with ``options`` (only the runs of keys
-    ``only``), from scratch: what ``--calibrate`` measures for :func:`reprice`."""
+def fresh_plan(grid: Preset, options: Options, only: frozenset[str] | None = None) -> SweepPlan:
+    """``grid``'s plan with ``options`` (only the runs of keys ``only``: a study may keep some of
+    a sweep's runs) as it stood before the first run trained: planned into an empty folder, gone
+    when this returns (pricing the plan finds no runs there, as in the empty folder)."""
     with tempfile.TemporaryDirectory(prefix="tacbench-reprice-") as empty:
-        plan, _ = driver.load_plan(grid, Path(empty), options, save=False, only=only)
-    return calibration.unit_configs(plan)
+        return driver.load_plan(grid, Path(empty), options, save=False, only=only)[0]
 
 
-def reprice(grid: Preset, options: Options, only: frozenset[str] | None = None) -> Repriced:
-    """The price of ``grid``'s plan with ``options`` (only the runs of keys ``only``: a study
-    may keep some of a sweep's runs), as the dry run gives it before the first run trains, from
-    this class's calibrations."""
-    with tempfile.TemporaryDirectory(prefix="tacbench-reprice-") as empty:
-        plan, _ = driver.load_plan(grid, Path(empty), options, save=False, only=only)
-        workers = options.worker_count()
-        price = dry_run.price(plan, workers)
+def reprice(work: SweepPlan, options: Options) -> Repriced:
+    """The price of a :func:`fresh_plan` on ``options``' workers, as the dry run gives it before
+    the first run trains, from this class's calibrations (``--calibrate`` measures the plan's
+    units: :func:`tacbench.sweep.calibration.unit_configs`)."""
+    workers = options.worker_count()
+    price = dry_run.price(work, workers)
     return Repriced(
         price.wall_seconds,
         price.core_seconds / 3600,
         all(g.source == dry_run.CALIBRATED for g in price.groups),
         workers,
-        len(plan.runs),
+        len(work.runs),
     )
 
 
