@@ -27,7 +27,7 @@ from tacbench import runs
 from tacbench.errors import TacbenchError
 from tacbench.members import resolve_compile
 from tacbench.paper import ENV_IDS, HYPERPARAMETERS, PROFILES, paper_task
-from tacbench.runs.clock import members_sharing
+from tacbench.runs.clock import shares_cpu
 
 # CPU seconds per member-step with the paper's settings, one torch thread, measured with
 # :func:`measure`: learning from step 1,000, CPU time (time.process_time, not inflated by other
@@ -174,7 +174,8 @@ def _seconds_per_step(eval_csv: Path, metadata: dict[str, Any]) -> tuple[float, 
     if step_b <= step_a or wall_b <= wall_a or step_a < start:
         return None
     if cpu_b > cpu_a:  # both recorded (NaN where not: the comparison is False)
-        return (cpu_b - cpu_a) / (step_b - step_a) / members_sharing(metadata), "cpu_s"
+        shared = 1 if shares_cpu(metadata) else members  # else it logged the whole process's
+        return (cpu_b - cpu_a) / (step_b - step_a) / shared, "cpu_s"
     return (wall_b - wall_a) / (step_b - step_a) * threads / members, "wall_s"
 
 
