@@ -16,7 +16,7 @@ from tacbench import hardware
 from tacbench.cli import cli
 from tacbench.errors import TacbenchError
 from tacbench.members import make_run_configs
-from tacbench.sweep import calibration
+from tacbench.sweep import calibration, unit_timing
 from tacbench.sweep.calibration import Calibration
 from tests.helpers import smoke_tac_unit
 
@@ -165,11 +165,11 @@ def test_a_unit_that_cannot_be_measured_again_keeps_its_calibration_and_says_so(
 def test_a_short_measurement_times_random_and_learning_steps(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    monkeypatch.setattr(calibration, "RANDOM_STEPS", 100)
-    monkeypatch.setattr(calibration, "WARMUP_STEPS", 5)
-    monkeypatch.setattr(calibration, "LEARN_STEPS", 100)
+    monkeypatch.setattr(unit_timing, "RANDOM_STEPS", 100)
+    monkeypatch.setattr(unit_timing, "WARMUP_STEPS", 5)
+    monkeypatch.setattr(unit_timing, "LEARN_STEPS", 100)
     configs, _ = make_run_configs("Pendulum-v1", None, [0, 10], hidden_sizes=(32,))
-    measured = calibration.measure(configs)
+    measured = unit_timing.measure(configs)
     assert measured.members == 2
     assert 0 < measured.random < measured.learn  # an update costs more than a random step
     assert measured.eval_step > 0
@@ -191,9 +191,9 @@ def _fail_at_first_update(monkeypatch: pytest.MonkeyPatch, hidden: tuple[int, ..
         return metrics
 
     monkeypatch.setattr(loop, "update", failing)
-    monkeypatch.setattr(calibration, "RANDOM_STEPS", 100)
-    monkeypatch.setattr(calibration, "WARMUP_STEPS", 5)
-    monkeypatch.setattr(calibration, "LEARN_STEPS", 100)
+    monkeypatch.setattr(unit_timing, "RANDOM_STEPS", 100)
+    monkeypatch.setattr(unit_timing, "WARMUP_STEPS", 5)
+    monkeypatch.setattr(unit_timing, "LEARN_STEPS", 100)
 
 
 def test_a_member_that_fails_at_its_first_update_leaves_the_others_measured(
@@ -201,7 +201,7 @@ def test_a_member_that_fails_at_its_first_update_leaves_the_others_measured(
 ) -> None:
     _fail_at_first_update(monkeypatch, (32,), k=1)
     configs, _ = make_run_configs("Pendulum-v1", None, [0, 10], hidden_sizes=(32,))
-    measured = calibration.measure(configs)
+    measured = unit_timing.measure(configs)
     assert 0 < measured.random < measured.learn
 
 
@@ -234,14 +234,14 @@ def test_a_stop_signal_stops_the_calibration_and_keeps_the_units_measured_before
         return tac_update.update(agent, sample, c, subset)
 
     monkeypatch.setattr(loop, "update", signalled)
-    monkeypatch.setattr(calibration, "RANDOM_STEPS", 100)
-    monkeypatch.setattr(calibration, "WARMUP_STEPS", 5)
-    monkeypatch.setattr(calibration, "LEARN_STEPS", 100)
+    monkeypatch.setattr(unit_timing, "RANDOM_STEPS", 100)
+    monkeypatch.setattr(unit_timing, "WARMUP_STEPS", 5)
+    monkeypatch.setattr(unit_timing, "LEARN_STEPS", 100)
     first, stopped, never = (
         make_run_configs("Pendulum-v1", None, [0], hidden_sizes=(h,))[0] for h in (32, 16, 8)
     )
     lines: list[str] = []
-    with pytest.raises(calibration.Interrupted):
+    with pytest.raises(unit_timing.Interrupted):
         calibration.calibrate([first, stopped, never], report=lines.append)
     assert list(calibration.load()) == [calibration.unit_key(first)]
     assert lines[-1].startswith("  calibration interrupted; the units measured before it are")
@@ -274,21 +274,21 @@ def test_a_learning_step_is_priced_with_one_update_in_either_schedule(
     from tacbench.training import loop
 
     clock = _Clock()
-    monkeypatch.setattr(calibration, "time", clock)
-    monkeypatch.setattr(calibration, "env_step_seconds", lambda env: 0.0)
+    monkeypatch.setattr(unit_timing, "time", clock)
+    monkeypatch.setattr(unit_timing, "env_step_seconds", lambda env: 0.0)
 
     def counted(agent: Any, sample: Any, c: Any, subset: list[int] | None) -> Any:
         clock.now += float(sum(subset) if subset is not None else agent.alive.numel())
         return tac_update.update(agent, sample, c, subset)
 
     monkeypatch.setattr(loop, "update", counted)
-    monkeypatch.setattr(calibration, "RANDOM_STEPS", 100)
-    monkeypatch.setattr(calibration, "WARMUP_STEPS", 5)
-    monkeypatch.setattr(calibration, "LEARN_STEPS", 100)
+    monkeypatch.setattr(unit_timing, "RANDOM_STEPS", 100)
+    monkeypatch.setattr(unit_timing, "WARMUP_STEPS", 5)
+    monkeypatch.setattr(unit_timing, "LEARN_STEPS", 100)
     configs, _ = make_run_configs(
         "Pendulum-v1", None, [0, 10], hidden_sizes=(32,), update_schedule=schedule
     )
-    measured = calibration.measure(configs)
+    measured = unit_timing.measure(configs)
     # the episode schedule updates in bursts of 200 at Pendulum's episode ends, the step
     # schedule once a step: either way a learning step is a step and one update
     assert measured.random == pytest.approx(0.01 / 2)
