@@ -140,8 +140,8 @@ def test_recalibrate_measures_every_unit_again_and_replaces_it(
     args = ["sweep", "--preset", "smoke", "--algo", "tac", "--dry-run", "--out", str(tmp_path)]
     result = CliRunner().invoke(cli, [*args, "--recalibrate"])
     assert result.exit_code == 0, result.output
-    assert measured == [2] and calibration.load()[key].learn == 3e-3
-    assert "calibrating 1/1: tac Hopper-v4, 2 member(s)" in result.output
+    assert measured == [2] * calibration.ROUNDS and calibration.load()[key].learn == 3e-3
+    assert "calibrating 1/1, round 3/3: tac Hopper-v4, 2 member(s)" in result.output
 
 
 def test_a_unit_that_cannot_be_measured_again_keeps_its_calibration_and_says_so(
@@ -303,3 +303,79 @@ def test_updates_during_warm_up_are_priced_from_the_first_episode_end() -> None:
     assert calibration.run_pricing(authors)[0] == 1_000  # HalfCheetah's episodes: 1,000 steps
     early = dataclasses.replace(authors, learning_starts=300)  # still the first episode's end
     assert calibration.run_pricing(early)[0] == 1_000
+
+
+def test_each_unit_is_measured_in_rounds_in_turn_and_its_median_stored(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """One host of a class measured a TRPO unit at 0.97-1.54 ms a step in six calibrations in a
+    row (docs/notes/performance-history.md): one measurement is a sample of a speed that moves."""
+    a = make_run_configs("Pendulum-v1", None, [0], hidden_sizes=(32,))[0]
+    b = make_run_configs("Pendulum-v1", None, [0], hidden_sizes=(16,))[0]
+    learn = {(32,): iter([3e-3, 2e-3, 1e-3]), (16,): iter([5e-3, 4e-3, 9e-3])}
+    order: list[tuple[int, ...]] = []
+
+    def measure(configs: Any) -> Calibration:
+        hidden = configs[0].hidden_sizes
+        order.append(hidden)
+        value = next(learn[hidden])
+        return Calibration(value / 10, value, value / 40, "2026-12-07", 1)
+
+    monkeypatch.setattr(calibration, "measure", measure)
+    lines: list[str] = []
+    stored = calibration.calibrate([a, b], lines.append, rounds=3)
+    assert order == [(32,), (16,)] * 3  # in turn, so that a unit's rounds lie minutes apart
+    median = Calibration(2e-4, 2e-3, 5e-5, "2026-12-07", 1, rounds=3)  # each time's median
+    assert stored[calibration.unit_key(a)] == pytest.approx(median)
+    assert calibration.load()[calibration.unit_key(b)].learn == 5e-3
+    assert "calibrating 2/2, round 3/3: tac Pendulum-v1, 1 member(s) ..." in lines
+    assert (
+        "tac Pendulum-v1: 1.00, 2.00, 3.00 ms per member-step learning in 3 rounds "
+        "(3.00x apart); stored the median, 2.00" in lines
+    )
+
+
+def test_a_unit_that_fails_is_measured_no_more_and_keeps_its_rounds_before(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    a = make_run_configs("Pendulum-v1", None, [0], hidden_sizes=(32,))[0]
+    b = make_run_configs("Pendulum-v1", None, [0], hidden_sizes=(16,))[0]
+    calls = {(32,): 0, (16,): 0}
+
+    def measure(configs: Any) -> Calibration:
+        hidden = configs[0].hidden_sizes
+        calls[hidden] += 1
+        if hidden == (16,) or calls[hidden] == 2:  # b at once, a in its second round
+            raise TacbenchError("every member failed before the timed window")
+        return Calibration(1e-4, 2e-3, 5e-5, "2026-12-07", 1)
+
+    monkeypatch.setattr(calibration, "measure", measure)
+    lines: list[str] = []
+    stored = calibration.calibrate([a, b], lines.append, rounds=3)
+    assert calls == {(32,): 2, (16,): 1}
+    assert list(stored) == [calibration.unit_key(a)] and stored[calibration.unit_key(a)].rounds == 1
+    assert "  not measured again: every member failed before the timed window; the rounds " in (
+        "\n".join(lines)
+    )
+
+
+def test_a_stop_signal_in_a_later_round_stores_the_rounds_measured(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    a = make_run_configs("Pendulum-v1", None, [0], hidden_sizes=(32,))[0]
+    b = make_run_configs("Pendulum-v1", None, [0], hidden_sizes=(16,))[0]
+    learn = iter([1e-3, 5e-3, 3e-3])  # a, b, a: then b is stopped
+
+    def measure(configs: Any) -> Calibration:
+        value = next(learn, None)
+        if value is None:
+            raise unit_timing.Interrupted
+        return Calibration(1e-4, value, 5e-5, "2026-12-07", 1)
+
+    monkeypatch.setattr(calibration, "measure", measure)
+    with pytest.raises(unit_timing.Interrupted):
+        calibration.calibrate([a, b], report=lambda line: None, rounds=3)
+    stored = calibration.load()
+    assert stored[calibration.unit_key(a)].learn == pytest.approx(2e-3)
+    assert stored[calibration.unit_key(a)].rounds == 2
+    assert stored[calibration.unit_key(b)].learn == 5e-3

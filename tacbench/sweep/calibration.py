@@ -9,6 +9,11 @@ end early. A TAC run that updates during warm-up (``--warmup-updates on``, the a
 starts at its first episode end, priced at H. The compilation of the first update (seconds; the
 measurement's window starts after it) and the checkpoints are left out.
 
+Each unit is measured :data:`ROUNDS` times, the units in turn, and the median of each time is
+kept: the project's virtual machines change speed by 1.3-1.6x over minutes, and against two
+sweeps' own CPU time the medians of three rounds spread 1.35x where single measurements spread
+1.5x (docs/notes/performance-history.md, "A host's speed from minute to minute").
+
 A stop signal (Ctrl-C, SIGTERM, SIGHUP) during a measurement stops the calibration
 (:class:`~tacbench.sweep.unit_timing.Interrupted`): the units measured before it are stored, and
 the command exits with the signal's status.
@@ -22,8 +27,10 @@ that a calibration measured another way is measured again.
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import json
 import os
+import statistics
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -35,6 +42,7 @@ from tacbench.hardware import cpu_class
 from tacbench.members import resolve_compile
 from tacbench.sweep.unit_timing import MEMBERS_MEASURED, METHOD, Calibration, Interrupted, measure
 
+ROUNDS = 3  # measurements of each unit, the units in turn, whose median is kept (module doc)
 # config fields that do not change what a step costs (the budget, the evaluation's schedule,
 # priced separately, and the member's identity)
 _FREE_FIELDS = (
@@ -110,13 +118,18 @@ def run_pricing(config: Any) -> tuple[int, int, int, int]:
 
 
 def calibrate(
-    units: Sequence[Sequence[Any]], report: Callable[[str], None] = print, *, again: bool = False
+    units: Sequence[Sequence[Any]],
+    report: Callable[[str], None] = print,
+    *,
+    again: bool = False,
+    rounds: int = ROUNDS,
 ) -> dict[str, Calibration]:
     """Measure every unit (a sequence of its configs) whose key this class has not calibrated
     (``again``: every unit, replacing what was stored: the same class on another host, or on a
-    busier day, can run at another speed), store the results and return all of this class's
-    calibrations. A unit that cannot be measured (every member failed before the timed window)
-    is reported and left out, a calibration stored before it kept; the others are stored."""
+    busier day, can run at another speed) ``rounds`` times, the units in turn, store each unit's
+    median (:func:`median`) and return all of this class's calibrations. A unit that cannot be
+    measured (every member failed before the timed window) is reported and measured no more, a
+    calibration stored before it kept if no round measured it; the others are stored."""
     known = load()
     todo: dict[str, Sequence[Any]] = {}
     for configs in units:
@@ -125,31 +138,61 @@ def calibrate(
             todo[key] = configs
     if todo:  # before minutes of measuring whose results would have nowhere to go
         runs.check_writable(store_path().parent, "TACBENCH_CALIBRATION")
-    new: dict[str, Calibration] = {}
-    for index, (key, configs) in enumerate(todo.items(), start=1):
+    measured: dict[str, list[Calibration]] = {key: [] for key in todo}
+    failed: set[str] = set()
+    for round_, (index, (key, configs)) in itertools.product(
+        range(1, rounds + 1), enumerate(todo.items(), start=1)
+    ):
+        if key in failed:
+            continue
         c = configs[0]
         report(
-            f"calibrating {index}/{len(todo)}: {c.algo} {c.env}, "
-            f"{min(len(configs), MEMBERS_MEASURED)} member(s) ..."
+            f"calibrating {index}/{len(todo)}{f', round {round_}/{rounds}' if rounds > 1 else ''}"
+            f": {c.algo} {c.env}, {min(len(configs), MEMBERS_MEASURED)} member(s) ..."
         )
         start = time.perf_counter()
         try:
-            new[key] = measure(configs)
+            measured[key].append(measure(configs))
         except TacbenchError as err:  # the other units' measurements are still stored
+            failed.add(key)
+            if measured[key]:
+                report(f"  not measured again: {err}; the rounds measured before are kept")
+                continue
             kept = f"; the calibration of {known[key].measured} is kept" if key in known else ""
             report(f"  not calibrated: {err}{kept}")
             continue
         except KeyboardInterrupt:  # a stop signal, or a second one: keep what was measured
+            new = {unit: median(found) for unit, found in measured.items() if found}
             kept = f"the units measured before it are stored in {save(new)}" if new else ""
             report(f"  calibration interrupted; {kept or 'nothing was stored'}")
             raise Interrupted from None
         report(
-            f"  {new[key].learn * 1e3:.2f} ms per member-step learning, "
-            f"{new[key].random * 1e3:.2f} before ({time.perf_counter() - start:.0f} s)"
+            f"  {measured[key][-1].learn * 1e3:.2f} ms per member-step learning, "
+            f"{measured[key][-1].random * 1e3:.2f} before ({time.perf_counter() - start:.0f} s)"
         )
+    new = {unit: median(found) for unit, found in measured.items() if found}
+    for key, found in measured.items():
+        if len(found) > 1:
+            c, learn = todo[key][0], sorted(f.learn for f in found)
+            report(
+                f"{c.algo} {c.env}: {', '.join(f'{v * 1e3:.2f}' for v in learn)} ms per "
+                f"member-step learning in {len(found)} rounds ({learn[-1] / learn[0]:.2f}x apart)"
+                f"; stored the median, {new[key].learn * 1e3:.2f}"
+            )
     if new:
         report(f"wrote {save(new)}")
     return {**known, **new}
+
+
+def median(rounds: Sequence[Calibration]) -> Calibration:
+    """One calibration from a unit's ``rounds``: the median of each time, the last date."""
+    return dataclasses.replace(
+        rounds[-1],
+        random=statistics.median(c.random for c in rounds),
+        learn=statistics.median(c.learn for c in rounds),
+        eval_step=statistics.median(c.eval_step for c in rounds),
+        rounds=len(rounds),
+    )
 
 
 def unit_configs(plan: Any) -> list[list[Any]]:

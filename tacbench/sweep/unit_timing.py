@@ -68,6 +68,7 @@ class Calibration:
     eval_step: float
     measured: str  # date
     members: int  # how many members the measurement trained
+    rounds: int = 1  # how many measurements' median (calibration.median)
 
     def seconds(
         self,
