@@ -55,8 +55,8 @@ METHOD = 3
 
 class Interrupted(KeyboardInterrupt):
     """A stop signal (Ctrl-C, SIGTERM, SIGHUP) during a calibration: its trainer stops the
-    measurement cleanly, and :func:`calibrate` stops with it, storing the units measured
-    before."""
+    measurement cleanly, and :func:`tacbench.sweep.calibration.calibrate` stops with it, storing
+    the units measured before."""
 
 
 @dataclass(frozen=True)
