@@ -41,6 +41,31 @@ def test_a_run_is_priced_by_phase_and_by_evaluation() -> None:
     assert c.seconds(400, 10_000, 0, 10, 1_000, steps_left=400) == pytest.approx(400 * 1e-4)
 
 
+def test_an_evaluation_episode_is_priced_halfway_between_a_random_policys_and_the_limit() -> None:
+    """Priced at the limit, a TAC grid of nine Hopper runs whose evaluation episodes averaged 135
+    steps cost 1.15-1.75x its CPU time (docs/sweep.md)."""
+    hopper = Calibration(1e-4, 2e-3, 5e-5, "2026-12-07", 1, random_episode=22.0)
+    assert hopper.evaluation_episode(1_000) == 511.0
+    rest = hopper.seconds(100_000, 10_000, 5_000, 10, 1_000, steps_left=40_000)
+    assert rest == pytest.approx(40_000 * 2e-3 + 8 * 10 * 511 * 5e-5)
+    longer = dataclasses.replace(hopper, random_episode=2_000.0)  # never more than the limit
+    assert longer.evaluation_episode(1_000) == 1_000.0
+    stored_before = dataclasses.replace(hopper, random_episode=None)
+    assert stored_before.evaluation_episode(1_000) == 1_000.0
+
+
+@pytest.mark.parametrize(("env", "episode"), [("Hopper-v4", (10, 40)), ("HalfCheetah-v4", 1_000)])
+def test_random_steps_give_a_tasks_step_and_a_random_policys_episode(
+    env: str, episode: Any
+) -> None:
+    steps = unit_timing.random_steps(env, 400)  # HalfCheetah: no episode ends, so its limit
+    assert 0 < steps.seconds < 0.01
+    if isinstance(episode, tuple):
+        assert episode[0] < steps.episode < episode[1]
+    else:
+        assert steps.episode == episode
+
+
 def test_the_key_ignores_the_members_identity_and_budget_but_not_their_networks(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
@@ -173,6 +198,7 @@ def test_a_short_measurement_times_random_and_learning_steps(
     assert measured.members == 2
     assert 0 < measured.random < measured.learn  # an update costs more than a random step
     assert measured.eval_step > 0
+    assert measured.random_episode == 200  # Pendulum's episodes run to their limit
     stored = calibration.calibrate([configs], report=lambda line: None)
     assert list(stored) == [calibration.unit_key(configs)]
 
@@ -275,7 +301,7 @@ def test_a_learning_step_is_priced_with_one_update_in_either_schedule(
 
     clock = _Clock()
     monkeypatch.setattr(unit_timing, "time", clock)
-    monkeypatch.setattr(unit_timing, "env_step_seconds", lambda env: 0.0)
+    monkeypatch.setattr(unit_timing, "random_steps", lambda env: unit_timing.RandomSteps(0, 1))
 
     def counted(agent: Any, sample: Any, c: Any, subset: list[int] | None) -> Any:
         clock.now += float(sum(subset) if subset is not None else agent.alive.numel())

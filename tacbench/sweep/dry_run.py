@@ -114,7 +114,8 @@ def describe_plan(plan: SweepPlan, workers: int, group: str, workers_from: str =
     if CALIBRATED in sources:
         lines.append(
             f"** calibrated: measured on this CPU class ({cpu_class()}) by --calibrate, stored "
-            f"in {calibration.store_path()}; evaluation episodes priced at full length."
+            f"in {calibration.store_path()}; evaluation episodes priced halfway between a "
+            "random policy's and the task's limit (docs/sweep.md)."
         )
     if cost.DEFAULT_SOURCE in sources:
         lines.append(

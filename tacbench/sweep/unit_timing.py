@@ -17,8 +17,12 @@ checkpoints and the loss log's interval changed. Three CPU times per member-step
   are counted (losses.csv's ``updates``) and the window's time is shared out as ``random`` per
   step plus the rest per update;
 * ``eval_step``: one step of an evaluation episode, taken as one environment step (the median
-  of :data:`ENV_STEPS`): an evaluation steps its ten episodes in lockstep, so the policy's
-  batched action, shared by them, is left out.
+  of :data:`ENV_STEPS` with random actions): an evaluation steps its ten episodes in lockstep,
+  so the policy's batched action, shared by them, is left out.
+
+The same random steps give ``random_episode``, the steps per episode ended: a random policy's
+episode, the shortest an evaluation's is likely to be (Hopper 22 steps, Ant 286, HalfCheetah its
+limit of 1,000), from which :meth:`Calibration.evaluation_episode` prices one.
 
 A stop signal (Ctrl-C, SIGTERM, SIGHUP) during a measurement stops it (:class:`Interrupted`).
 """
@@ -47,10 +51,11 @@ ON_POLICY_ROLLOUTS = 3
 ENV_STEPS = 2000  # environment steps timed for an evaluation step
 ON_POLICY = ("ppo", "trpo")
 LOG_EVERY = 50  # the loss log's interval while measuring: the updates counted per 50 steps
-# 3: trainers flush subnormal numbers (hardware.flush_denormals), which makes the authors'
-# profiles' units up to 3x faster on the Intel Xeon class; 2: updates counted per window; 1 took
-# a window's time per step, whatever it held
-METHOD = 3
+# 4: evaluation episodes priced from random episodes' length (Calibration.evaluation_episode),
+# each unit measured in rounds (calibration.ROUNDS); 3: trainers flush subnormal numbers
+# (hardware.flush_denormals), which makes the authors' profiles' units up to 3x faster on the
+# Intel Xeon class; 2: updates counted per window; 1 took a window's time per step
+METHOD = 4
 
 
 class Interrupted(KeyboardInterrupt):
@@ -69,6 +74,8 @@ class Calibration:
     measured: str  # date
     members: int  # how many members the measurement trained
     rounds: int = 1  # how many measurements' median (calibration.median)
+    # steps per episode under random actions (random_steps); None: stored before METHOD 4
+    random_episode: float | None = None
 
     def seconds(
         self,
@@ -88,8 +95,16 @@ class Calibration:
         return (
             random_left * self.random
             + learn_left * self.learn
-            + evaluations * episodes * episode_limit * self.eval_step
+            + evaluations * episodes * self.evaluation_episode(episode_limit) * self.eval_step
         )
+
+    def evaluation_episode(self, episode_limit: int) -> float:
+        """The steps an evaluation episode is priced at: halfway between a random policy's
+        episode and the limit, the most either end can be off by (the limit itself for a task
+        whose episodes do not end early, and for a calibration without ``random_episode``)."""
+        if self.random_episode is None:
+            return float(episode_limit)
+        return (min(self.random_episode, episode_limit) + episode_limit) / 2
 
 
 def _for_measurement(configs: Sequence[Any], total: int, starts: int) -> list[Any]:
@@ -202,34 +217,47 @@ class _LoggedUpdates:
 
 
 def _calibration(first: Any, *, random: float, learn: float, members: int) -> Calibration:
+    steps = random_steps(first.env)
     return Calibration(
         random=random,
         learn=learn,
-        eval_step=env_step_seconds(first.env),
+        eval_step=steps.seconds,
         measured=datetime.date.today().isoformat(),
         members=members,
+        random_episode=steps.episode,
     )
 
 
-def env_step_seconds(env_id: str, steps: int | None = None) -> float:
-    """CPU seconds of one step of ``env_id``: the median of ``steps`` (default
-    :data:`ENV_STEPS`) steps with random actions, resets not counted."""
+@dataclass(frozen=True)
+class RandomSteps:
+    """A task stepped with random actions: the CPU seconds of a step and the mean episode."""
+
+    seconds: float
+    episode: float
+
+
+def random_steps(env_id: str, steps: int | None = None) -> RandomSteps:
+    """``steps`` (default :data:`ENV_STEPS`) steps of ``env_id`` with random actions: the median
+    step's CPU seconds, resets not counted, and the steps per episode ended, at most the
+    episode limit (the limit where none ended)."""
     import numpy as np
 
+    info = envs.env_info(env_id)
     env = envs.make_env(env_id)
     try:
         env.reset(seed=0)
         rng = np.random.default_rng(0)
-        info = envs.env_info(env_id)
         low, high = np.asarray(info.low), np.asarray(info.high)
-        times = []
+        times, ended = [], 0
         for _ in range(steps or ENV_STEPS):
             action = rng.uniform(low, high)
             start = time.process_time()
             _, _, terminated, truncated, _ = env.step(action)
             times.append(time.process_time() - start)
             if terminated or truncated:
+                ended += 1
                 env.reset()
     finally:
         env.close()
-    return statistics.median(times)
+    limit = float(info.max_episode_steps)
+    return RandomSteps(statistics.median(times), min(limit, len(times) / ended) if ended else limit)
