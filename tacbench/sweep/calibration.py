@@ -6,13 +6,13 @@ A run of T steps that updates from step L and evaluates E episodes every V steps
 ``L x random + (T - L) x learn + (T / V) x E x D x eval_step`` per member. D, an evaluation
 episode's steps, is halfway between a random policy's episode R and the task's episode limit H,
 ``(R + H) / 2`` (:meth:`~tacbench.sweep.unit_timing.Calibration.evaluation_episode`): H for
-tasks whose episodes do not end early; for those that do, a trained policy's episodes lie
-between the two, and the halfway point is off by at most half the difference. Priced at H, a
-TAC grid of nine Hopper runs at 100,000 steps (episodes of 135 steps on average) cost 1.15-1.75x
-its CPU time (docs/notes/performance-history.md). A TAC run that updates during warm-up
-(``--warmup-updates on``, the authors' code) starts at its first episode end, priced at H. The
-compilation of the first update (seconds; the measurement's window starts after it) and the
-checkpoints are left out.
+tasks whose episodes do not end early; for those that do, a trained policy's episodes usually
+lie between the two, and then the halfway point is off by at most half the difference.
+Priced at H, a TAC grid of nine Hopper runs at 100,000 steps (episodes of 135 steps on average)
+cost 1.15-1.75x its CPU time (docs/notes/performance-history.md). A TAC run that updates during
+warm-up (``--warmup-updates on``, the authors' code) starts at its first episode end, priced at
+H. The compilation of the first update (seconds; the measurement's window starts after it) and
+the checkpoints are left out.
 
 Each unit is measured :data:`ROUNDS` times, the units in turn, and the median of each time is
 kept: the project's virtual machines change speed by 1.3-1.6x over minutes, and against two

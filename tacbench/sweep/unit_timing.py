@@ -100,8 +100,9 @@ class Calibration:
 
     def evaluation_episode(self, episode_limit: int) -> float:
         """The steps an evaluation episode is priced at: halfway between a random policy's
-        episode and the limit, the most either end can be off by (the limit itself for a task
-        whose episodes do not end early, and for a calibration without ``random_episode``)."""
+        episode and the limit, off by at most half their difference where a trained policy's
+        episodes lie between them (the limit itself for a task whose episodes do not end
+        early, and for a calibration without ``random_episode``)."""
         if self.random_episode is None:
             return float(episode_limit)
         return (min(self.random_episode, episode_limit) + episode_limit) / 2
