@@ -258,3 +258,32 @@ def test_resume_says_a_baseline_seed_after_a_stop_was_not_started(tmp_path: Path
     assert "seed 1: not started before the stop; starting it" in result.output
     # a seed the first command did not name is not one a stop came before
     assert "seed 99: nothing to resume" in result.output
+
+
+def test_a_message_that_runs_share_is_said_once_after_them(tmp_path: Path) -> None:
+    """A stopped group of members all end with the same resume command: with 900 members it
+    was printed 900 times (about 1 MB of terminal). It is now said once, with how many runs
+    share it; a run's own message stays on its line."""
+    from tacbench.cli.common import report_outcomes
+    from tacbench.runs import Outcome
+
+    stop = "interrupted at step 157; resume with: tacbench run --seed 0 --seed 10 --resume"
+    outcomes = [
+        Outcome(0, tmp_path / "seed0", "interrupted", 157, stop),
+        Outcome(10, tmp_path / "seed10", "failed", 120, "failed at step 120: non-finite loss"),
+        Outcome(20, tmp_path / "seed20", "interrupted", 157, stop),
+    ]
+
+    @click.command()
+    @click.pass_context
+    def report(ctx: click.Context) -> None:
+        report_outcomes(ctx, outcomes)
+
+    result = CliRunner().invoke(report, [])
+    assert result.output.splitlines() == [
+        f"seed 0: interrupted, {tmp_path / 'seed0'}",
+        f"seed 10: failed, {tmp_path / 'seed10'} (failed at step 120: non-finite loss)",
+        f"seed 20: interrupted, {tmp_path / 'seed20'}",
+        f"2 runs: {stop}",
+    ]
+    assert result.exit_code == 130

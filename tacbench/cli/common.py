@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import shlex
 import signal
+from collections import Counter
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
@@ -66,11 +67,17 @@ def command_line(ctx: click.Context) -> str:
 
 
 def report_outcomes(ctx: click.Context, outcomes: Sequence[Outcome]) -> None:
-    """One line per seed; exit status 128 + the stop signal's number if interrupted
-    (:func:`tacbench.interrupts.exit_status`), 1 if a run failed."""
+    """One line per run, and a message that several runs share (a stopped group's resume
+    command) once after them, with how many share it; exit status 128 + the stop signal's
+    number if interrupted (:func:`tacbench.interrupts.exit_status`), 1 if a run failed."""
+    sharing = Counter(outcome.message for outcome in outcomes if outcome.message)
     for outcome in outcomes:
-        detail = f" ({outcome.message})" if outcome.message else ""
+        alone = outcome.message and sharing[outcome.message] == 1
+        detail = f" ({outcome.message})" if alone else ""
         click.echo(f"seed {outcome.seed}: {outcome.state}, {outcome.directory}{detail}")
+    for message, runs in sharing.items():
+        if runs > 1:
+            click.echo(f"{runs} runs: {message}")
     states = {outcome.state for outcome in outcomes}
     if "interrupted" in states:
         ctx.exit(exit_status())
