@@ -9,6 +9,7 @@ from __future__ import annotations
 import shlex
 import signal
 import threading
+import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -17,6 +18,11 @@ from typing import Any
 StopCheck = Callable[[int], bool]  # polled with the step count; True: checkpoint and stop
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+# A signal that comes again this soon after the first is the same request: timeout(1), and a
+# signal sent to a process group, deliver one signal to the process twice (to it and to its
+# group), microseconds apart, which a second stop signal would have taken as "stop at once"
+# (no checkpoint). A person's second Ctrl-C comes later.
+SAME_REQUEST_S = 0.5
 # the stop signals received since the outermost stop_signals() began, in order, and its depth
 _received: list[int] = []
 _depth = [0]
@@ -69,15 +75,22 @@ def resume_command(command: str, out: Path | None = None) -> str:
 def stop_signals(*, second_interrupts: bool = True) -> Iterator[dict[str, int]]:
     """Record SIGINT, SIGTERM and SIGHUP while active instead of dying: the dict counts them
     (``count``) and keeps the last one (``signal``), so a loop can checkpoint and stop. With
-    ``second_interrupts`` a second signal raises :class:`SecondSignal` at once (no checkpoint).
-    SIGHUP stays ignored where it was (``nohup``). The previous handlers come back afterwards.
-    No-op outside the main thread."""
+    ``second_interrupts`` a second signal raises :class:`SecondSignal` at once (no checkpoint);
+    the first signal again within :data:`SAME_REQUEST_S` is not a second one. SIGHUP stays
+    ignored where it was (``nohup``). The previous handlers come back afterwards. No-op outside
+    the main thread."""
     received: dict[str, int] = {}
     if threading.current_thread() is not threading.main_thread():
         yield received
         return
+    first_at = [0.0]  # when the first signal came
 
     def handler(signum: int, _frame: Any) -> None:
+        now = time.monotonic()
+        if not received:
+            first_at[0] = now
+        elif received["signal"] == signum and now - first_at[0] < SAME_REQUEST_S:
+            return  # the first one delivered again (timeout(1), a process group's signal)
         _received.append(signum)
         if received and second_interrupts:
             raise SecondSignal(signum)

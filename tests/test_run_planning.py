@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from tacbench import runs
+from tacbench import interrupts, runs
 from tacbench.config import RunConfig
 from tacbench.errors import TacbenchError
 from tacbench.interrupts import stop_signals
@@ -103,7 +103,8 @@ def test_stop_signals_record_then_interrupt_on_the_second_and_restore_the_handle
     assert signal.getsignal(signal.SIGINT) is before
 
 
-def test_stop_signals_can_count_instead_of_interrupting() -> None:
+def test_stop_signals_can_count_instead_of_interrupting(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(interrupts, "SAME_REQUEST_S", 0.0)  # a person's second Ctrl-C, later
     with stop_signals(second_interrupts=False) as received:
         os.kill(os.getpid(), signal.SIGINT)
         os.kill(os.getpid(), signal.SIGINT)

@@ -7,11 +7,18 @@ from __future__ import annotations
 import json
 import os
 import signal
+import time
 from pathlib import Path
 
 import pytest
 
-from tacbench.interrupts import exit_status, resume_command, stop_signals
+from tacbench.interrupts import (
+    SAME_REQUEST_S,
+    SecondSignal,
+    exit_status,
+    resume_command,
+    stop_signals,
+)
 from tests.helpers import checkpoint_state, interrupt_cli, run_cli
 
 pytestmark = pytest.mark.smoke
@@ -63,6 +70,26 @@ def test_a_second_signal_stops_at_once_with_the_resume_command(
     resumed = run_cli([*args, "--resume"])
     assert resumed.returncode == 0, resumed.stdout + resumed.stderr
     assert _status(tmp_path)["state"] == "complete"
+
+
+@pytest.mark.unit
+def test_one_signal_delivered_twice_at_once_is_one_request() -> None:
+    """timeout(1) sends its signal to the command and to the command's process group, so the
+    command can get it twice, microseconds apart. Taken as a second signal, it stopped a run at
+    once, without a checkpoint, and made a sweep kill its workers (one was cut between writing
+    its status and renaming it: status.json still said "running"). The same signal again within
+    SAME_REQUEST_S is the same request; later, it is a second one."""
+    with stop_signals() as received:
+        os.kill(os.getpid(), signal.SIGTERM)
+        os.kill(os.getpid(), signal.SIGTERM)
+        assert received == {"count": 1, "signal": signal.SIGTERM}
+        time.sleep(SAME_REQUEST_S)
+        with pytest.raises(SecondSignal):
+            os.kill(os.getpid(), signal.SIGTERM)
+    with stop_signals(second_interrupts=False) as received:
+        os.kill(os.getpid(), signal.SIGINT)
+        os.kill(os.getpid(), signal.SIGINT)
+    assert received == {"count": 1, "signal": signal.SIGINT}
 
 
 @pytest.mark.unit
