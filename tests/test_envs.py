@@ -174,3 +174,18 @@ def test_envs_command_lists_the_v5_suite_and_says_the_papers_values_are_carried_
     assert rows["Ant"][1:7] == ["Ant-v5", "105", "8", "1000", "0.2", "1.5"]
     assert all(row[-1] == "yes" for row in rows.values())
     assert "carried over to v5 unchanged" in result.output
+
+
+def test_many_members_environments_are_announced_before_they_are_made(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Each member has a training env and a pool of evaluation envs; 900 members' 9,900 took
+    47 s to make, in silence. From MANY_ENVS on, the start-up says so first."""
+    said: list[str] = []
+    training, evaluation = envs.member_envs("Pendulum-v1", 3, 12, said.append)
+    assert (len(training), [len(pool) for pool in evaluation]) == (3, [10, 10, 10])
+    assert said == []  # 33 environments: made before anyone would wonder
+    assert envs.member_envs("Pendulum-v1", 2, 0, said.append)[1] == []  # no evaluation
+    monkeypatch.setattr(envs, "MANY_ENVS", 33)
+    envs.member_envs("Pendulum-v1", 3, 12, said.append)
+    assert said == ["making 33 Pendulum-v1 environments (11 per member) ..."]

@@ -8,6 +8,8 @@ batched computation. Each member writes its own run directory.
 
 from __future__ import annotations
 
+import functools
+import sys
 import time
 from pathlib import Path
 
@@ -65,11 +67,9 @@ class GroupTrainer:
         self.metrics = self.agent.metric_names
         self.buffer = ReplayBuffer(k, obs_dim, act_dim, min(config.buffer_size, config.total_steps))
         self.rngs = [np.random.default_rng(s.numpy) for s in streams]
-        self.envs = [envs.make_env(config.env) for _ in range(k)]
-        self.eval_envs = [
-            [envs.make_env(config.env) for _ in range(envs.eval_pool_size(config.eval_episodes))]
-            for _ in range(k if config.eval_every > 0 else 0)
-        ]
+        evaluated = config.eval_episodes if config.eval_every > 0 else 0
+        say = functools.partial(print, file=sys.stderr, flush=True)
+        self.envs, self.eval_envs = envs.member_envs(config.env, k, evaluated, say)
         columns = ("q", "updates", *self.metrics)
         qs = [c.q for c in configs]  # --q auto: where the population starts
         self.population = Population(self.seeds, qs, config) if config.q_mode == "auto" else None
