@@ -67,8 +67,8 @@ def resolve_env_id(name: str) -> str:
 # 10 episodes run at once, more run in waves of this many, so memory does not grow with
 # --eval-episodes
 EVAL_POOL = 10
-# envs from which making them is said first: about 5 s at this machine's 4-5 ms each (Hopper,
-# HalfCheetah, Ant, Humanoid; the AMD EPYC AVX2 class)
+# from this many envs on, a run says it is making them (member_envs): about 5 s at 4-5 ms each
+# (Hopper, HalfCheetah, Ant and Humanoid on the AMD EPYC AVX2 class)
 MANY_ENVS = 1_000
 
 # MuJoCo 4 deprecates the compiler attribute that Gymnasium's v4 HalfCheetah model sets; the

@@ -19,9 +19,9 @@ StopCheck = Callable[[int], bool]  # polled with the step count; True: checkpoin
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 # A signal that comes again this soon after the first is the same request: timeout(1), and a
-# signal sent to a process group, deliver one signal to the process twice (to it and to its
-# group), microseconds apart, which a second stop signal would have taken as "stop at once"
-# (no checkpoint). A person's second Ctrl-C comes later.
+# signal sent to a process group, can deliver one signal to the process twice (to it and to
+# its group), microseconds apart; counted twice, it would stop at once, without a checkpoint.
+# A person's second Ctrl-C comes later.
 SAME_REQUEST_S = 0.5
 # the stop signals received since the outermost stop_signals() began, in order, and its depth
 _received: list[int] = []
