@@ -22,6 +22,7 @@ pytestmark = pytest.mark.unit
 
 STUDY = Path("results/studies/authors-versions-100k/authors-2019-01-16c-h400x300")
 SMOKE = "tacbench sweep --preset smoke --algo tac --workers 1 --out /elsewhere"
+AGAIN = SMOKE.replace("/elsewhere", "/again")  # the same sweep into another folder
 SMOKE_RUNS = [  # its plan: TAC at two q and two seeds on Hopper
     f"runs/tac/Hopper-v4/q{q}-a0.2-ls500-bs32/seed{seed}" for q in (1, 2) for seed in (0, 10)
 ]
@@ -123,8 +124,6 @@ def test_a_recorded_command_is_repriced_from_scratch_as_the_dry_run_prices_it(
     assert priced.wall_s == pytest.approx(4 * per_run)  # one unit: two q times two seeds
     assert priced.core_hours == pytest.approx(4 * per_run / 3600)
     assert priced.runs == 4
-    kept = bills.reprice(bills.fresh_plan(grid, options, frozenset(SMOKE_RUNS[:2])), options)
-    assert kept.runs == 2 and not kept.calibrated  # a unit of two members: another calibration
 
 
 def test_only_a_sweep_command_is_repriced() -> None:
@@ -141,7 +140,7 @@ def test_the_bills_command_gives_each_sweeps_ratio_once_calibrated(tmp_path: Pat
     on_time, late = tmp_path / "on-time", tmp_path / "late"
     for key in SMOKE_RUNS:
         _run(on_time / key, SMOKE, "2026-12-05T01:00:00+00:00", "2026-12-05T01:00:05+00:00")
-        _run(late / key, SMOKE, "2026-12-05T01:00:00+00:00", "2026-12-05T01:00:10+00:00")
+        _run(late / key, AGAIN, "2026-12-05T01:00:00+00:00", "2026-12-05T01:00:10+00:00")
     before = CliRunner().invoke(cli, ["study", "bills", str(on_time)])
     assert before.exit_code == 0, before.output
     assert "4 runs\n  took 0m05s (run records; CPU class not recorded)" in before.output
@@ -207,6 +206,51 @@ def test_runs_the_recorded_command_does_not_plan_are_not_compared(tmp_path: Path
     result = CliRunner().invoke(cli, ["study", "bills", str(tmp_path)])
     assert "2 runs, of which the command's plan names 1" in result.output
     assert "not comparable" in result.output and "the price" not in result.output
+
+
+def test_part_of_a_sweep_is_priced_whole_from_its_bill_and_not_from_run_records(
+    tmp_path: Path,
+) -> None:
+    """A study may keep part of a sweep. Its price was the part's, in smaller units than the
+    sweep trained, and its wall time the whole sweep's (from run records: the part's span, with
+    the other runs trained in it): the comparison study's two q of the paper's grid got a tenth
+    of what they took. From a bill the whole sweep is priced; from run records it is not
+    comparable."""
+    for key in SMOKE_RUNS[:2]:
+        _run(tmp_path / key, SMOKE, "2026-12-05T01:00:00+00:00", "2026-12-05T01:00:05+00:00")
+    per_run = _calibrate_smoke()
+    result = CliRunner().invoke(cli, ["study", "bills", str(tmp_path)])
+    assert result.exit_code == 0, result.output
+    assert "\n  2 runs of the 4 its command plans\n" in result.output
+    assert "not comparable: only part of the sweep lies here" in result.output
+    assert "x the price" not in result.output
+    bill = {"cpu_class": "c", "workers": 1, "wall_s": 4 * per_run, "priced_wall_s": 5.0}
+    summary = {"command": SMOKE, "interrupted": False, "finished": "2026-12-05T01:00:05Z"}
+    (tmp_path / "summary.json").write_text(json.dumps({**summary, "bill": bill}))
+    result = CliRunner().invoke(cli, ["study", "bills", str(tmp_path)])
+    assert "2 runs of the 4 its command plans" in result.output
+    assert "took 1.00x the price, the price within 25 % of it" in result.output
+
+
+def test_a_sweeps_runs_kept_by_two_studies_are_one_sweep(tmp_path: Path) -> None:
+    """The comparison study keeps copies of two q of the paper's q grid, whose study keeps all of
+    them: named together, the sweep is whole (each folder alone gave a part)."""
+    whole, copies = tmp_path / "q-grid", tmp_path / "comparison"
+    for key in SMOKE_RUNS:
+        _run(whole / key, SMOKE, "2026-12-05T01:00:00+00:00", "2026-12-05T01:00:05+00:00")
+    status = whole / SMOKE_RUNS[0] / "status.json"
+    complete = status.read_text()
+    status.write_text(json.dumps({"state": "failed", "updated": "2026-12-05T01:00:01Z"}))
+    for key in SMOKE_RUNS[:2]:
+        shutil.copytree(whole / key, copies / key)
+    [took] = bills.sweeps(whole, copies)
+    assert (took.runs, took.wall_s, took.unfinished) == (4, 5.0, {"failed": 1})  # counted once
+    _calibrate_smoke()
+    for folder in (whole, copies):
+        (folder / SMOKE_RUNS[0] / "status.json").write_text(complete)
+    result = CliRunner().invoke(cli, ["study", "bills", str(copies), str(whole)])
+    assert result.output.count(SMOKE) == 1 and "\n  4 runs\n" in result.output
+    assert "took 1.00x the price, the price within 25 % of it" in result.output
 
 
 @pytest.mark.parametrize(
@@ -326,9 +370,9 @@ def test_recalibrate_measures_each_kind_of_unit_once_for_every_sweep(
         return Calibration(2e-4, 4e-3, 1e-4, "2026-12-07", len(configs))
 
     monkeypatch.setattr(calibration, "measure", measure)
-    for folder in ("first", "second"):
+    for folder, command in (("first", SMOKE), ("second", AGAIN)):
         for key in SMOKE_RUNS:
-            _run(tmp_path / folder / key, SMOKE, "2026-12-05T01:00:00Z", "2026-12-05T01:00:10Z")
+            _run(tmp_path / folder / key, command, "2026-12-05T01:00:00Z", "2026-12-05T01:00:10Z")
     args = ["study", "bills", str(tmp_path / "first"), str(tmp_path / "second")]
     result = CliRunner().invoke(cli, [*args, "--recalibrate"])
     assert result.exit_code == 0, result.output

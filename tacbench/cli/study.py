@@ -238,9 +238,7 @@ def bills(results: tuple[Path, ...], calibrate: bool, recalibrate: bool) -> None
     from tacbench.sweep.summary import load_note
 
     here = cpu_class()
-    resolved = dict.fromkeys(folder.resolve() for folder in results)
-    folders = [f for f in resolved if not any(p in resolved for p in f.parents)]  # each run once
-    found = [took for folder in folders for took in sweep_bills.sweeps(folder)]
+    found = sweep_bills.sweeps(*results)
     if not found:
         raise TacbenchError(
             f"no run under {', '.join(map(str, results))} was trained by a tacbench sweep; "
@@ -255,7 +253,7 @@ def bills(results: tuple[Path, ...], calibrate: bool, recalibrate: bool) -> None
             continue
         if took.workers is not None:  # what it ran on, whatever the command left to the machine
             options = dataclasses.replace(options, workers=took.workers)
-        priceable.append((took, sweep_bills.fresh_plan(grid, options, took.keys), options))
+        priceable.append((took, sweep_bills.fresh_plan(grid, options), options))
     if calibrate or recalibrate:  # each kind of unit once, whichever sweeps share it
         from tacbench.sweep import calibration
 
@@ -267,6 +265,9 @@ def bills(results: tuple[Path, ...], calibrate: bool, recalibrate: bool) -> None
     for took, work, options in priceable:
         priced = sweep_bills.reprice(work, options)
         runs = f"{took.runs} run{'s' if took.runs != 1 else ''}"
+        named = len(took.keys & {p.run.key for p in work.runs})
+        if named == took.runs < priced.runs:  # a study that keeps part of its sweep
+            runs += f" of the {priced.runs} its command plans"
         ran_on = took.cpu_class or "CPU class not recorded"
         line = f"  took {duration(took.wall_s)} ({took.source}; {ran_on}"
         if took.priced_at_start_s is not None:
@@ -276,9 +277,12 @@ def bills(results: tuple[Path, ...], calibrate: bool, recalibrate: bool) -> None
         if took.workers is None and "--workers" not in took.command.split():
             workers += " (this machine's: the command left them to it)"
         line += f"{duration(priced.wall_s)} on {workers} ({here}, "
-        if priced.runs != took.runs:
-            runs += f", of which the command's plan names {priced.runs}"
+        if named != took.runs:
+            runs += f", of which the command's plan names {named}"
             line += "not comparable: the plan differs from the runs)"
+        elif named < priced.runs and took.source != sweep_bills.BILL:
+            line += "not comparable: only part of the sweep lies here, and its runs' records "
+            line += "span whatever else the sweep trained meanwhile)"
         elif not took.comparable:
             runs += ", of which " + ", ".join(
                 f"{n} {state}" for state, n in took.unfinished.items()
@@ -293,7 +297,7 @@ def bills(results: tuple[Path, ...], calibrate: bool, recalibrate: bool) -> None
             line += f"calibrated): took {ratio:.2f}x the price, the price {verdict} 25 % of it"
             if took.cpu_class not in (None, here):
                 line += " (another class: not the test)"
-            if took.cpu_s is not None:  # what other work stretches much less than the wall time
+            if took.cpu_s is not None and named == priced.runs:  # every run's, not a part's
                 core_s = priced.core_hours * 3600
                 line += (
                     f"\n  its runs' CPU time (eval.csv cpu_s): {duration(took.cpu_s)} of one core, "

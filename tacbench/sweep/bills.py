@@ -76,15 +76,17 @@ class Took:
         return len(self.keys)
 
 
-def sweeps(results: Path) -> list[Took]:
-    """Every sweep that trained runs under ``results``, in the order they started. Runs of
-    ``tacbench run`` commands are left out."""
+def sweeps(*folders: Path) -> list[Took]:
+    """Every sweep that trained runs under ``folders``, in the order they started, each once
+    with all of its runs found there (a study may keep a copy of part of another's sweep: a run
+    found twice counts once). Runs of ``tacbench run`` commands are left out."""
     created: dict[str, list[datetime.datetime]] = defaultdict(list)
     updated: dict[str, list[datetime.datetime]] = defaultdict(list)
     keys: dict[str, set[str]] = defaultdict(set)
-    unfinished: dict[str, Counter[str]] = defaultdict(Counter)
-    cpu: dict[str, dict[str, float | None]] = defaultdict(dict)  # by run key: a copy counts once
-    for config_path in sorted(results.rglob("config.json")):
+    states: dict[str, dict[str, str]] = defaultdict(dict)  # by run key, as the CPU seconds
+    cpu: dict[str, dict[str, float | None]] = defaultdict(dict)
+    config_paths = sorted(path for folder in folders for path in folder.rglob("config.json"))
+    for config_path in config_paths:
         status_path = config_path.with_name("status.json")
         if not status_path.exists():
             continue
@@ -99,13 +101,12 @@ def sweeps(results: Path) -> list[Took]:
         cpu[command][key] = None if seconds is None else seconds / members_sharing(config)
         status = runs.read_json(status_path, ADVICE)
         updated[command].append(_time(status, "updated", status_path))
-        if status.get("state") != "complete":
-            unfinished[command][str(status.get("state"))] += 1
-    bills = _bills(results)
+        states[command][key] = str(status.get("state"))
+    bills = {command: bill for folder in folders for command, bill in _bills(folder).items()}
     took = []
     for command in sorted(created, key=lambda c: min(created[c])):
         bill, found = bills.get(command), frozenset(keys[command])
-        left = dict(sorted(unfinished[command].items()))
+        left = dict(sorted(Counter(s for s in states[command].values() if s != "complete").items()))
         recorded = [s for s in cpu[command].values() if s is not None]
         cpu_s = sum(recorded) if len(recorded) == len(cpu[command]) else None
         if bill is not None and _created_every_run(bill, min(created[command])):
@@ -219,12 +220,12 @@ class Repriced:
     runs: int
 
 
-def fresh_plan(grid: Preset, options: Options, only: frozenset[str] | None = None) -> SweepPlan:
-    """``grid``'s plan with ``options`` (only the runs of keys ``only``: a study may keep some of
-    a sweep's runs) as it stood before the first run trained: planned into an empty folder, gone
-    when this returns (pricing the plan finds no runs there, as in the empty folder)."""
+def fresh_plan(grid: Preset, options: Options) -> SweepPlan:
+    """``grid``'s plan with ``options`` as it stood before the first run trained: planned into an
+    empty folder, gone when this returns (pricing the plan finds no runs there, as in the empty
+    folder)."""
     with tempfile.TemporaryDirectory(prefix="tacbench-reprice-") as empty:
-        return driver.load_plan(grid, Path(empty), options, save=False, only=only)[0]
+        return driver.load_plan(grid, Path(empty), options, save=False)[0]
 
 
 def reprice(work: SweepPlan, options: Options) -> Repriced:

@@ -58,18 +58,14 @@ def load_plan(
     options: Options,
     *,
     save: bool = True,
-    only: Collection[str] | None = None,
 ) -> tuple[plan.SweepPlan, state.SweepState]:
     """The plan from the run directories and failure history under ``out``. A failure found in
     a status.json but not in the history (a run that failed outside a sweep) is added to the
-    history, which is saved if ``save`` (not for a dry run). With ``only``, the plan holds only
-    the runs of those keys (``runs/<algo>/<env>/<variant>/seed<k>``)."""
+    history, which is saved if ``save`` (not for a dry run)."""
     device = "cuda" if options.gpus_per_run else "cpu"
     threads = max(1, int(options.cpus_per_run)) if options.executor != "local" else 1
     warnings: list[str] = []
     all_runs = plan.build_runs(preset, device=device, threads=threads, warnings=warnings)
-    if only is not None:
-        all_runs = [run for run in all_runs if run.key in only]
     history = state.SweepState(out)
     statuses = {run.key: plan.read_status(out, run) for run in all_runs}
     # Ray without a shared filesystem keeps the checkpoints on its nodes, not under --out
