@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -12,7 +13,7 @@ from matplotlib.colors import to_hex
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
-from tacbench.report import Report, ReportOptions, analyse
+from tacbench.report import Report, ReportOptions, analyse, plots
 from tacbench.report.methods import BEST_Q_LABEL, SAC_LABEL, style_of
 from tests.report_fixtures import synthetic_tree
 
@@ -154,14 +155,38 @@ def test_every_figure_is_whole_with_one_task_and_with_six(
     )
     figures = analyse(ReportOptions(results=root, out=root / "report", reps=100)).figures
     for name, fig in figures.items():
-        renderer = FigureCanvasAgg(fig).get_renderer()
-        page = fig.bbox
-        drawn = [*fig.legends, *fig.axes, *(ax.get_legend() for ax in fig.axes), fig._suptitle]
-        for artist in (a for a in drawn if a is not None):
-            box = artist.get_tightbbox(renderer) if isinstance(artist, Axes) else None
-            box = box or artist.get_window_extent(renderer)
-            assert box.x0 >= -1 and box.x1 <= page.x1 + 1, f"{name}: {artist} is cut off"
-            assert box.y0 >= -1 and box.y1 <= page.y1 + 1, f"{name}: {artist} is cut off"
-        for legend in fig.legends:  # the shared legend sits below every panel's tick labels
-            top = legend.get_window_extent(renderer).y1
-            assert all(top <= ax.get_tightbbox(renderer).y0 + 1 for ax in fig.axes), name
+        _assert_whole(name, fig)
+
+
+def _assert_whole(name: str, fig: Figure) -> None:
+    """Nothing of ``fig`` lies off the page, and its shared legend lies below every panel."""
+    renderer = FigureCanvasAgg(fig).get_renderer()
+    page = fig.bbox
+    drawn = [*fig.legends, *fig.axes, *(ax.get_legend() for ax in fig.axes), fig._suptitle]
+    for artist in (a for a in drawn if a is not None):
+        box = artist.get_tightbbox(renderer) if isinstance(artist, Axes) else None
+        box = box or artist.get_window_extent(renderer)
+        assert box.x0 >= -1 and box.x1 <= page.x1 + 1, f"{name}: {artist} is cut off"
+        assert box.y0 >= -1 and box.y1 <= page.y1 + 1, f"{name}: {artist} is cut off"
+    for legend in fig.legends:  # the shared legend sits below every panel's tick labels
+        top = legend.get_window_extent(renderer).y1
+        assert all(top <= ax.get_tightbbox(renderer).y0 + 1 for ax in fig.axes), name
+
+
+def test_a_profile_figure_of_many_settings_is_whole() -> None:
+    """A report of every committed study has about 30 methods in its profiles (q = 1 in each
+    setting of the authors' versions): each panel's legend to its right ran over the next panel
+    and off the page's foot. One legend below both now grows the figure."""
+    methods = [f"SAC (TAC q=1) [q1-a0.2-setting{k}]" for k in range(24)] + ["DDPG", "TD3"]
+    tau = np.linspace(0, 1, 5)
+    profiles = pd.DataFrame(
+        [
+            {"method": m, "tau": t, "fraction": 1 - t, "low": 0.9 - t, "high": 1.0}
+            for m in methods
+            for t in tau
+        ]
+    )
+    groups = {"TAC entropic indices": methods[:20], "Comparison": methods[16:]}
+    fig = plots.profile_figure(profiles, groups, {}, "Performance profiles")
+    _assert_whole("profiles", fig)
+    assert [t.get_text() for t in fig.legends[0].get_texts()] == methods  # each method once

@@ -253,10 +253,11 @@ def profile_figure(
     qs: Mapping[str, float],
     title: str,
 ) -> Figure:
-    """Performance profiles (fraction of runs above tau) with 95 % bands, one panel per group."""
+    """Performance profiles (fraction of runs above tau) with 95 % bands, one panel per group,
+    and the groups' methods in one legend below (a report of many settings has dozens)."""
     with rc_context(_theme()):
         names = [name for name, members in groups.items() if members]
-        fig = Figure(figsize=(7.0 * len(names), 4.6))
+        fig = Figure(figsize=(6.0 * len(names), 4.6))
         axes = fig.subplots(1, len(names), squeeze=False)
         for ax, name in zip(axes[0], names, strict=True):
             for method in groups[name]:
@@ -279,10 +280,8 @@ def profile_figure(
             ax.set_ylabel(r"fraction of runs with score $> \tau$")
             ax.set_xlim(0, 1)
             ax.set_ylim(0, 1.02)
-            ax.legend(fontsize="small", loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
-        _title(fig, title)
-        fig.tight_layout()
-        return fig
+        methods = list(dict.fromkeys(m for name in names for m in groups[name]))
+        return _finish(fig, title, _legend(fig, methods, qs))
 
 
 def save(fig: Figure, target: Path | BinaryIO, fmt: str | None = None, dpi: int = 110) -> None:
