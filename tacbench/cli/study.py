@@ -266,7 +266,8 @@ def bills(results: tuple[Path, ...], calibrate: bool, recalibrate: bool) -> None
         priced = sweep_bills.reprice(work, options)
         runs = f"{took.runs} run{'s' if took.runs != 1 else ''}"
         named = len(took.keys & {p.run.key for p in work.runs})
-        if named == took.runs < priced.runs:  # a study that keeps part of its sweep
+        part = named == took.runs < priced.runs  # a study that keeps part of its sweep
+        if part:
             runs += f" of the {priced.runs} its command plans"
         ran_on = took.cpu_class or "CPU class not recorded"
         line = f"  took {duration(took.wall_s)} ({took.source}; {ran_on}"
@@ -280,7 +281,7 @@ def bills(results: tuple[Path, ...], calibrate: bool, recalibrate: bool) -> None
         if named != took.runs:
             runs += f", of which the command's plan names {named}"
             line += "not comparable: the plan differs from the runs)"
-        elif named < priced.runs and took.source != sweep_bills.BILL:
+        elif part and took.source != sweep_bills.BILL:
             line += "not comparable: only part of the sweep lies here, and its runs' records "
             line += "span whatever else the sweep trained meanwhile)"
         elif not took.comparable:
@@ -297,7 +298,7 @@ def bills(results: tuple[Path, ...], calibrate: bool, recalibrate: bool) -> None
             line += f"calibrated): took {ratio:.2f}x the price, the price {verdict} 25 % of it"
             if took.cpu_class not in (None, here):
                 line += " (another class: not the test)"
-            if took.cpu_s is not None and named == priced.runs:  # every run's, not a part's
+            if took.cpu_s is not None and not part:  # every run's CPU seconds, not a part's
                 core_s = priced.core_hours * 3600
                 line += (
                     f"\n  its runs' CPU time (eval.csv cpu_s): {duration(took.cpu_s)} of one core, "
