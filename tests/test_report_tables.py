@@ -180,6 +180,7 @@ def test_a_q_whose_every_run_failed_keeps_its_rows(tmp_path: Path) -> None:
     [row] = report.best_q.to_dict("records")
     assert row["ranking"] == "3 > 1; every run failed: 2"
     assert row["paper_q_rank"] == "every run failed" and row["best_q_not_1"] == 3.0
+    assert row["agrees"] == "not tested"  # the paper's q (2 here) has no run to rank
 
 
 def test_tac_best_q_is_of_the_papers_design_where_a_task_has_it() -> None:
@@ -360,4 +361,4 @@ def test_synthetic_sweep_finds_the_known_best_q(tmp_path: Path) -> None:
     report = analyse(ReportOptions(results=tmp_path, out=tmp_path / "r", reps=100))
     row = report.best_q.iloc[0]
     assert row["best_q"] == 1.5 and row["ranking"] == "1.5 > 2 > 1 > 0.5"
-    assert row["paper_q_rank"] == "not run" and row["agrees"] == "no"
+    assert row["paper_q_rank"] == "not run" and row["agrees"] == "not tested"

@@ -181,9 +181,12 @@ def best_q_table(summary: pd.DataFrame, improvement: pd.DataFrame) -> pd.DataFra
         agrees = "n/a"
         if paper_q is not None:
             positions = np.flatnonzero(ranked["q"].to_numpy() == paper_q)
-            rank = f"{positions[0] + 1} of {len(ranked)}" if len(positions) else "not run"
-            rank = "every run failed" if paper_q in failed_qs else rank
-            agrees = "yes" if top["q"] == paper_q else "no"
+            if len(positions):
+                rank = f"{positions[0] + 1} of {len(ranked)}"
+                agrees = "yes" if top["q"] == paper_q else "no"
+            else:  # a ranking without the paper's q neither confirms nor refutes it
+                rank = "every run failed" if paper_q in failed_qs else "not run"
+                agrees = "not tested"
         row = {
             "env": env,
             "setting": setting,
