@@ -18,6 +18,11 @@ def listing(items: Sequence[str], shown: int = 5, sep: str = ", ") -> str:
     return sep.join(items[:shown]) + more
 
 
+def plural(count: int, noun: str, nouns: str = "") -> str:
+    """``1 run``, ``2 runs`` (``nouns``: the plural, where it is not ``noun`` + s)."""
+    return f"{count} {noun if count == 1 else nouns or noun + 's'}"
+
+
 def one_line(err: BaseException) -> str:
     """``err`` as one line for a message or a record: its type and its message's first line."""
     lines = str(err).strip().splitlines()

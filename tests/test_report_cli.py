@@ -225,3 +225,31 @@ def test_the_page_is_moved_into_place_last(
     assert code == 0, output
     pages = [i for i, name in enumerate(moved) if name in ("report.md", "index.html")]
     assert len(moved) > 10 and pages == [len(moved) - 2, len(moved) - 1]
+
+
+def test_a_report_of_one_run_counts_it_in_the_singular(tmp_path: Path) -> None:
+    """ "1 run on 1 task", not "1 runs on 1 tasks", in the command's line and the page, whose
+    empty comparison with q = 1 is a sentence, not a table's bare header."""
+    write_run(
+        tmp_path,
+        algo="tac",
+        env="Hopper-v4",
+        variant="q1-a0.2",
+        seed=0,
+        q=1.0,
+        alpha=0.2,
+        steps=[5000, 10000],
+        returns=[10.0, 20.0],
+        total_steps=50000,
+        state="running",
+    )
+    out = tmp_path / "report"
+    code, output = _invoke("--results", str(tmp_path), "--out", str(out), "--reps", "100")
+    assert code == 0, output
+    assert "1 run loaded (1 partial), 0 skipped;" in output
+    page = (out / "report.md").read_text()
+    assert "- 1 run on 1 task (Hopper-v4) and 1 method, from" in page
+    assert "- 1 partial run included (see Runs)." in page
+    assert "The command that produced the runs:" in page
+    assert "| P(method > q = 1) [95 % CI] |" not in page
+    assert "The probability of improvement over q = 1 needs TAC runs at q = 1 and at" in page

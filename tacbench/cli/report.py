@@ -64,7 +64,7 @@ def report(
     results: Path, out: Path, metric: str, fmt: str, reps: int, last: int, grid_points: int
 ) -> None:
     """Figures, tables and rliable statistics from the run directories under --results."""
-    from tacbench.errors import listing
+    from tacbench.errors import listing, plural
     from tacbench.report import ReportOptions, analyse, write_report  # pandas etc. only here
     from tacbench.report.write import check_out, leftovers
     from tacbench.runs.files import check_writable
@@ -95,7 +95,8 @@ def report(
             err=True,
         )
     click.echo(
-        f"{len(runs)} runs loaded ({int(runs['partial'].sum())} partial), {len(skipped)} skipped"
+        f"{plural(len(runs), 'run')} loaded ({int(runs['partial'].sum())} partial), "
+        f"{len(skipped)} skipped"
         f"{' (see skipped.csv)' if skipped else ''}; wrote {out / 'index.html'} and "
         f"{out / 'report.md'}"
     )

@@ -8,6 +8,7 @@ from collections import Counter
 
 import pandas as pd
 
+from tacbench.errors import plural
 from tacbench.report.build import Report
 from tacbench.report.reading import how_to_read
 from tacbench.report.render import Bullets, Code, Image, Section, Table, Text
@@ -183,15 +184,17 @@ def _overview(report: Report) -> list[str]:
     runs = report.runset.runs
     o = report.options
     items = [
-        f"{len(runs)} runs on {len(report.envs)} tasks ({', '.join(report.envs)}) and "
-        f"{len(report.methods)} methods, from `{report.runset.root}`.",
+        f"{plural(len(runs), 'run')} on {plural(len(report.envs), 'task')} "
+        f"({', '.join(report.envs)}) and {plural(len(report.methods), 'method')}, from "
+        f"`{report.runset.root}`.",
         f"Regenerate: `tacbench report --results {o.results} --out {o.out} --metric {o.metric} "
         f"--format {o.fmt} --reps {o.reps} --last {o.last} --grid-points {o.grid_points}`.",
     ]
     if runs["partial"].any():
-        items.append(f"{int(runs['partial'].sum())} partial runs included (see Runs).")
+        items.append(f"{plural(int(runs['partial'].sum()), 'partial run')} included (see Runs).")
     if report.runset.skipped:
-        items.append(f"{len(report.runset.skipped)} run directories skipped (see Runs).")
+        skipped = plural(len(report.runset.skipped), "run directory", "run directories")
+        items.append(f"{skipped} skipped (see Runs).")
     items += [f"Caution: {caution}" for caution in report.cautions]
     return items
 
@@ -217,7 +220,9 @@ def _provenance(report: Report) -> list[Table | Code | Text]:
             + f". Runs created {span}."
         ),
         Code(
-            f"The {runs['command'].nunique()} distinct commands that produced the runs",
+            "The command that produced the runs"
+            if runs["command"].nunique() == 1
+            else f"The {runs['command'].nunique()} distinct commands that produced the runs",
             sorted(set(runs["command"])),
         ),
     ]
@@ -367,6 +372,12 @@ def sections(report: Report) -> list[Section]:
                         report.improvement, ["method", "env", "tasks"], "P(method > q = 1)"
                     ),
                     "Probability of improvement over q = 1",
+                )
+                if not report.improvement.empty
+                else Text(
+                    "The probability of improvement over q = 1 needs TAC runs at q = 1 and at "
+                    "another q on one task, with the same alpha and products; these runs have "
+                    "none to compare."
                 ),
                 Image("profiles", "Score distributions with 95 % bands."),
             ],

@@ -8,13 +8,8 @@ from collections.abc import Sequence
 
 import pandas as pd
 
-from tacbench.errors import listing
+from tacbench.errors import listing, plural
 from tacbench.report.load import Skipped
-
-
-def plural(count: int, noun: str, nouns: str = "") -> str:
-    """``1 run``, ``2 runs`` (``nouns``: the plural, where it is not ``noun`` + s)."""
-    return f"{count} {noun if count == 1 else nouns or noun + 's'}"
 
 
 def seeds(values: Sequence[int] | set[int]) -> str:
