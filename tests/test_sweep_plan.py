@@ -604,6 +604,21 @@ def test_the_dry_run_prices_the_wall_time_by_its_units(tmp_path: Path) -> None:
     assert "(one core per worker; each unit on one worker" in dry_run.describe_plan(work, 2, "task")
 
 
+def test_a_plan_of_one_run_is_counted_in_the_singular(tmp_path: Path) -> None:
+    """The dry run and the summary say "1 run", "1 unit", not "1 runs", "1 units"."""
+    one = narrow(
+        get_preset("paper-q-grid"),
+        Narrowing(("Hopper",), (1.0,), seeds=(0,), settings={"total_steps": 10_000}),
+    )
+    work = driver.load_plan(one, tmp_path, driver.Options(), save=False)[0]
+    text = dry_run.describe_plan(work, 1, "task")
+    assert "\n1 run: 0 complete, 0 partial, 0 failed" in text
+    assert "\n1 unit to train (one process" in text
+    alone = {**summary.counts(work), "recovered_after_failures": 0}
+    record = {"preset": "p", "out": "o", "counts": alone, "unfinished": [], "interrupted": True}
+    assert "into o): 1 run: 0 complete" in summary.summary_text(record, "")
+
+
 def test_the_summary_compares_the_bill_with_the_price_only_for_a_whole_plan() -> None:
     bill = {"cpu_class": "x", "workers": 2, "wall_s": 4140.0, "priced_wall_s": 3480.0}
     counts = dict.fromkeys(("runs", "complete", "failed", "given_up", "partial", "new"), 0)

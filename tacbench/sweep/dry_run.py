@@ -10,6 +10,7 @@ from typing import Any
 
 from tacbench import envs, memory
 from tacbench.config import RunConfig
+from tacbench.errors import plural
 from tacbench.hardware import cpu_class
 from tacbench.members import repays_compilation
 from tacbench.progress import duration
@@ -85,11 +86,11 @@ def describe_plan(plan: SweepPlan, workers: int, group: str, workers_from: str =
     lines = [
         f"preset {plan.preset.name}, before the command's options: {plan.preset.description}",
         *plan.warnings,
-        f"{c['runs']} runs: {c['complete']} complete, {c['partial']} partial, {c['failed']} "
-        f"failed ({c['to_retry']} to retry, {c['given_up']} given up after too many "
-        f"failures), {c['new']} not started",
-        f"{len(plan.units)} units to train (one process or Ray task each; --group {group}: "
-        f"{GROUPING[group]})",
+        f"{plural(c['runs'], 'run')}: {c['complete']} complete, {c['partial']} partial, "
+        f"{c['failed']} failed ({c['to_retry']} to retry, {c['given_up']} given up after too "
+        f"many failures), {c['new']} not started",
+        f"{plural(len(plan.units), 'unit')} to train (one process or Ray task each; --group "
+        f"{group}: {GROUPING[group]})",
         *_units(plan),
         f"environment steps left: {left:,} of {total:,} ({budgets} per run)",
         "",

@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from tacbench import runs
+from tacbench.errors import plural
 from tacbench.progress import duration
 from tacbench.sweep import state
 from tacbench.sweep.plan import PlannedRun, SweepPlan
@@ -94,7 +95,7 @@ def summary_text(summary: dict[str, Any], command: str) -> str:
     """The summary as printed at the end of the sweep."""
     c = summary["counts"]
     lines = [
-        f"sweep summary ({summary['preset']} into {summary['out']}): {c['runs']} runs: "
+        f"sweep summary ({summary['preset']} into {summary['out']}): {plural(c['runs'], 'run')}: "
         f"{c['complete']} complete, {c['failed']} failed ({c['given_up']} given up), "
         f"{c['partial']} partial, {c['new']} not started"
         + (
