@@ -32,6 +32,9 @@ RUNS = {
     "authors-versions-100k/authors-2019-01-22": 5 * 5,
     # the "Final plot" version with the authors' (400, 300) networks: 5 q x 5 seeds
     "authors-versions-100k/authors-2019-01-16c-h400x300": 5 * 5,
+    # the same version, networks and commands at q = 1, 1.5 and 5, run again on the AMD EPYC AVX2
+    # class (the runs above: Zen 4): 3 q x 5 seeds
+    "authors-versions-100k/authors-2019-01-16c-h400x300-avx2": 3 * 5,
     # 2019-01-07b with the authors' (400, 300) networks: 5 q x 5 seeds
     "authors-versions-100k/authors-2019-01-07b-h400x300": 5 * 5,
     # 2019-01-11b with the authors' (400, 300) networks: q = 2, 3 and 5 x 5 seeds (its q = 1 and
