@@ -123,7 +123,7 @@ def test_kill_9_of_a_worker_then_of_the_sweep_and_the_same_command_completes(
     again = run_cli(args)
     assert again.returncode == 0, again.stdout + again.stderr
     assert (
-        "1 runs: 1 complete" in again.stdout and "1 completed after failed attempts" in again.stdout
+        "1 run: 1 complete" in again.stdout and "1 completed after failed attempts" in again.stdout
     )
     _assert_complete_rows(run, 2000)
 

@@ -115,7 +115,7 @@ def test_a_requeued_and_a_time_limited_job_resume_exactly(tmp_path: Path) -> Non
             driver.kill()
             subprocess.run(["scancel", "--name", "tacbench-sweep"], check=False)
     assert driver.returncode == 0, output
-    assert "1 runs: 1 complete, 0 failed" in output
+    assert "1 run: 1 complete, 0 failed" in output
 
     run = _run_dir(out)
     log = next((out / "sweep" / "logs").glob("*.log")).read_text()
