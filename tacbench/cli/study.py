@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 import click
 
 from tacbench.cli.options import ResultsFolder
-from tacbench.errors import TacbenchError
+from tacbench.errors import TacbenchError, plural
 from tacbench.studies import parity as parity_study
 
 if TYPE_CHECKING:
@@ -264,7 +264,7 @@ def bills(results: tuple[Path, ...], calibrate: bool, recalibrate: bool) -> None
         )
     for took, work, options in priceable:
         priced = sweep_bills.reprice(work, options)
-        runs = f"{took.runs} run{'s' if took.runs != 1 else ''}"
+        runs = plural(took.runs, "run")
         named = len(took.keys & {p.run.key for p in work.runs})
         part = named == took.runs < priced.runs  # a study that keeps part of its sweep
         if part:
@@ -274,7 +274,7 @@ def bills(results: tuple[Path, ...], calibrate: bool, recalibrate: bool) -> None
         if took.priced_at_start_s is not None:
             line += f"; priced at its start {duration(took.priced_at_start_s)}"
         line += "); priced here "
-        workers = f"{priced.workers} worker{'s' if priced.workers != 1 else ''}"
+        workers = plural(priced.workers, "worker")
         if took.workers is None and "--workers" not in took.command.split():
             workers += " (this machine's: the command left them to it)"
         line += f"{duration(priced.wall_s)} on {workers} ({here}, "

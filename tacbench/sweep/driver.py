@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import IO, Any
 
 from tacbench import envs, hardware, runs, trainers
-from tacbench.errors import TacbenchError
+from tacbench.errors import TacbenchError, plural
 from tacbench.interrupts import exit_status, stop_signals
 from tacbench.runs.checkpoints import DiskError, disk_errors
 from tacbench.sweep import cost, dry_run, executors, plan, slurm, state, summary, worker
@@ -104,7 +104,7 @@ def check_sizes(work: plan.SweepPlan, options: Options) -> None:
                 configs = [run.config for run in unit.runs]
                 trainers.check_sizes(configs, info_of(configs[0].env))
             except TacbenchError as err:
-                runs_in = f"{len(unit.runs)} run{'s' if len(unit.runs) != 1 else ''}"
+                runs_in = plural(len(unit.runs), "run")
                 raise TacbenchError(f"the unit {unit.key} ({runs_in}): {err}") from None
 
 

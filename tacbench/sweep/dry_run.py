@@ -107,8 +107,8 @@ def describe_plan(plan: SweepPlan, workers: int, group: str, workers_from: str =
     sources = {g.source for g in priced.groups}
     lines += [
         "",
-        f"cost estimate: {priced.core_seconds / 3600:,.1f} core-hours; with {workers} worker"
-        f"{'s' if workers != 1 else ''}{f' ({workers_from})' if workers_from else ''} about "
+        f"cost estimate: {priced.core_seconds / 3600:,.1f} core-hours; with "
+        f"{plural(workers, 'worker')}{f' ({workers_from})' if workers_from else ''} about "
         f"{duration(priced.wall_seconds)} "
         "(one core per worker; each unit on one worker, started in plan order)",
     ]
@@ -209,7 +209,7 @@ def _unlike_the_tac_default(plan: SweepPlan, priced: Price) -> list[str]:
         if not (costlier or narrower):
             continue
         held = [
-            *([f"of {smallest} member{'s' if smallest != 1 else ''}"] if fewer else []),
+            *([f"of {plural(smallest, 'member')}"] if fewer else []),
             *(["not compiled"] if eager else []),
             *(f"with hidden layers {h}" for h in networks),
         ]
@@ -252,7 +252,7 @@ def _units(plan: SweepPlan) -> list[str]:
         members = f"{min(sizes)}" if min(sizes) == max(sizes) else f"{min(sizes)}-{max(sizes)}"
         need = memory.get((algo, env))
         lines.append(
-            f"  {algo} {env}: {len(sizes)} unit{'s' if len(sizes) != 1 else ''} of {members} "
+            f"  {algo} {env}: {plural(len(sizes), 'unit')} of {members} "
             f"member{'s' if max(sizes) != 1 else ''}"
             + (
                 f", up to {need / (1 << 30):.1f} GiB each (replay buffers and networks)"

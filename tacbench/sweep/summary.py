@@ -85,7 +85,7 @@ def load_note(load: float | None, cores: int | None, workers: int) -> str:
     does not record it): the price assumes a core per worker and nothing else running."""
     if load is None or cores is None:
         return ""
-    note = f"the load averaged {load:.1f} on {cores} core{'s' if cores != 1 else ''}"
+    note = f"the load averaged {load:.1f} on {plural(cores, 'core')}"
     if load - workers >= OTHER_WORK:
         note += f", {load - workers:.1f} above its workers: other work shared the cores"
     return note
@@ -114,7 +114,7 @@ def summary_text(summary: dict[str, Any], command: str) -> str:
     if bill and bill["priced_wall_s"] > 0:
         took = (
             f"{'stopped after' if summary['interrupted'] else 'took'} {duration(bill['wall_s'])} "
-            f"on {bill['workers']} worker{'s' if bill['workers'] != 1 else ''} "
+            f"on {plural(bill['workers'], 'worker')} "
             f"({bill['cpu_class']}); priced at the start {duration(bill['priced_wall_s'])}"
         )
         ratio = bill["wall_s"] / bill["priced_wall_s"]  # only a whole plan's bill is compared
@@ -127,8 +127,8 @@ def summary_text(summary: dict[str, Any], command: str) -> str:
     for entry in failed:
         n = len(entry["failures"])
         lines.append(
-            f"  {entry['run']}: {entry['state']} at step {entry['step']:,} after {n} failed "
-            f"attempt{'s' if n > 1 else ''}"
+            f"  {entry['run']}: {entry['state']} at step {entry['step']:,} after "
+            f"{plural(n, 'failed attempt')}"
         )
         for i, failure in enumerate(entry["failures"], 1):
             lines.append(
@@ -137,14 +137,14 @@ def summary_text(summary: dict[str, Any], command: str) -> str:
             )
     if c["given_up"]:
         lines.append(
-            f"{c['given_up']} run{'s' if c['given_up'] > 1 else ''} given up after more than "
+            f"{plural(c['given_up'], 'run')} given up after more than "
             "--max-retries failures: fix what the failures say, then run the same command with "
             "a larger --max-retries to try again"
         )
     if n := c["cannot_resume"]:
         its, it = ("their", "them") if n > 1 else ("its", "it")
         lines.append(
-            f"{n} run{'s' if n > 1 else ''} cannot resume from {its} files, so the sweep did not "
+            f"{plural(n, 'run')} cannot resume from {its} files, so the sweep did not "
             f"retry {it} (every attempt would be refused alike): fix what the failures say, then "
             "run the same command"
         )
