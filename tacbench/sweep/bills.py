@@ -85,6 +85,8 @@ def sweeps(*folders: Path) -> list[Took]:
     keys: dict[str, set[str]] = defaultdict(set)
     states: dict[str, dict[str, str]] = defaultdict(dict)  # by run key, as the CPU seconds
     cpu: dict[str, dict[str, float | None]] = defaultdict(dict)
+    named = dict.fromkeys(folder.resolve() for folder in folders)
+    folders = tuple(f for f in named if not any(p in named for p in f.parents))  # each read once
     config_paths = sorted(path for folder in folders for path in folder.rglob("config.json"))
     for config_path in config_paths:
         status_path = config_path.with_name("status.json")
