@@ -210,6 +210,7 @@ def _provenance(report: Report) -> list[Table | Code | Text]:
     hosts = Counter(runs["host"])
     created = sorted(c for c in runs["created"] if c)
     span = f"{created[0]} to {created[-1]}" if created else "unknown"
+    commands = sorted(set(runs["command"]))
     return [
         Table(table, "Library versions recorded in config.json, with the number of runs"),
         Text(
@@ -221,9 +222,9 @@ def _provenance(report: Report) -> list[Table | Code | Text]:
         ),
         Code(
             "The command that produced the runs"
-            if runs["command"].nunique() == 1
-            else f"The {runs['command'].nunique()} distinct commands that produced the runs",
-            sorted(set(runs["command"])),
+            if len(commands) == 1
+            else f"The {len(commands)} distinct commands that produced the runs",
+            commands,
         ),
     ]
 
