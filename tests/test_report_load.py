@@ -240,6 +240,30 @@ def test_of_duplicates_the_run_that_trained_further_is_kept(tmp_path: Path) -> N
     assert kept(("h", longer), ("i", {"status_step": 300, "total_steps": 300})) == "i"
 
 
+def test_a_failed_run_with_a_rerun_or_a_failed_copy_is_counted_once(tmp_path: Path) -> None:
+    """A failed seed rerun to completion in another folder was counted twice: as a seed, and
+    as a failure of its method (5 seeds and 1 failed for 5 identities)."""
+    failure = {"state": "failed", "status_step": 200, "reason": "NaN in critic loss"}
+    _tac(tmp_path / "a", **failure)
+    _tac(tmp_path / "b")
+    _tac(tmp_path / "a", seed=1, **failure)
+    _tac(tmp_path / "b", seed=1, **failure)
+    runset = load_runs(tmp_path)
+    assert runset.runs["path"].tolist() == ["b/runs/tac/Hopper-v4/q1.5-a0.2/seed0"]
+    reasons = {s.path: s for s in runset.skipped}
+    rerun = reasons["a/runs/tac/Hopper-v4/q1.5-a0.2/seed0"]
+    assert rerun.identity is None
+    assert rerun.reason == (
+        "duplicate of b/runs/tac/Hopper-v4/q1.5-a0.2/seed0 (same algo, env, variant, seed); "
+        "run failed at step 200: NaN in critic loss"
+    )
+    assert reasons["a/runs/tac/Hopper-v4/q1.5-a0.2/seed1"].identity is not None
+    copy = reasons["b/runs/tac/Hopper-v4/q1.5-a0.2/seed1"]
+    assert copy.identity is None
+    assert copy.reason.startswith("duplicate of a/runs/tac/Hopper-v4/q1.5-a0.2/seed1 (same")
+    assert [s.identity["seed"] for s in runset.skipped if s.identity] == [1]
+
+
 def test_no_runs_is_a_clear_error(tmp_path: Path) -> None:
     with pytest.raises(TacbenchError, match="does not exist"):
         load_runs(tmp_path / "missing")

@@ -29,6 +29,7 @@ from tacbench.runs import read_json
 
 CONTRACT_FILES = ("config.json", "status.json", "eval.csv", "train.csv")
 STATES = ("running", "interrupted", "complete", "failed")
+_SAME = "same algo, env, variant, seed"  # a duplicate's identity, as its reason names it
 
 RUN_COLUMNS = (
     "run",
@@ -278,7 +279,8 @@ def load_runs(results: Path | str, metric: Metric = "eval") -> RunSet:
         if _further(row, kept):  # the one that trained further stays, whatever the path order
             rows[at], series[at] = {"run": at, "path": rel, **row}, run_series
             rel, kept = kept["path"], rows[at]
-        skipped.append(Skipped(rel, f"duplicate of {kept['path']} (same algo, env, variant, seed)"))
+        skipped.append(Skipped(rel, f"duplicate of {kept['path']} ({_SAME})"))
+    skipped = _failed_once(skipped, seen, rows)
     if not rows:
         _refuse_regression_references(root)
         reasons = listing([f"{s.path}: {s.reason}" for s in skipped], sep="; ")
@@ -292,6 +294,28 @@ def load_runs(results: Path | str, metric: Metric = "eval") -> RunSet:
     planned = runs.groupby(["algo", "env", "variant"])["total_steps"].transform("max")
     runs["partial"] = runs["partial"] | (runs["total_steps"] < planned)
     return RunSet(_tidy(runs, series), runs, tuple(skipped), metric, root)
+
+
+def _failed_once(
+    skipped: list[Skipped], seen: dict[tuple[str, str, str, int], int], rows: list[dict[str, Any]]
+) -> list[Skipped]:
+    """``skipped`` with each failed run counted once per identity: one whose identity also has
+    a usable run (a rerun that did not fail), or a failed one before it in path order, is a
+    duplicate, its failure named but not counted against its method."""
+    result: list[Skipped] = []
+    failed: dict[tuple[str, str, str, int], str] = {}
+    for skip in skipped:
+        if skip.identity is None:
+            result.append(skip)
+            continue
+        key = tuple(skip.identity[k] for k in ("algo", "env", "variant", "seed"))
+        kept = rows[seen[key]]["path"] if key in seen else failed.get(key)
+        if kept is None:
+            failed[key] = skip.path
+            result.append(skip)
+        else:
+            result.append(Skipped(skip.path, f"duplicate of {kept} ({_SAME}); {skip.reason}"))
+    return result
 
 
 def _further(row: dict[str, Any], than: dict[str, Any]) -> bool:
