@@ -145,3 +145,26 @@ def test_the_report_writes_and_shows_the_table(tmp_path: Path) -> None:
     shown = (tmp_path / "out" / "q_ranges.md").read_text()
     assert "| HalfCheetah-v4 | 1 <= q < 2 | 1, 1.5 | 6 |" in shown
     assert "P(1 <= q < 2 > this range)" in (tmp_path / "out" / "report.md").read_text()
+
+
+def test_a_task_run_at_several_alphas_names_each_rows_alpha(tmp_path: Path) -> None:
+    """The shown table had no alpha column: a task run at two alphas gave pairs of rows that
+    differed only in their figures."""
+    root = synthetic_tree(tmp_path, tasks=("Hopper-v4",), qs=(1.0, 1.5, 3.0), baselines=())
+    for variant in root.glob("runs/tac/Hopper-v4/q*-a0.2"):
+        for seed in variant.glob("seed*"):
+            returns = 1.5 * np.arange(1.0, 21.0) * float(variant.name[1:].split("-")[0])
+            write_run(
+                root,
+                algo="tac",
+                env="Hopper-v4",
+                variant=variant.name.replace("a0.2", "a0.1"),
+                seed=int(seed.name[4:]),
+                steps=5000 * np.arange(1, 21),
+                returns=returns,
+                q=float(variant.name[1:].split("-")[0]),
+                alpha=0.1,
+            )
+    write_report(analyse(ReportOptions(results=root, out=tmp_path / "out", reps=100)))
+    tasks = [line.split(" | ")[0][2:] for line in (tmp_path / "out" / "q_ranges.md").open()][2:]
+    assert sorted(tasks) == ["Hopper-v4 [a0.1]"] * 2 + ["Hopper-v4 [a0.2]"] * 2

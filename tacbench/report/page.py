@@ -107,12 +107,17 @@ def best_q_display(report: Report) -> pd.DataFrame:
 
 
 def q_ranges_display(report: Report) -> pd.DataFrame:
-    """The q-range table as shown (:mod:`tacbench.report.ranges`)."""
+    """The q-range table as shown (:mod:`tacbench.report.ranges`): a task with runs at several
+    alphas names each row's."""
     r = report.q_ranges
     last = report.options.last
+    several = r.groupby("env")["alpha"].transform("nunique") > 1
     return pd.DataFrame(
         {
-            "task": r["env"],
+            "task": [
+                f"{env} [a{alpha:g}]" if named else env
+                for env, alpha, named in zip(r["env"], r["alpha"], several, strict=True)
+            ],
             "q range": r["range"],
             "q": r["qs"],
             "runs": r["runs"],
