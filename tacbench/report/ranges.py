@@ -11,10 +11,10 @@ p-value of its permutation test and its verdict (:mod:`tacbench.verdicts`). Over
 several tasks an "all tasks" row pools the normalised scores for the IQM and averages the
 per-task probabilities, for each range that every task (and alpha) has runs in (a range that
 one lacks gets none: its row would pool other tasks than the rest); a task run at several
-alphas counts once per alpha, as the table shows it (``HalfCheetah-v4 [a0.1]``). The claim is of a fixed
-alpha and float32 products: runs that learn their alpha (``--alpha auto``) or train with
-bfloat16 products (``--matmul-precision bf16``) are left out, as their own comparisons with
-q = 1 are in the improvement table.
+alphas counts once per alpha, as the table shows it (``HalfCheetah-v4 [a0.1]``). The claim is
+of a fixed alpha and float32 products: runs that learn their alpha (``--alpha auto``) or train
+with bfloat16 products (``--matmul-precision bf16``) are left out, as their own comparisons
+with q = 1 are in the improvement table.
 """
 
 from __future__ import annotations
