@@ -334,6 +334,8 @@ def test_a_member_that_diverges_is_retired_and_the_others_finish(tmp_path: Path)
     [
         (["--q", "1", "--q", "1"], "--q values must differ (got [1.0, 1.0])"),
         (["--alpha", "0.2", "--alpha", "0.2"], "--alpha values must differ"),
+        (["--q", "1", "--q", "1.0000001"], "would share the run directory q1-a0.2/seed0"),
+        (["--alpha", "0.2", "--alpha", "0.2000001"], "alpha 0.2 and 0.2000001 differ only"),
         (["--algo", "td3", "--alpha", "0.1", "--alpha", "0.2"], "repeatable for TAC only"),
     ],
 )

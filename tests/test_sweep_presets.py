@@ -102,6 +102,7 @@ def test_tac_flags_follow_one_rule_for_baselines_as_in_tacbench_run() -> None:
         ({"tasks": ("Hopper-v4",), "suite": "v5"}, "here of suite v5: HalfCheetah .HalfCheetah-v5"),
         ({"suite": "v3"}, "--suite v3: choose one of v4, v5"),
         ({"q": (4.0,)}, "--q 4: not in this preset, which has 0.5, 0.7, 1, 1.2"),
+        ({"q": (1.0000001,)}, "--q 1.0000001: not in"),  # was "--q 1", a q of the preset
         ({"seeds": (5,)}, "--seed 5: not in this preset"),
         ({"algos": ("sac-sb3",)}, "--algo sac-sb3: not in this preset"),
     ],

@@ -221,8 +221,10 @@ def task_of(name: str, suite: str = paper.DEFAULT_SUITE) -> str:
 
 
 def _check_subset(flag: str, given: Sequence[Any], available: set[Any]) -> None:
-    def show(values: Sequence[Any]) -> str:
-        return ", ".join(f"{v:g}" if isinstance(v, float) else str(v) for v in values)
+    def show(values: Sequence[Any]) -> str:  # short, but never two values the same
+        return ", ".join(
+            f"{v:g}" if isinstance(v, float) and float(f"{v:g}") == v else str(v) for v in values
+        )
 
     missing = [v for v in given if v not in available]
     if missing:

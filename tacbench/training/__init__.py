@@ -62,6 +62,16 @@ def check_members(configs: Sequence[RunConfig]) -> None:
     identities = [(c.q, c.alpha, c.seed) for c in configs]
     if len(set(identities)) != len(identities):
         raise TacbenchError("two members are the same run (same q, alpha and seed).")
+    places: dict[tuple[str, int], RunConfig] = {}
+    for config in configs:  # the variant names q and alpha to 6 significant digits
+        other = places.setdefault((config.variant, config.seed), config)
+        if other is not config:
+            raise TacbenchError(
+                f"two members would share the run directory {config.variant}/seed{config.seed}: "
+                f"q {other.q!r} and {config.q!r}, alpha {other.alpha!r} and {config.alpha!r} "
+                "differ only beyond the 6 significant digits its name keeps; give values that "
+                "differ within them."
+            )
 
 
 def train(
