@@ -165,3 +165,15 @@ def test_a_file_or_link_where_the_run_directory_goes_is_refused_and_kept(
         with pytest.raises(TacbenchError, match=f"is a {kind}, where this run's directory goes"):
             plan_runs([config], tmp_path, resume=False, force=force)
     assert directory.is_symlink() if kind == "link" else directory.read_text() == "mine"
+
+
+def test_a_refused_member_leaves_the_others_forced_runs_in_place(tmp_path: Path) -> None:
+    """--force emptied seed 0's complete run, then refused seed 1's folder, a file, saying
+    that nothing was changed."""
+    kept, refused = _configs(0, 1)
+    directory = runs.run_directory(tmp_path, kept.algo, kept.env, kept.variant, 0)
+    _store(directory, kept, "complete", 1000)
+    runs.run_directory(tmp_path, kept.algo, kept.env, kept.variant, 1).write_text("mine")
+    with pytest.raises(TacbenchError, match="nothing was changed"):
+        plan_runs([kept, refused], tmp_path, resume=False, force=True)
+    assert runs.read_json(directory / "status.json")["state"] == "complete"

@@ -251,7 +251,8 @@ def plan_runs(
     """Plan each config's run directory under ``out`` (:func:`plan_run`: start,
     resume, skip or refuse with a clear error) before anything is trained. Returns the skipped
     runs' outcomes and the runs to train with their directories; a directory that starts afresh
-    (``force``, or nothing worth resuming in it) is emptied here."""
+    (``force``, or nothing worth resuming in it) is emptied here, once every run is planned, so
+    that a refusal changes nothing."""
     ensure_writable(Path(out))
     skipped, active = [], []
     for config in configs:
@@ -270,10 +271,11 @@ def plan_runs(
             )
             skipped.append(Outcome(config.seed, directory, state, -1, message))
             continue
-        if plan.action == "start" and directory.exists():
+        active.append((config, directory, plan.action))
+    for _, directory, action in active:
+        if action == "start" and directory.exists():
             shutil.rmtree(directory)
-        active.append((config, directory))
-    return skipped, active
+    return skipped, [(config, directory) for config, directory, _ in active]
 
 
 @contextmanager
