@@ -58,7 +58,8 @@ def exit_status() -> int:
 def resume_command(command: str, out: Path | None = None) -> str:
     """``command`` with ``--resume`` in place of any ``--force`` (which would delete what the
     resume continues, and which ``--resume`` refuses beside it), and with ``--out`` the folder
-    ``out`` where given (the results were moved or copied since); the library call's
+    ``out`` where given (the results were moved or copied since; added where the command wrote
+    to the default folder); the library call's
     equivalent when there is no command; a sweep's command as it is: a sweep resumes by being
     run again, and has no ``--resume``."""
     if not command:
@@ -68,6 +69,8 @@ def resume_command(command: str, out: Path | None = None) -> str:
         return command
     if out is not None and "--out" in words[:-1]:
         words[words.index("--out") + 1] = str(out)
+    elif out is not None:
+        words += ["--out", str(out)]
     return shlex.join([*(w for w in words if w not in ("--force", "--resume")), "--resume"])
 
 

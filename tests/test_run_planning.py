@@ -75,9 +75,8 @@ def test_a_resume_with_other_settings_quotes_the_runs_own_command(tmp_path: Path
     )
     with pytest.raises(TacbenchError) as refused:
         plan_runs([config], tmp_path, resume=True, force=False)
-    assert f"To continue it, repeat its own command: {command} --resume; or pass --force" in str(
-        refused.value
-    )
+    here = f"{command} --out {tmp_path} --resume"  # the default folder, named: it may move
+    assert f"To continue it, repeat its own command: {here}; or pass --force" in str(refused.value)
     with pytest.raises(TacbenchError, match=r"1000000\)\. Pass --force to replace it"):
         plan_runs([config], tmp_path, resume=False, force=False)
     # recorded with an --out the results have since left: the advice names where they are now

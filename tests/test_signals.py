@@ -122,6 +122,10 @@ def test_the_resume_command_adds_resume_to_a_run_and_leaves_a_sweep_as_it_is() -
     assert (
         resume_command(f"{run} --force --out 'my results'") == f"{run} --out 'my results' --resume"
     )
+    # the results moved: their folder replaces --out, or is added where the default was used
+    moved = Path("moved results")
+    assert resume_command(f"{run} --out old", moved) == f"{run} --out 'moved results' --resume"
+    assert resume_command(run, moved) == f"{run} --out 'moved results' --resume"
 
 
 @pytest.mark.unit
