@@ -231,6 +231,21 @@ def test_a_best_q_picked_among_several_carries_no_test(tmp_path: Path) -> None:
         best = table[table["method"] == BEST_Q_LABEL]
         assert len(best) and best["p_value"].notna().all()
         assert CHOSEN_ON_THESE_RUNS not in set(best["verdict"])
+    # a baseline run only on tasks where nothing was picked: its "all tasks" row is tested
+    mixed = tmp_path / "mixed"
+    for env in ("Humanoid-v4", "Hopper-v4", "Ant-v4"):
+        _flat_runs(mixed, env, "tac", 1.0, [100.0, 200.0, 600.0])
+        _flat_runs(mixed, env, "tac", 1.2, [400.0, 500.0, 600.0])
+    _flat_runs(mixed, "Ant-v4", "tac", 2.0, [300.0, 300.0, 300.0])  # picked among two here
+    for env in ("Humanoid-v4", "Hopper-v4"):
+        _flat_runs(mixed, env, "ddpg", None, [50.0, 150.0])
+    report = analyse(ReportOptions(results=mixed, out=mixed / "report", reps=200, last=2))
+    best = report.baselines[report.baselines["method"] == BEST_Q_LABEL].set_index("env")
+    assert best.loc["all tasks", "tasks"] == 2 and best["p_value"].notna().all()
+    assert (
+        report.improvement.set_index(["method", "env"]).loc[(BEST_Q_LABEL, "all tasks"), "verdict"]
+        == CHOSEN_ON_THESE_RUNS
+    )
 
 
 def test_normalisation_anchors_are_the_task_extremes(flat_report: Report) -> None:

@@ -154,13 +154,16 @@ def _with_best_q(scores: pd.DataFrame, best: pd.DataFrame) -> pd.DataFrame:
 def _untested_where_chosen(table: pd.DataFrame, best: pd.DataFrame) -> pd.DataFrame:
     """``table`` (improvement or baselines) without a test for TAC (best q) on each task whose q
     was picked among several by these runs (:func:`best_q_rows`' ``candidates``), and over all
-    tasks when any was: the picked q's P against a fixed level is biased upwards (equal q
-    values on six tasks were called larger 62 % of the time), so its p-value is left empty and
-    its verdict says why. P and its interval stay, optimistic (docs/report.md)."""
+    tasks where such a task is among them: the picked q's P against a fixed level is biased
+    upwards (equal q values on six tasks were called larger 62 % of the time), so its p-value is
+    left empty and its verdict says why. P and its interval stay, optimistic (docs/report.md)."""
     chosen = set(best.loc[best["candidates"] > 1, "env"])
     if table.empty or not chosen:
         return table
-    rows = (table["method"] == BEST_Q_LABEL) & table["env"].isin([*chosen, ALL_TASKS])
+    against = ["baseline"] if "baseline" in table else []  # an "all tasks" row's own tasks
+    picked = table["env"].isin(chosen).groupby([table["method"], *map(table.get, against)])
+    over_chosen = table["env"].eq(ALL_TASKS) & picked.transform("any")
+    rows = (table["method"] == BEST_Q_LABEL) & (table["env"].isin(chosen) | over_chosen)
     table = table.copy()
     table.loc[rows, ["p_value", "detectable"]] = np.nan
     table.loc[rows, "verdict"] = CHOSEN_ON_THESE_RUNS
