@@ -78,6 +78,9 @@ def test_statistics_count_one_value_per_population(tmp_path: Path) -> None:
     assert np.allclose(logged["q"].unique(), [0.5, 1.2, 1.44])
     # q=auto's final mean (196.5) is above q = 1's (121.875), but it is no fixed q to name
     assert report.best_q["best_q"].tolist() == [1.0]
+    # the comparison figure is the paper's: best q, SAC and baselines (q=auto was drawn there)
+    assert "TAC q=auto" in report.tac_methods
+    assert report.comparison_methods == ["SAC (TAC q=1)"]
     write_report(report)
     page = (tmp_path / "report" / "report.md").read_text()
     assert "count one value per population" in page

@@ -135,8 +135,14 @@ class Report:
 
     @property
     def comparison_methods(self) -> list[str]:
-        """TAC at the best q, SAC, then the baselines (the paper's comparison figure)."""
-        chosen = [m for m in self.methods if math.isnan(self.qs[m]) or m.startswith(SAC_LABEL)]
+        """TAC at the best q, SAC, then the baselines (the paper's comparison figure); TAC
+        q=auto is in the q-sweep figure."""
+        chosen = [
+            m
+            for m in self.methods
+            if (math.isnan(self.qs[m]) and not m.startswith(Q_AUTO_LABEL))
+            or m.startswith(SAC_LABEL)
+        ]
         return sorted(chosen, key=lambda m: (m != BEST_Q_LABEL, not m.startswith(SAC_LABEL)))
 
 
