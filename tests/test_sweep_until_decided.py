@@ -21,8 +21,9 @@ from click.testing import CliRunner
 from tacbench.cli import cli
 from tacbench.detectable import detectable_difference
 from tacbench.errors import TacbenchError
+from tacbench.progress import duration
 from tacbench.report.build import ReportOptions, analyse
-from tacbench.sweep import driver, plan, sequential_design, until_decided
+from tacbench.sweep import driver, dry_run, plan, sequential_design, until_decided
 from tacbench.sweep.presets import Narrowing, Preset, get_preset, narrow
 from tacbench.sweep.sequential_design import Design
 from tacbench.sweep.until_decided import describe_design, run_until_decided
@@ -291,6 +292,18 @@ def test_the_dry_run_states_the_most_it_can_cost(tmp_path: Path) -> None:
     assert "at most 30 runs (a fixed design of 5 x 2 seeds: 30)" in text
     assert "cost estimate:" in text
     assert not (tmp_path / "sweep").exists()
+
+
+def test_the_dry_run_prices_the_interims_one_after_another(tmp_path: Path) -> None:
+    """Its wall time packed every interim's units onto the workers at once: on 6 workers, 30
+    runs in units of 5 (the fixed design's plan) where each interim trains 15 in units of 3."""
+    options = driver.Options(workers=6, members=5)
+    text = describe_design(HOPPER, tmp_path, options, Design(n=5, K=2))
+    first = narrow(HOPPER, Narrowing(seeds=(0, 10, 20, 30, 40)))
+    interim = driver.load_plan(first, tmp_path, options, save=False)[0]
+    assert [len(unit.runs) for unit in interim.units] == [3] * 5
+    each = dry_run.price(interim, 6).wall_seconds
+    assert f"about {duration(2 * each)} (" in text and "; 2 interims one after another)" in text
 
 
 def test_the_dry_run_counts_what_the_record_has_decided(tmp_path: Path) -> None:

@@ -5,6 +5,7 @@ workers, from the runs under ``--out``, this CPU class's calibration or the defa
 from __future__ import annotations
 
 from collections import Counter, defaultdict
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -76,9 +77,16 @@ def price(plan: SweepPlan, workers: int) -> Price:
     )
 
 
-def describe_plan(plan: SweepPlan, workers: int, group: str, workers_from: str = "") -> str:
+def describe_plan(
+    plan: SweepPlan,
+    workers: int,
+    group: str,
+    workers_from: str = "",
+    in_turn: Sequence[SweepPlan] = (),
+) -> str:
     """The dry-run report: counts by state, the units with their members and memory, steps left
-    and the cost estimate."""
+    and the cost estimate; where ``plan`` trains as the sweeps ``in_turn`` (the interims of
+    ``--until-decided``), one after another, its wall time is the sum of theirs."""
     c = counts(plan)
     total = sum(p.run.total_steps for p in plan.runs)
     left = plan.steps_left()
@@ -105,12 +113,14 @@ def describe_plan(plan: SweepPlan, workers: int, group: str, workers_from: str =
             f"{g.steps:>14,} {g.seconds / max(1, g.steps) * 1e3:>8.2f}  {g.source}"
         )
     sources = {g.source for g in priced.groups}
+    wall = sum(price(p, workers).wall_seconds for p in in_turn) if in_turn else None
     lines += [
         "",
         f"cost estimate: {priced.core_seconds / 3600:,.1f} core-hours; with "
         f"{plural(workers, 'worker')}{f' ({workers_from})' if workers_from else ''} about "
-        f"{duration(priced.wall_seconds)} "
-        "(one core per worker; each unit on one worker, started in plan order)",
+        f"{duration(priced.wall_seconds if wall is None else wall)} "
+        "(one core per worker; each unit on one worker, started in plan order"
+        + (f"; {plural(len(in_turn), 'interim')} one after another)" if in_turn else ")"),
     ]
     if CALIBRATED in sources:
         lines.append(

@@ -45,6 +45,7 @@ from tacbench.sweep.sequential_design import (
     earliest_decision,
     methods_of,
     same_design,
+    seed_order,
     with_controls,
 )
 
@@ -295,5 +296,19 @@ def describe_design(preset: Preset, out: Path, options: Options, design: Design)
         f"{fixed}); fewer as comparisons are decided. The most it can still cost:"
     )
     workers, source = options.worker_count(), options.workers_source()
-    lines.append(dry_run.describe_plan(work, workers, options.group, source))
+    interims = [
+        driver.load_plan(g, out, options, save=False)[0] for g in _interims(preset, most, design.n)
+    ]
+    lines.append(dry_run.describe_plan(work, workers, options.group, source, interims))
     return "\n".join(lines)
+
+
+def _interims(preset: Preset, chosen: Sequence[tuple[Method, int]], n: int) -> list[Preset]:
+    """The grids of :func:`_grid` ``(preset, chosen)`` trained interim by interim: the k-th
+    holds each method's runs (k - 1) n + 1 to k n, in seed order."""
+    grids = []
+    for start in range(0, max((count for _, count in chosen), default=0), n):
+        slices = [(m, seed_order(m.entry.seeds, count)[start : start + n]) for m, count in chosen]
+        entries = tuple(replace(m.entry, seeds=seeds) for m, seeds in slices if seeds)
+        grids.append(replace(preset, entries=entries))
+    return grids
