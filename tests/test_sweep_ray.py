@@ -76,11 +76,14 @@ def test_ray_executor_returns_small_files_and_keeps_checkpoints_on_the_node(
     logs = sorted((out / "sweep" / "logs").glob("*.log"))
     assert len(logs) == 3 and all("1000/1000" in log.read_text() for log in logs)
 
-    # the driver's copy lost: the task finds the run complete on its node and sends it back
+    # a run deleted from --out trains again, as docs/sweep.md says: its node's copy came back
+    # (a failed one failed again without training, one of other settings stopped the sweep)
+    created = json.loads((run_dirs[0] / "config.json").read_text())["created"]
     shutil.rmtree(run_dirs[0])
     again = runner.invoke(cli, args)
     assert again.exit_code == 0, again.output
     assert pd.read_csv(run_dirs[0] / "eval.csv")["step"].tolist() == [500, 1000]
+    assert json.loads((run_dirs[0] / "config.json").read_text())["created"] > created
     assert _ray_processes() <= before  # ray.shutdown() stopped the local Ray
 
 

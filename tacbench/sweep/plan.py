@@ -75,10 +75,12 @@ class Unit:
     """The work of one process (local) or task (Ray): one run, or TAC members (``--group``: runs
     equal but for the seed, or for q, alpha and the seed, resuming from the same step).
     ``retry`` lists the keys of failed runs to reset to "running" before training, so they
-    continue from their checkpoint."""
+    continue from their checkpoint; ``fresh`` those with nothing under ``--out``, whose copy in
+    a Ray node's scratch folder (a run since deleted from ``--out``) must not be continued."""
 
     runs: tuple[Run, ...]
     retry: tuple[str, ...] = ()
+    fresh: tuple[str, ...] = ()
 
     @property
     def key(self) -> str:
@@ -228,6 +230,11 @@ def make_units(
     the group, number of groups)`` runs (a larger group is split into units of near-equal size).
     Failed runs are retried alone."""
     nodes = nodes or {}
+    new = {p.run.key for p in planned if p.status.state == "new"}
+
+    def unit(runs: Sequence[Run]) -> Unit:
+        return Unit(tuple(runs), fresh=tuple(r.key for r in runs if r.key in new))
+
     units: list[Unit | tuple[str, int, str]] = []  # a tuple marks where a group goes
     groups: dict[tuple[str, int, str], list[Run]] = {}
     for p in planned:
@@ -246,7 +253,7 @@ def make_units(
                 units.append(key)
             groups[key].append(p.run)
         else:
-            units.append(Unit((p.run,)))
+            units.append(unit([p.run]))
     made: list[Unit] = []
     for u in units:
         if isinstance(u, Unit):
@@ -258,6 +265,6 @@ def make_units(
         start = 0
         for i in range(n_units):
             stop = start + base + (i < extra)
-            made.append(Unit(tuple(grouped[start:stop])))
+            made.append(unit(grouped[start:stop]))
             start = stop
     return made

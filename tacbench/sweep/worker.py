@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -238,6 +239,9 @@ def ray_main(job: Job, board: Any) -> JobResult:
 
     job = on_node(job)
     limit_threads(job.threads)
+    if job.return_files:  # a run new to --out starts afresh, whatever this node kept of it
+        for fresh in job.unit.fresh:
+            shutil.rmtree(job.root / fresh, ignore_errors=True)
     key = job.unit.key
     node = ray.get_runtime_context().get_node_id()
     # where this attempt runs, known to the driver even if the task dies (out of memory)
