@@ -13,6 +13,7 @@ import pytest
 
 from tacbench.report import ReportOptions, analyse, write_report
 from tacbench.sweep import bills
+from tacbench.sweep.summary import OTHER_WORK
 from tests.helpers import Q_GRID_STUDIES, STUDIES
 
 pytestmark = pytest.mark.smoke
@@ -34,7 +35,7 @@ RUNS = {
     "authors-versions-100k/authors-2019-01-16c-h400x300": 5 * 5,
     # the same version, networks and commands at q = 1, 1.5 and 5, run again on the AMD EPYC AVX2
     # class (the runs above: Zen 4): 3 q x 5 seeds
-    "authors-versions-100k/authors-2019-01-16c-h400x300-avx2": 3 * 5,
+    "authors-versions-100k/authors-2019-01-16c-h400x300-avx2": 3 * 5 + 2 * 5,
     # 2019-01-07b with the authors' (400, 300) networks: 5 q x 5 seeds
     "authors-versions-100k/authors-2019-01-07b-h400x300": 5 * 5,
     # 2019-01-11b with the authors' (400, 300) networks: q = 2, 3 and 5 x 5 seeds (its q = 1 and
@@ -145,9 +146,12 @@ def test_the_comparisons_tac_runs_are_the_q_grid_studys() -> None:
 def test_every_committed_sweeps_bill_is_within_a_quarter_of_its_price() -> None:
     """docs/sweep.md, "The price and the bill": every sweep that trained a committed study's
     runs and billed the whole of it, none failing, took within 25 % of the price its dry run gave
-    it when it started."""
+    it when it started, unless other work shared its cores (its bill's load, as the bill says):
+    the price is of a machine that runs nothing else. Those record their runs' CPU time."""
     billed = [t for t in bills.sweeps(STUDIES) if t.source == bills.BILL and t.comparable]
-    assert billed  # the first: 2019-01-07b with (400, 300) networks at q = 2 and 3
-    for took in billed:
+    shared = [t for t in billed if (t.load_average or 0.0) - (t.workers or 0) >= OTHER_WORK]
+    assert len(billed) > len(shared)  # the first: 2019-01-07b with (400, 300) networks
+    assert all(t.cpu_s for t in shared)
+    for took in (t for t in billed if t not in shared):
         assert took.priced_at_start_s is not None
         assert bills.within(took.wall_s, took.priced_at_start_s), took.command
