@@ -145,6 +145,11 @@ def test_another_config_in_a_run_directory_stops_the_plan(tmp_path: Path) -> Non
     other = tmp_path / "other"
     _fake_run(other, run, {"state": "running", "step": 0}, threads=4, checkpoint_every=7)
     assert _plan(other).runs[0].status == plan.Status("partial", 0)
+    # a config.json without a run config: a one-line error, not a traceback
+    config_json = tmp_path / run.key / "config.json"
+    config_json.write_text(json.dumps({"config": "edited by hand"}))
+    with pytest.raises(TacbenchError, match=r"holds no run config; restore it, or delete"):
+        _plan(tmp_path)
 
 
 def test_progress_no_checkpoint_holds_stops_the_plan(tmp_path: Path) -> None:

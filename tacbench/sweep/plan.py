@@ -166,7 +166,13 @@ def read_status(out: Path, run: Run) -> Status:
     if not config_path.exists():
         runs.check_nothing_to_lose(directory)  # else its worker would refuse it, mid-sweep
         return Status("new")
-    stored = runs.as_read_now(runs.read_json(config_path).get("config", {}), run.config)
+    stored = runs.read_json(config_path).get("config")
+    if not isinstance(stored, dict):
+        raise TacbenchError(
+            f"{config_path} holds no run config; restore it, or delete {directory} to retrain it "
+            "with this sweep's config."
+        )
+    stored = runs.as_read_now(stored, run.config)
     status = runs.read_status(directory)  # a damaged one stops the sweep before anything runs
     planned = dict(run.config.to_dict())
     if planned.get("compile") == "auto":  # resolved where the run started; a resume keeps it
