@@ -87,6 +87,7 @@ def test_local_sweep_with_members_then_rerun_skips_everything(tmp_path: Path) ->
     assert before == {p: p.stat().st_mtime_ns for p in tmp_path.glob("runs/**/*") if p.is_file()}
     # the first sweep's bill stays (a rerun replaced it with a bill of nothing: wall_s 0)
     assert "this sweep trained nothing; its bill is what the runs took" in again.output
+    assert "wrote " not in again.output  # said it wrote the summary it kept
     assert json.loads((tmp_path / "sweep" / "summary.json").read_text()) == summary
     dry = runner.invoke(cli, [*args, "--dry-run"])
     assert "6 runs: 6 complete, 0 partial, 0 failed" in dry.output

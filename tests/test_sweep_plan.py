@@ -980,3 +980,9 @@ def test_a_rerun_that_trains_nothing_keeps_a_bill_written_before_a_count_was_add
     path.write_text(json.dumps(earlier))
     assert driver._billed_summary(tmp_path, {"counts": counts}) == path
     assert driver._billed_summary(tmp_path, {"counts": {**counts, "cannot_resume": 1}}) is None
+    # the bill of another command's runs, as many and as complete (--seed 10, then --seed 0
+    # again), was kept as this one's
+    path.write_text(json.dumps({**earlier, "command": "tacbench sweep --seed 10"}))
+    mine = {"counts": counts, "command": "tacbench sweep --seed 0"}
+    assert driver._billed_summary(tmp_path, mine) is None
+    assert driver._billed_summary(tmp_path, {**mine, "command": "tacbench sweep --seed 10"}) == path

@@ -247,7 +247,8 @@ def sweep(ctx: click.Context, preset: str, **p: Any) -> None:
         return
     result = driver.run_sweep(grid, p["out"], options)
     click.echo(result.text)
-    click.echo(f"wrote {p['out'] / 'sweep' / 'summary.json'} and summary.txt")
+    if not result.kept:
+        click.echo(f"wrote {p['out'] / 'sweep' / 'summary.json'} and summary.txt")
     ctx.exit(result.exit_code)
 
 

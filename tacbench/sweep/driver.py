@@ -41,6 +41,7 @@ class SweepResult:
     text: str
     interrupted: bool
     warnings: tuple[str, ...] = ()  # the plan's warnings of its runs' settings (plan.RunWarning)
+    kept: bool = False  # an earlier sweep's summary kept (this one trained nothing), not written
 
     @property
     def exit_code(self) -> int:
@@ -193,13 +194,13 @@ def run_sweep(
             summary.write_summary(out, result, text)
         else:
             text += f"\nkept {kept}: this sweep trained nothing; its bill is what the runs took"
-        return SweepResult(result, text, interrupted, tuple(work.warnings))
+        return SweepResult(result, text, interrupted, tuple(work.warnings), kept is not None)
 
 
 def _billed_summary(out: Path, result: dict[str, Any]) -> Path | None:
-    """The summary.json of an earlier sweep that trained and left the runs as ``result`` finds
-    them: a sweep that trains nothing keeps it, so that its bill (what the runs took, the price
-    they had) is not replaced by a bill of nothing."""
+    """The summary.json of an earlier sweep of the same command that trained and left the runs
+    as ``result`` finds them: a sweep that trains nothing keeps it, so that its bill (what the
+    runs took, the price they had) is not replaced by a bill of nothing."""
     path = state.sweep_dir(out) / "summary.json"
     try:
         earlier = runs.read_json(path)
@@ -208,6 +209,8 @@ def _billed_summary(out: Path, result: dict[str, Any]) -> Path | None:
     counts = earlier.get("counts")
     zeros = dict.fromkeys(result["counts"], 0)  # a count added since that summary is 0 there
     if not isinstance(counts, dict) or {**zeros, **counts} != result["counts"]:
+        return None
+    if earlier.get("command") != result.get("command"):  # its bill is of other runs
         return None
     bill = earlier.get("bill")
     priced = bill.get("priced_wall_s") if isinstance(bill, dict) else None
