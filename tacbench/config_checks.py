@@ -13,6 +13,8 @@ from tacbench import paper
 from tacbench.errors import TacbenchError
 from tacbench.settings import flag_of, settings_of
 
+FLOAT32_TINY = 2.0**-126  # float32's smallest normal number; below it the CPU may flush to 0
+
 if TYPE_CHECKING:
     from tacbench.config import RunConfig
 
@@ -88,10 +90,10 @@ def check_q_schedule(config: RunConfig) -> None:
 
 def check_density(config: RunConfig) -> None:
     """The density settings (the authors' versions): in range, and meaningful together."""
-    if not 0.0 < config.density_floor < 1.0:
+    if not FLOAT32_TINY <= config.density_floor < 1.0:  # a floor float32 reads as 0 is none
         raise TacbenchError(
-            f"--density-floor must lie in (0, 1) (got {config.density_floor:g}); the authors' "
-            "code used 1e-6 and 1e-8."
+            f"--density-floor must lie in [{FLOAT32_TINY:.4g}, 1), float32's normal numbers "
+            f"(got {config.density_floor:g}); the authors' code used 1e-6 and 1e-8."
         )
     if (
         config.lnq == "joint"

@@ -157,6 +157,7 @@ def test_the_density_cap_is_mentioned_where_its_rule_applies() -> None:
         ("q_schedule_start", 0.95, "q_schedule_start"),
         ("q_schedule_start", 0.5, "--q-schedule-start shapes the linear q schedule; add"),
         ("density_floor", 0.0, "--density-floor must lie in"),
+        ("density_floor", 1e-320, r"float32's normal numbers \(got 9.99989e-321\)"),  # log: NaN
         ("jacobian_clip", 1.0, "--jacobian-clip must lie in"),
         ("gaussian_eps", -1e-8, "--gaussian-eps must lie in"),
         ("compile", True, "--compile must be one of auto, on, off"),
