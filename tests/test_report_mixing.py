@@ -90,6 +90,30 @@ def test_runs_with_non_finite_returns_left_out_are_cautioned() -> None:
     ]
 
 
+def test_a_complete_runs_dropped_rows_are_counted_on_the_page(tmp_path: Path) -> None:
+    """docs/report.md: "the run's note says how many"; the page showed notes of partial runs
+    only, and runs.csv has no note column, so a complete run's count was nowhere."""
+    from tacbench.report import ReportOptions, analyse, write_report
+
+    for seed, returns in ((0, [1.0, math.nan, 3.0, 4.0]), (1, [1.0, 2.0, 3.0, 4.0])):
+        write_run(
+            tmp_path,
+            algo="tac",
+            env="Hopper-v4",
+            variant="q1-a0.2",
+            seed=seed,
+            steps=[100, 200, 300, 400],
+            returns=returns,
+            q=1.0,
+            alpha=0.2,
+        )
+    write_report(analyse(ReportOptions(results=tmp_path, out=tmp_path / "out", reps=100)))
+    page = (tmp_path / "out" / "report.md").read_text()
+    assert "Complete runs with a note (included)" in page
+    assert "| tac/Hopper-v4/q1-a0.2/seed0 | eval.csv: 1 row with a non-finite" in page
+    assert "q1-a0.2/seed1 |" not in page.split("Complete runs with a note")[1]
+
+
 def test_the_report_prints_and_shows_its_cautions(tmp_path: Path) -> None:
     for variant, q in (("q1-a0.2", 1.0), ("q2-a0.2-bs32", 2.0)):
         for seed in (0, 10):

@@ -249,6 +249,10 @@ def _runs_section(report: Report) -> list[Table | Text]:
         if len(partial)
         else Text("Every loaded run is complete.")
     ]
+    noted = runs[~runs["partial"] & runs["note"].fillna("").astype(bool)]
+    if len(noted):  # rows dropped (non-finite returns) from a complete run
+        notes = pd.DataFrame({"run": noted["path"], "note": noted["note"]})
+        blocks.append(Table(notes, "Complete runs with a note (included)"))
     if report.runset.skipped:
         skipped = pd.DataFrame(
             {
