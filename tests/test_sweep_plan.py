@@ -52,11 +52,15 @@ def _plan(out: Path, options: driver.Options | None = None) -> plan.SweepPlan:
 
 @pytest.fixture
 def smoke_out(tmp_path: Path) -> tuple[Path, list[plan.Run]]:
-    """smoke's 8 runs: 1 complete, 1 partial at 500, 1 failed at 700, 5 not started."""
+    """smoke's 8 runs: 1 complete, 1 partial at 500, 1 failed at 700 with its last checkpoint
+    at 600, 5 not started."""
     all_runs = plan.build_runs(SMOKE)
     _fake_run(tmp_path, all_runs[0], {"state": "complete", "step": 1000})
     _fake_run(tmp_path, all_runs[1], {"state": "running", "step": 500})
-    _fake_run(tmp_path, all_runs[4], {"state": "failed", "step": 700, "reason": "non-finite"})
+    failed = {"state": "failed", "step": 700, "reason": "non-finite"}
+    checkpoint = _fake_run(tmp_path, all_runs[4], failed) / "checkpoint"
+    checkpoint.mkdir()
+    (checkpoint / "manifest-000000000600.json").write_text("{}")
     return tmp_path, all_runs
 
 
@@ -75,7 +79,8 @@ def test_counts_and_steps_left_match_a_hand_count(smoke_out: tuple[Path, list[pl
         "cannot_resume": 0,
     }
     assert summary.counts(work, refused={all_runs[1].key, all_runs[0].key})["cannot_resume"] == 1
-    assert work.steps_left() == 5 * 1000 + (1000 - 500) + (1000 - 700) == 5800
+    # the failed run's retry resumes at its checkpoint: 1000 - 600, not 1000 - 700
+    assert work.steps_left() == 5 * 1000 + (1000 - 500) + (1000 - 600) == 5900
     assert [p.action for p in work.runs] == [
         "skip",
         "train",
@@ -89,7 +94,7 @@ def test_counts_and_steps_left_match_a_hand_count(smoke_out: tuple[Path, list[pl
     text = dry_run.describe_plan(work, workers=2, group="none")
     assert "8 runs: 1 complete, 1 partial, 1 failed (1 to retry, 0 given up" in text
     assert "5 not started" in text
-    assert "environment steps left: 5,800 of 8,000 (1,000 per run)" in text
+    assert "environment steps left: 5,900 of 8,000 (1,000 per run)" in text
 
 
 def test_a_run_failed_more_than_max_retries_is_given_up(

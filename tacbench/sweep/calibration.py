@@ -223,7 +223,7 @@ def price(plan: Any, calibrations: dict[str, Calibration]) -> dict[tuple[str, st
             continue
         pricing = run_pricing(first)  # the unit's runs differ only in seed, q and alpha
         for run in unit.runs:
-            left = run.total_steps - planned[run.key].status.step
+            left = planned[run.key].steps_left
             seconds[group] = seconds.get(group, 0.0) + found.seconds(
                 run.total_steps, *pricing, steps_left=left
             )

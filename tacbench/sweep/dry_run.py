@@ -62,9 +62,7 @@ def price(plan: SweepPlan, workers: int) -> Price:
     calibrated = calibration.price(plan, calibration.load())
     priced = []
     for (algo, env), members in groups.items():
-        steps = sum(
-            p.run.total_steps - p.status.step for p in members if p.action in ("train", "retry")
-        )
+        steps = sum(p.steps_left for p in members if p.action in ("train", "retry"))
         rate = rates[(algo, env)]
         seconds, source = steps * rate.seconds_per_step, rate.source
         if rate.source == cost.DEFAULT_SOURCE and (algo, env) in calibrated:
@@ -148,7 +146,7 @@ def describe_plan(
 def wall_seconds(plan: SweepPlan, per_step: dict[tuple[str, str], float], workers: int) -> float:
     """How long the units take on ``workers`` workers, each unit priced at its (algo, env)'s
     seconds per member-step times its members' steps left (:func:`cost.makespan`)."""
-    left = {p.run.key: p.run.total_steps - p.status.step for p in plan.runs}
+    left = {p.run.key: p.steps_left for p in plan.runs}
     seconds = []
     for unit in plan.units:
         rate = per_step[_priced_as(unit.runs[0].config)]

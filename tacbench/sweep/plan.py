@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Any, Literal
 from tacbench import runs, trainers
 from tacbench.config import RESULT_NEUTRAL_FIELDS, RunConfig
 from tacbench.errors import TacbenchError
+from tacbench.runs import checkpoints
 from tacbench.settings import RunWarning
 from tacbench.sweep.presets import Preset
 
@@ -53,11 +54,14 @@ class Run:
 @dataclass(frozen=True)
 class Status:
     """A run's state on disk, the step it reached (its last checkpoint, unless complete or
-    failed) and the trainer's reason (failed runs)."""
+    failed) and the trainer's reason (failed runs); a failed run's retry resumes at
+    ``resumes_at``, its last checkpoint under ``--out`` (0 without one: a retry starts afresh,
+    and a Ray node's checkpoint is not seen from here)."""
 
     state: State
     step: int = 0
     reason: str = ""
+    resumes_at: int = field(default=0, compare=False)
 
 
 @dataclass(frozen=True)
@@ -68,6 +72,13 @@ class PlannedRun:
     status: Status
     failures: int
     action: Action
+
+    @property
+    def steps_left(self) -> int:
+        """The steps this sweep trains of it, if it trains it: from where a retry resumes, else
+        from the step it reached."""
+        start = self.status.resumes_at if self.action == "retry" else self.status.step
+        return self.run.total_steps - start
 
 
 @dataclass(frozen=True)
@@ -121,9 +132,7 @@ class SweepPlan:
 
     def steps_left(self) -> int:
         """Environment steps still to train (runs given up on count nothing)."""
-        return sum(
-            p.run.total_steps - p.status.step for p in self.runs if p.action in ("train", "retry")
-        )
+        return sum(p.steps_left for p in self.runs if p.action in ("train", "retry"))
 
 
 def build_runs(
@@ -184,7 +193,10 @@ def read_status(out: Path, run: Run) -> Status:
             "Use another --out, or delete that directory to retrain it with this sweep's config."
         )
     state, step = status.get("state", "running"), status["step"]
-    if state in ("complete", "failed"):
+    if state == "failed":
+        resumes_at = checkpoints.newest_step(directory / "checkpoint") or 0
+        return Status(state, step, str(status.get("reason", "")), resumes_at)
+    if state == "complete":
         return Status(state, step, str(status.get("reason", "")))
     return Status("partial", step)
 
