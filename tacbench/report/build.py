@@ -335,14 +335,15 @@ def make_figures(report: Report) -> dict[str, Figure]:
             [e for e in report.envs if e in set(report.trajectories["env"])],
             "TAC q=auto: each member's q (colour: population)",
         )
-    figures["comparison"] = plots.curve_figure(
-        report.curves,
-        report.envs,
-        report.comparison_methods,
-        report.qs,
-        "Comparison with actor-critic methods (TAC at its best q ≠ 1 per task), mean ± 1 std",
-        ylabel,
-    )
+    if report.comparison_methods:  # none where TAC q=auto is the only method
+        figures["comparison"] = plots.curve_figure(
+            report.curves,
+            report.envs,
+            report.comparison_methods,
+            report.qs,
+            "Comparison with actor-critic methods (TAC at its best q ≠ 1 per task), mean ± 1 std",
+            ylabel,
+        )
     figures["intervals"] = plots.interval_figure(
         report.aggregate,
         report.methods,
