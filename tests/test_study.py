@@ -13,7 +13,7 @@ import pytest
 
 from tacbench.report import ReportOptions, analyse, write_report
 from tacbench.sweep import bills
-from tacbench.sweep.summary import OTHER_WORK
+from tacbench.sweep.summary import shared_cores
 from tests.helpers import Q_GRID_STUDIES, STUDIES
 
 pytestmark = pytest.mark.smoke
@@ -149,7 +149,7 @@ def test_every_committed_sweeps_bill_is_within_a_quarter_of_its_price() -> None:
     it when it started, unless other work shared its cores (its bill's load, as the bill says):
     the price is of a machine that runs nothing else. Those record their runs' CPU time."""
     billed = [t for t in bills.sweeps(STUDIES) if t.source == bills.BILL and t.comparable]
-    shared = [t for t in billed if (t.load_average or 0.0) - (t.workers or 0) >= OTHER_WORK]
+    shared = [t for t in billed if shared_cores(t.load_average, t.workers or 0)]
     assert len(billed) > len(shared)  # the first: 2019-01-07b with (400, 300) networks
     assert all(t.cpu_s for t in shared)
     for took in (t for t in billed if t not in shared):

@@ -166,9 +166,9 @@ def _untested_where_chosen(table: pd.DataFrame, best: pd.DataFrame) -> pd.DataFr
     chosen = set(best.loc[best["candidates"] > 1, "env"])
     if table.empty or not chosen:
         return table
-    against = ["baseline"] if "baseline" in table else []  # an "all tasks" row's own tasks
-    picked = table["env"].isin(chosen).groupby([table["method"], *map(table.get, against)])
-    over_chosen = table["env"].eq(ALL_TASKS) & picked.transform("any")
+    pairs = ["method", "baseline"] if "baseline" in table else ["method"]  # a row's own tasks
+    picked = table["env"].isin(chosen).groupby([table[c] for c in pairs]).transform("any")
+    over_chosen = table["env"].eq(ALL_TASKS) & picked
     rows = (table["method"] == BEST_Q_LABEL) & (table["env"].isin(chosen) | over_chosen)
     table = table.copy()
     table.loc[rows, ["p_value", "detectable"]] = np.nan

@@ -111,12 +111,12 @@ def describe_plan(
             f"{g.steps:>14,} {g.seconds / max(1, g.steps) * 1e3:>8.2f}  {g.source}"
         )
     sources = {g.source for g in priced.groups}
-    wall = sum(price(p, workers).wall_seconds for p in in_turn) if in_turn else None
+    wall = sum(price(p, workers).wall_seconds for p in in_turn) if in_turn else priced.wall_seconds
     lines += [
         "",
         f"cost estimate: {priced.core_seconds / 3600:,.1f} core-hours; with "
         f"{plural(workers, 'worker')}{f' ({workers_from})' if workers_from else ''} about "
-        f"{duration(priced.wall_seconds if wall is None else wall)} "
+        f"{duration(wall)} "
         "(one core per worker; each unit on one worker, started in plan order"
         + (f"; {plural(len(in_turn), 'interim')} one after another)" if in_turn else ")"),
     ]

@@ -80,13 +80,19 @@ OTHER_WORK = 0.5
 compilation threads and the load average's lag)."""
 
 
+def shared_cores(load: float | None, workers: int) -> bool:
+    """Whether a bill's load says that other work shared the cores: :data:`OTHER_WORK` or more
+    above its workers (False where the bill does not record the load)."""
+    return load is not None and load - workers >= OTHER_WORK
+
+
 def load_note(load: float | None, cores: int | None, workers: int) -> str:
     """What a local sweep's bill says of the machine's load while it ran (empty where the bill
     does not record it): the price assumes a core per worker and nothing else running."""
     if load is None or cores is None:
         return ""
     note = f"the load averaged {load:.1f} on {plural(cores, 'core')}"
-    if load - workers >= OTHER_WORK:
+    if shared_cores(load, workers):
         note += f", {load - workers:.1f} above its workers: other work shared the cores"
     return note
 
