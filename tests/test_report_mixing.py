@@ -10,6 +10,7 @@ import pytest
 from click.testing import CliRunner
 
 from tacbench.cli import cli
+from tacbench.report import ReportOptions, analyse, write_report
 from tacbench.report.mixing import cautions, tac_setting, without_q
 from tests.report_fixtures import write_run
 
@@ -93,8 +94,6 @@ def test_runs_with_non_finite_returns_left_out_are_cautioned() -> None:
 def test_a_complete_runs_dropped_rows_are_counted_on_the_page(tmp_path: Path) -> None:
     """docs/report.md: "the run's note says how many"; the page showed notes of partial runs
     only, and runs.csv has no note column, so a complete run's count was nowhere."""
-    from tacbench.report import ReportOptions, analyse, write_report
-
     for seed, returns in ((0, [1.0, math.nan, 3.0, 4.0]), (1, [1.0, 2.0, 3.0, 4.0])):
         write_run(
             tmp_path,
