@@ -7,8 +7,10 @@ exits 130, and ``--resume`` completes it."""
 from __future__ import annotations
 
 import json
+import shutil
 import warnings
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -16,6 +18,7 @@ import pandas as pd
 import pytest
 
 from baselines import OFF_POLICY
+from tacbench.runs.resume_checks import DamagedRun
 from tests.helpers import (
     LEARNERS,
     assert_same_results,
@@ -101,6 +104,31 @@ def test_resume_after_a_crash_drops_rows_past_the_last_checkpoint(
     assert_tensorboard_matches_csvs(run)  # the points past step 1000 of the crashed process hidden
     if c.algo in OFF_POLICY:
         assert not (run / "checkpoint" / "replay" / "000000001000-000000001300.npz").exists()
+
+
+def test_a_file_where_the_event_files_go_stops_a_resume_before_anything_is_cut(
+    tmp_path: Path,
+) -> None:
+    """It was a FileExistsError traceback after the CSVs had lost their rows past the
+    checkpoint; now a clear refusal that changes nothing, and --no-tensorboard resumes."""
+
+    def crash(step: int) -> bool:
+        if step >= 1300:
+            raise RuntimeError("simulated crash")
+        return False
+
+    configs = tiny_configs("tac")
+    with pytest.raises(RuntimeError, match="simulated crash"):
+        train(tmp_path, configs, stop=crash)
+    run = tmp_path / "runs" / "tac" / "Hopper-v4" / configs[0].variant / "seed0"
+    shutil.rmtree(run / "tensorboard")
+    (run / "tensorboard").write_text("not a folder")
+    before = _files(run)
+    with pytest.raises(DamagedRun, match=r"tensorboard is a file .* --no-tensorboard"):
+        train(tmp_path, configs, resume=True)
+    assert _files(run) == before
+    (outcome,) = train(tmp_path, [replace(c, tensorboard=False) for c in configs], resume=True)
+    assert (outcome.state, outcome.step) == ("complete", 1500)
 
 
 def test_resume_on_an_env_without_exact_state_starts_a_fresh_episode(tmp_path: Path) -> None:

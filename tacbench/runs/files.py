@@ -34,6 +34,7 @@ from tacbench.runs.resume_checks import (
     DamagedRun,
     LogDigest,
     ResumePlan,
+    check_event_folder,
     check_log,
 )
 from tacbench.settings import REROUNDING_FIELDS
@@ -281,6 +282,8 @@ class RunWriter:
                 f"{step:,}, the newest checkpoint intact in every member: the steps after it are "
                 "trained again"
             )
+        if self.tensorboard:
+            check_event_folder(self.directory / "tensorboard")
         self._eval_columns = _eval_columns(self.directory / "eval.csv")
         self.shares_cpu = shares_cpu(metadata)
         for name, columns in self._csvs().items():

@@ -128,3 +128,14 @@ def check_log(
             path, f"differs from what the checkpoint at step {step} recorded (rows were changed)"
         )
     return kept, notes
+
+
+def check_event_folder(folder: Path) -> None:
+    """A :class:`DamagedRun` (nothing written) when ``folder``, where a resumed run with
+    TensorBoard logging writes its event files, exists but is not a folder."""
+    if folder.exists() and not folder.is_dir():
+        raise DamagedRun(
+            f"cannot resume: {folder} is a file where the run's TensorBoard event files go; "
+            "nothing was changed; move it away, or resume with --no-tensorboard.",
+            folder.parent,
+        )
