@@ -62,6 +62,24 @@ def test_plan_runs_refuses_an_unfinished_run_without_resume_and_touches_nothing(
     assert active == [(config, directory)] and (directory / "status.json").exists()
 
 
+@pytest.mark.parametrize("state", ["paused", None, 3])
+def test_a_status_of_an_unknown_state_is_refused_not_resumed(
+    tmp_path: Path, state: str | int | None
+) -> None:
+    """It was treated as an unfinished run: --resume continued it, whatever it was."""
+    (config,) = _configs(0)
+    directory = runs.run_directory(tmp_path, config.algo, config.env, config.variant, 0)
+    _store(directory, config, "running", 500)
+    status = {"step": 500} if state is None else {"state": state, "step": 500}
+    runs.atomic_write_json(directory / "status.json", status)
+    before = (directory / "status.json").read_bytes()
+    shown = "None" if state is None else repr(state)
+    for resume in (True, False):
+        with pytest.raises(TacbenchError, match=rf"the state {shown}, not one of running, "):
+            plan_runs([config], tmp_path, resume=resume, force=False)
+    assert (directory / "status.json").read_bytes() == before
+
+
 def test_a_resume_with_other_settings_quotes_the_runs_own_command(tmp_path: Path) -> None:
     """Resuming without a setting the run was started with (--steps) differs from its config:
     the refusal says how to continue it, not only how to delete it."""

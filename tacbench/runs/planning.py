@@ -9,13 +9,13 @@ from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal, TypeVar
+from typing import Any, Literal, TypeVar, get_args
 
 from tacbench.config import RESULT_NEUTRAL_FIELDS
 from tacbench.errors import TacbenchError, listing
 from tacbench.interrupts import resume_command
 from tacbench.runs import checkpoints
-from tacbench.runs.files import CRASHED, RESTORE_OR_FORCE, ensure_writable, read_json
+from tacbench.runs.files import CRASHED, RESTORE_OR_FORCE, State, ensure_writable, read_json
 from tacbench.runs.locks import writing
 from tacbench.runs.provenance import RunIdentity
 from tacbench.runs.resume_checks import START_OVER
@@ -166,6 +166,11 @@ def read_status(directory: Path) -> dict[str, Any]:
     if not isinstance(step, int) or isinstance(step, bool) or step < 0:
         raise TacbenchError(
             f"{status_path} records the step {step!r}, not a step count; {RESTORE_OR_FORCE}."
+        )
+    if status.get("state") not in get_args(State):  # else resumed as if running
+        raise TacbenchError(
+            f"{status_path} records the state {status.get('state')!r}, not one of "
+            f"{', '.join(get_args(State))}; {RESTORE_OR_FORCE}."
         )
     return {**status, "step": step}
 
