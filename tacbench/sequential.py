@@ -20,7 +20,6 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -32,7 +31,6 @@ DEFAULT_ALPHA = 0.05  # the usual 5% family-wise error rate; AdaStop's own defau
 DEFAULT_B = 10_000  # AdaStop's default number of random permutations
 NOT_DISTINGUISHABLE = "not distinguishable"
 DECIDED = ("larger", "smaller")
-RECORD_FILE = "sequential.json"  # in <out>/sweep/: what a sweep --until-decided decided
 Pair = tuple[str, str]
 
 
@@ -335,30 +333,3 @@ def decision_text(results: Mapping[str, SequentialResult]) -> str:
             )
             lines.append(f"  {row['method']} vs {row['against']}: {row['decision']}{decided}")
     return "\n".join(lines)
-
-
-def results_of_record(record: Mapping[str, Any]) -> dict[str, SequentialResult]:
-    """Each task's interims as a sequential sweep recorded them (``sweep/sequential.json``,
-    :mod:`tacbench.sweep.until_decided`)."""
-    design = record["design"]
-    results = {}
-    for env, interims in record["interims"].items():
-        if not interims:
-            continue
-        kept = tuple(
-            Interim(
-                interim["number"],
-                {m: len(seeds) for m, seeds in interim["seeds"].items()},
-                {(d["method"], d["against"]): d["decision"] for d in interim["decisions"]},
-            )
-            for interim in interims
-        )
-        results[env] = SequentialResult(
-            tuple(record["methods"][env]),
-            tuple(kept[0].decisions),
-            design["n"],
-            design["K"],
-            design["alpha"],
-            kept,
-        )
-    return results

@@ -285,6 +285,37 @@ def test_a_record_of_another_design_or_an_edited_decision_is_refused(tmp_path: P
         run_until_decided(HOPPER, tmp_path, driver.Options(), Design(n=5, K=2))
 
 
+@pytest.mark.parametrize(
+    ("damage", "fault"),
+    [
+        (lambda r: r["interims"].pop("Hopper-v4"), r"interims of \[\], methods of \['Hopper-v4'\]"),
+        (lambda r: r["methods"].pop("Hopper-v4"), r"interims of \['Hopper-v4'\], methods of \[\]"),
+        (lambda r: r.pop("design"), "no 'design' object"),
+        (lambda r: r["design"].pop("K"), "its design lacks n, K or alpha"),
+        (lambda r: r["interims"]["Hopper-v4"][1].pop("scores"), "an interim of Hopper-v4 without"),
+        (lambda r: r.update(interims=[]), "no 'interims' object"),
+    ],
+)
+def test_a_damaged_record_is_refused_by_the_sweep_its_dry_run_and_the_report(
+    tmp_path: Path, damage: Any, fault: str
+) -> None:
+    """Each was a KeyError or AttributeError traceback in one of the three, or, in the report,
+    a task's interims silently dropped."""
+    run_until_decided(HOPPER, tmp_path, driver.Options(), Design(n=5, K=2), train=FakeTrain())
+    path = tmp_path / "sweep" / "sequential.json"
+    record = json.loads(path.read_text())
+    damage(record)
+    path.write_text(json.dumps(record))
+    expected = rf"sequential.json is damaged \({fault}.*or move it away"
+    with pytest.raises(TacbenchError, match=expected):
+        run_until_decided(HOPPER, tmp_path, driver.Options(), Design(n=5, K=2), train=FakeTrain())
+    with pytest.raises(TacbenchError, match=expected):
+        describe_design(HOPPER, tmp_path, driver.Options(), Design(n=5, K=2))
+    with pytest.raises(TacbenchError, match=expected):
+        analyse(ReportOptions(results=tmp_path, out=tmp_path / "report"))
+    assert json.loads(path.read_text()) == record  # nothing rewritten
+
+
 def test_the_dry_run_states_the_most_it_can_cost(tmp_path: Path) -> None:
     text = until_decided.describe_design(HOPPER, tmp_path, driver.Options(), Design(n=5, K=2))
     assert "Hopper-v4: 3 methods (each against SAC (TAC q=1))" in text

@@ -50,15 +50,13 @@ from tacbench.report.tables import (
     run_scores,
     summary_table,
 )
-from tacbench.runs import read_json
 from tacbench.sequential import (
     NOT_DISTINGUISHABLE,
-    RECORD_FILE,
     SequentialResult,
     decision_table,
-    results_of_record,
     spending_table,
 )
+from tacbench.sequential_record import RECORD_FILE, read_record, results_of_record
 from tacbench.verdicts import CHOSEN_ON_THESE_RUNS
 
 FORMATS: tuple[str, ...] = ("png", "svg", "pdf")
@@ -211,7 +209,7 @@ def _sequential_results(results: Path) -> tuple[dict[str, SequentialResult], pd.
     path = results / "sweep" / RECORD_FILE
     if not path.exists():
         return {}, decision_table({}).assign(detectable=np.nan)
-    record = read_json(path)
+    record = read_record(path)
     recorded = results_of_record(record)
     table = decision_table(recorded)
     detectable = [

@@ -26,7 +26,6 @@ from tacbench.errors import TacbenchError
 from tacbench.report.load import final_return
 from tacbench.report.tables import DEFAULT_LAST
 from tacbench.sequential import (
-    RECORD_FILE,
     Interim,
     Pair,
     SequentialComparison,
@@ -34,6 +33,7 @@ from tacbench.sequential import (
     decision_table,
     decision_text,
 )
+from tacbench.sequential_record import RECORD_FILE, read_record
 from tacbench.sweep import driver, dry_run, state, summary
 from tacbench.sweep.options import Options
 from tacbench.sweep.presets import Preset
@@ -81,7 +81,7 @@ class Record:
         self.interims: dict[str, list[dict[str, Any]]] = {env: [] for env in tasks}
         if not self.path.exists():
             return
-        stored = runs.read_json(self.path)
+        stored = read_record(self.path)
         same = same_design(stored.get("design"), design, tasks)
         if stored.get("methods") != self.methods or not same:
             raise TacbenchError(
