@@ -53,6 +53,12 @@ def check_numbers(config: RunConfig) -> None:
         raise TacbenchError(
             f"--learning-rate must be a finite number > 0 (got {config.learning_rate!r})."
         )
+    for name in ("alpha", "gamma", "tau", "learning_rate"):  # > 0 above, or in RunConfig
+        if getattr(config, name) < FLOAT32_TINY:
+            raise TacbenchError(
+                f"{flag_of(type(config), name)} {getattr(config, name):g} is below float32's "
+                f"smallest normal number, {FLOAT32_TINY:.4g}, which the update reads as 0."
+            )
     bounds = (config.log_std_min, config.log_std_max)
     if not all(_float32(b) for b in bounds) or not bounds[0] < bounds[1]:
         raise TacbenchError(

@@ -158,6 +158,10 @@ def test_the_density_cap_is_mentioned_where_its_rule_applies() -> None:
         ("q_schedule_start", 0.5, "--q-schedule-start shapes the linear q schedule; add"),
         ("density_floor", 0.0, "--density-floor must lie in"),
         ("density_floor", 1e-320, r"float32's normal numbers \(got 9.99989e-321\)"),  # log: NaN
+        ("alpha", 1e-40, r"--alpha 1e-40 is below float32's smallest normal number, 1.175e-38"),
+        ("tau", 1e-40, "--tau 1e-40 is below float32's smallest normal number"),  # target fixed
+        ("gamma", 1e-39, "--gamma 1e-39 is below float32's smallest normal number"),
+        ("learning_rate", 1e-300, "--learning-rate 1e-300 is below float32's smallest normal"),
         ("jacobian_clip", 1.0, "--jacobian-clip must lie in"),
         ("gaussian_eps", -1e-8, "--gaussian-eps must lie in"),
         ("compile", True, "--compile must be one of auto, on, off"),
