@@ -1,9 +1,10 @@
 """``tacbench sweep`` end to end with the local executor on tiny grids: members, idempotence,
 kill -9 of a worker and of the whole sweep, Ctrl-C, a failing run among complete ones, and a
-damaged member of a unit among healthy ones."""
+damaged member of a unit among healthy ones, a damaged calibration store."""
 
 from __future__ import annotations
 
+import io
 import itertools
 import json
 import os
@@ -17,7 +18,8 @@ from click.testing import CliRunner
 
 from tacbench import hardware, training
 from tacbench.cli import cli
-from tacbench.sweep import driver, plan
+from tacbench.errors import TacbenchError
+from tacbench.sweep import calibration, driver, dry_run, plan
 from tacbench.sweep.presets import Entry, Preset
 from tests.helpers import (
     last_logged_step,
@@ -181,6 +183,30 @@ def test_a_failing_run_is_recorded_and_retried_and_the_others_complete(tmp_path:
     again = driver.run_sweep(preset, tmp_path, options)  # given up: not retried again
     assert again.exit_code == 1
     assert len(again.summary["unfinished"][0]["failures"]) == 2
+
+
+def test_a_damaged_calibration_store_stops_a_dry_run_but_not_a_sweep(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The sweep prices itself for its bill before it trains: a damaged store stopped it."""
+    monkeypatch.setenv("TACBENCH_CALIBRATION", str(tmp_path / "calibration"))
+    calibration.store_path().parent.mkdir()
+    calibration.store_path().write_text("{not json")
+    tiny = {"total_steps": 400, "learning_starts": 200, "batch_size": 32, "eval_every": 200}
+    tiny |= {"eval_episodes": 1, "checkpoint_every": 200, "log_every": 100}
+    entry = Entry("tac", ("Hopper",), (0,), (1.0,), MappingProxyType(tiny))
+    preset = Preset("tiny", "one tiny run", (entry,))
+    out = tmp_path / "sweep"
+    with pytest.raises(TacbenchError, match="is not a readable calibration store; delete it"):
+        dry_run.describe_plan(driver.load_plan(preset, out, driver.Options())[0], 1, "task")
+    stream = io.StringIO()
+    result = driver.run_sweep(preset, out, driver.Options(workers=1), stream)
+    assert result.exit_code == 0 and result.summary["counts"]["complete"] == 1
+    warned = "is not a readable calibration store; delete it"
+    assert (
+        warned in stream.getvalue()
+        and "trains all the same, priced without it" in stream.getvalue()
+    )
 
 
 def test_a_member_with_a_damaged_csv_fails_alone_and_its_unit_trains_on(tmp_path: Path) -> None:

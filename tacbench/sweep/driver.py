@@ -155,7 +155,7 @@ def run_sweep(
         work, history = load_plan(preset, out, options)
         check_sizes(work, options)
         workers = options.worker_count()
-        priced = dry_run.price(work, workers)
+        priced = dry_run.price(work, workers, training=True)
         started = time.monotonic()
         executor = _executor(out, options)
         driver = _Driver(work, history, executor, options, stream, told)

@@ -11,7 +11,7 @@ from typing import Any
 
 from tacbench import envs, memory
 from tacbench.config import RunConfig
-from tacbench.errors import plural
+from tacbench.errors import TacbenchError, plural
 from tacbench.hardware import cpu_class
 from tacbench.members import repays_compilation
 from tacbench.progress import duration
@@ -51,15 +51,17 @@ class Price:
     wall_seconds: float
 
 
-def price(plan: SweepPlan, workers: int) -> Price:
-    """The plan's price on ``workers`` workers (:func:`wall_seconds`), group by group."""
+def price(plan: SweepPlan, workers: int, *, training: bool = False) -> Price:
+    """The plan's price on ``workers`` workers (:func:`wall_seconds`), group by group. A
+    damaged calibration store stops a dry run; a sweep that is ``training`` warns (in the
+    plan's warnings) and prices without it: a price is no reason not to train."""
     groups: dict[tuple[str, str], list[PlannedRun]] = defaultdict(list)
     for p in plan.runs:
         groups[_priced_as(p.run.config)].append(p)
     rates = cost.rates(
         plan.out, {pair: [p.run.config for p in group] for pair, group in groups.items()}
     )
-    calibrated = calibration.price(plan, calibration.load())
+    calibrated = calibration.price(plan, _calibrations(plan, training))
     priced = []
     for (algo, env), members in groups.items():
         steps = sum(p.steps_left for p in members if p.action in ("train", "retry"))
@@ -73,6 +75,16 @@ def price(plan: SweepPlan, workers: int) -> Price:
     return Price(
         tuple(priced), sum(g.seconds for g in priced), wall_seconds(plan, per_step, workers)
     )
+
+
+def _calibrations(plan: SweepPlan, training: bool) -> dict[str, calibration.Calibration]:
+    try:
+        return calibration.load()
+    except TacbenchError as err:
+        if not training:
+            raise
+        plan.warnings.append(f"{err} This sweep trains all the same, priced without it.")
+        return {}
 
 
 def describe_plan(
