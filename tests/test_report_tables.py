@@ -12,9 +12,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from tacbench import memory
+from tacbench.errors import TacbenchError
 from tacbench.paper import task_name, task_sort_key
 from tacbench.report import Report, ReportOptions, analyse
-from tacbench.report.curves import on_grid, seed_curves, task_grid
+from tacbench.report.curves import on_grid, run_matrix, seed_curves, task_grid
 from tacbench.report.load import load_runs
 from tacbench.report.methods import (
     BEST_Q_LABEL,
@@ -280,6 +282,32 @@ def test_seed_curves_count_only_runs_that_reached_a_step() -> None:
     assert curves["mean"].tolist() == [2.0, 4.0, 5.0]
     assert curves["n"].tolist() == [2, 2, 1]
     np.testing.assert_allclose(curves["std"], [math.sqrt(2), math.sqrt(2), np.nan])
+
+
+def test_the_curves_are_no_wider_than_the_rows_the_runs_logged(tmp_path: Path) -> None:
+    """The curve array had --grid-points columns whatever the runs held: 1,000,000 made 8 MB a
+    run of trailing NaNs."""
+    _flat_runs(tmp_path, "Hopper-v4", "tac", 1.0, [100.0, 200.0])
+    runset = load_runs(tmp_path, "eval")
+    grids, values = run_matrix(runset.data, runset.runs, 1_000_000, "eval")
+    assert values.shape == (2, 4) and len(grids["Hopper-v4"]) == 4
+
+
+def test_a_bootstrap_too_large_for_the_machine_is_refused_with_its_estimate(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The guard counted 24 bytes per replication and grid point (a curve bootstrap the report
+    does not run) and nothing for the runs: it refused a huge --grid-points, which costs
+    nothing, and let through a --reps that the profiles' bootstrap could not hold."""
+    _flat_runs(tmp_path, "Hopper-v4", "tac", 1.0, [100.0, 200.0, 300.0])
+    monkeypatch.setattr(memory, "machine_memory", lambda: 20 << 20)  # 20 MiB
+    options = {"results": tmp_path, "out": tmp_path / "r", "last": 2}
+    analyse(ReportOptions(**options, reps=200, grid_points=1_000_000))
+    per_replication = 8 * (3 + 2 * 101)  # three runs; the profiles' 101 values, twice
+    reps = (20 << 20) // per_replication + 1
+    with pytest.raises(TacbenchError, match=r"this report would need about .* make --reps smaller"):
+        analyse(ReportOptions(**options, reps=reps))
+    assert not (tmp_path / "r").exists()
 
 
 def test_curves_of_flat_runs_on_the_grid(flat_report: Report) -> None:

@@ -52,7 +52,9 @@ def on_grid(steps: np.ndarray, returns: np.ndarray, grid: np.ndarray, metric: Me
 def run_matrix(
     data: pd.DataFrame, runs: pd.DataFrame, points: int, metric: Metric
 ) -> tuple[dict[str, np.ndarray], np.ndarray]:
-    """Every run on its task's grid: (grid per env, array of shape (runs, points)).
+    """Every run on its task's grid: (grid per env, array of shape (runs, the longest grid)).
+    A task's grid has at most ``points`` steps, and no more than the most rows a run of the
+    task logged, so the array is never larger than the data it comes from, whatever ``points``.
 
     Row ``i`` of the array belongs to ``runs.iloc[i]``; a task with a shorter grid leaves the
     trailing columns NaN.
@@ -63,7 +65,7 @@ def run_matrix(
         str(env): task_grid(float(h), min(points, most_rows[str(env)]))
         for env, h in horizons.items()
     }
-    values = np.full((len(runs), points), np.nan)
+    values = np.full((len(runs), max(len(grid) for grid in grids.values())), np.nan)
     run_ids = data["run"].to_numpy()
     bounds = np.flatnonzero(np.diff(run_ids)) + 1
     starts = np.concatenate([[0], bounds])
