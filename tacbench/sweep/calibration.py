@@ -167,7 +167,7 @@ def calibrate(
             report(f"  not calibrated: {err}{kept}")
             continue
         except KeyboardInterrupt:  # a stop signal, or a second one: keep what was measured
-            new = {unit: median(found) for unit, found in measured.items() if found}
+            new = _medians(measured)
             kept = f"the units measured before it are stored in {save(new)}" if new else ""
             report(f"  calibration interrupted; {kept or 'nothing was stored'}")
             raise Interrupted from None
@@ -175,7 +175,7 @@ def calibrate(
             f"  {measured[key][-1].learn * 1e3:.2f} ms per member-step learning, "
             f"{measured[key][-1].random * 1e3:.2f} before ({time.perf_counter() - start:.0f} s)"
         )
-    new = {unit: median(found) for unit, found in measured.items() if found}
+    new = _medians(measured)
     for key, found in measured.items():
         if len(found) > 1:
             c, learn = todo[key][0], sorted(f.learn for f in found)
@@ -198,6 +198,11 @@ def median(rounds: Sequence[Calibration]) -> Calibration:
         eval_step=statistics.median(c.eval_step for c in rounds),
         rounds=len(rounds),
     )
+
+
+def _medians(measured: dict[str, list[Calibration]]) -> dict[str, Calibration]:
+    """Each measured unit's :func:`median` (a unit without a round left out)."""
+    return {unit: median(found) for unit, found in measured.items() if found}
 
 
 def unit_configs(plan: Any) -> list[list[Any]]:
