@@ -379,3 +379,25 @@ def test_recalibrate_measures_each_kind_of_unit_once_for_every_sweep(
     # the smoke preset's TAC units are of one kind: measured once a round for both sweeps
     assert len(measured) == calibration.ROUNDS
     assert result.output.count("took 1.00x the price, the price within 25 % of it") == 2
+
+
+def test_calibrate_measures_no_unit_of_a_sweep_that_cannot_test_its_price(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """It measured every sweep's units (minutes each), then called the sweep not comparable."""
+    measured: list[int] = []
+
+    def measure(configs: Any) -> Calibration:
+        measured.append(len(configs))
+        return Calibration(2e-4, 4e-3, 1e-4, "2026-12-07", len(configs))
+
+    monkeypatch.setattr(calibration, "measure", measure)
+    for key in SMOKE_RUNS:
+        _run(tmp_path / key, SMOKE, "2026-12-05T01:00:00Z", "2026-12-05T01:00:10Z")
+    status = tmp_path / SMOKE_RUNS[0] / "status.json"
+    status.write_text(json.dumps({"state": "failed", "updated": "2026-12-05T01:00:01Z"}))
+    result = CliRunner().invoke(cli, ["study", "bills", str(tmp_path), "--recalibrate"])
+    assert result.exit_code == 0, result.output
+    assert "4 runs, of which 1 failed\n" in result.output
+    assert "not comparable: a run that stopped before its budget" in result.output
+    assert measured == []

@@ -220,13 +220,14 @@ def sequential_analyse(results: Path, reps: int, out: Path | None) -> None:
     "--calibrate",
     is_flag=True,
     help="First calibrate, on this CPU class, the units it has not calibrated (a few minutes "
-    "per kind of unit), as `tacbench sweep --dry-run --calibrate` does.",
+    "per kind of unit), as `tacbench sweep --dry-run --calibrate` does; only of the sweeps "
+    "that can test their price.",
 )
 @click.option(
     "--recalibrate",
     is_flag=True,
-    help="First measure every unit again, replacing this class's calibrations, as `tacbench "
-    "sweep --dry-run --recalibrate` does.",
+    help="First measure every unit again (of the sweeps that can test their price), replacing "
+    "this class's calibrations, as `tacbench sweep --dry-run --recalibrate` does.",
 )
 def bills(results: tuple[Path, ...], calibrate: bool, recalibrate: bool) -> None:
     """What each sweep that trained the runs under RESULTS took, against what the dry run
@@ -254,11 +255,16 @@ def bills(results: tuple[Path, ...], calibrate: bool, recalibrate: bool) -> None
         if took.workers is not None:  # what it ran on, whatever the command left to the machine
             options = dataclasses.replace(options, workers=took.workers)
         priceable.append((took, sweep_bills.fresh_plan(grid, options), options))
-    if calibrate or recalibrate:  # each kind of unit once, whichever sweeps share it
+    if calibrate or recalibrate:  # each kind of unit once, of the sweeps that test the price
         from tacbench.sweep import calibration
 
         calibration.calibrate(
-            [unit for _, work, _ in priceable for unit in calibration.unit_configs(work)],
+            [
+                unit
+                for took, work, _ in priceable
+                if not sweep_bills.not_comparable(took, work)
+                for unit in calibration.unit_configs(work)
+            ],
             report=lambda line: click.echo(line, err=True),
             again=recalibrate,
         )
@@ -278,18 +284,15 @@ def bills(results: tuple[Path, ...], calibrate: bool, recalibrate: bool) -> None
         if took.workers is None and "--workers" not in took.command.split():
             workers += " (this machine's: the command left them to it)"
         line += f"{duration(priced.wall_s)} on {workers} ({here}, "
+        why_not = sweep_bills.not_comparable(took, work)
         if named != took.runs:
             runs += f", of which the command's plan names {named}"
-            line += "not comparable: the plan differs from the runs)"
-        elif part and took.source != sweep_bills.BILL:
-            line += "not comparable: only part of the sweep lies here, and its runs' records "
-            line += "span whatever else the sweep trained meanwhile)"
-        elif not took.comparable:
+        elif took.unfinished:
             runs += ", of which " + ", ".join(
                 f"{n} {state}" for state, n in took.unfinished.items()
             )
-            line += "not comparable: a run that stopped before its budget did not train what the "
-            line += "price trains)"
+        if why_not:
+            line += f"not comparable: {why_not})"
         elif not priced.calibrated:
             line += "not calibrated: give --calibrate)"
         else:

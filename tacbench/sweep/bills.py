@@ -245,6 +245,22 @@ def reprice(work: SweepPlan, options: Options) -> Repriced:
     )
 
 
+def not_comparable(took: Took, work: SweepPlan) -> str:
+    """Why what ``took`` took cannot test the price of ``work`` (its command's
+    :func:`fresh_plan`), or "" where it can."""
+    named = len(took.keys & {p.run.key for p in work.runs})
+    if named != took.runs:
+        return "the plan differs from the runs"
+    if named < len(work.runs) and took.source != BILL:
+        return (
+            "only part of the sweep lies here, and its runs' records span whatever else the "
+            "sweep trained meanwhile"
+        )
+    if not took.comparable:
+        return "a run that stopped before its budget did not train what the price trains"
+    return ""
+
+
 def within(took_s: float, priced_s: float, tolerance: float = TOLERANCE) -> bool:
     """Whether the price is within ``tolerance`` of the wall time it took."""
     return abs(priced_s - took_s) <= tolerance * took_s
