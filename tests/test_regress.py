@@ -56,6 +56,16 @@ def test_missing_rows_and_changed_columns_are_drift() -> None:
     assert "columns" in detail and "loss_pi" in detail
 
 
+@pytest.mark.parametrize("fresh", [CSV.rstrip("\n"), CSV + "\n", "step,q,loss\n"])
+def test_texts_of_the_same_rows_in_other_bytes_are_drift_not_a_traceback(fresh: str) -> None:
+    """A lost last newline or an added blank line gave an IndexError."""
+    reference = CSV if fresh != "step,q,loss\n" else "step,q,loss\n\n"
+    assert exact.compare_csv(reference, fresh) == (
+        "drift",
+        "the same rows, other bytes (a line ending or a blank line)",
+    )
+
+
 def test_clock_columns_are_dropped_and_nothing_else() -> None:
     text = "step,wall_s,return_mean\n500,0.091,32.48253645959404\n1000,0.789,48.1\n"
     assert mf.without_clocks(text) == "step,return_mean\n500,32.48253645959404\n1000,48.1\n"
@@ -393,6 +403,9 @@ def test_a_reference_file_missing_or_not_text_is_a_clear_error(
         ("exact", {"runs": [{"args": []}]}, "'runs'"),
         ("stat", {"groups": []}, "'groups'"),
         ("stat", {"alpha": "0.05", "last": 0}, "'alpha', 'last'"),
+        ("theory", {"created": None}, "'created'"),  # provenance_note: a KeyError
+        ("exact", {"environment": {"torch": "2"}}, "'environment'"),  # no versions
+        ("stat", {"test": ""}, "'test'"),
     ],
 )
 def test_a_damaged_manifest_is_refused_before_anything_is_compared(
@@ -552,6 +565,29 @@ def test_a_check_whose_run_a_signal_stopped_stops_with_its_status(
     assert result.exit_code == status, result.output
     assert f"interrupted by {name}" in result.output and "REGRESSION" not in result.output
     assert ran == names[:1]
+
+
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [
+        ("check_seeds", [5]),  # one seed: no test, and the check said PASS
+        ("check_seeds", []),
+        ("check_seeds", [5, 5]),
+        ("scores", {"0": 400.0}),  # one score: a ValueError after the training
+        ("scores", {"0": 400.0, "10": "x"}),
+    ],
+)
+def test_a_statistical_group_that_cannot_be_tested_is_refused(
+    tmp_path: Path, field: str, value: Any
+) -> None:
+    folder = tmp_path / "stat"
+    shutil.copytree(REFERENCE / "stat", folder)
+    manifest = json.loads((folder / mf.MANIFEST).read_text())
+    manifest["groups"][0][field] = value
+    (folder / mf.MANIFEST).write_text(json.dumps(manifest))
+    name = manifest["groups"][0]["name"]
+    with pytest.raises(TacbenchError, match=f"is damaged: {name!r} lacks {field!r}"):
+        mf.read_manifest(tmp_path, "stat")
 
 
 def test_a_manifest_entry_lacking_what_a_check_reads_is_refused(tmp_path: Path) -> None:

@@ -43,6 +43,8 @@ def compare_csv(reference: str, fresh: str) -> tuple[Status, str]:
     if not old or not new or old[0] != new[0]:
         return "drift", f"columns {old[0] if old else []} -> {new[0] if new else []}"
     header, old_body, new_body = old[0], old[1:], new[1:]
+    if old_body == new_body:
+        return "drift", "the same rows, other bytes (a line ending or a blank line)"
     first = next(
         (i for i, (a, b) in enumerate(zip(old_body, new_body, strict=False)) if a != b),
         min(len(old_body), len(new_body)),

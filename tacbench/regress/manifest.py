@@ -11,6 +11,7 @@ digits differ between CPUs; the other tiers have one. :class:`Runner` runs one r
 from __future__ import annotations
 
 import importlib.metadata
+import math
 import platform
 import shlex
 import shutil
@@ -106,15 +107,19 @@ def recorded_cpu_classes(reference: Path) -> list[str]:
 
 
 # what each tier's manifest must hold: its lists (of entries with a name, or of file names)
-# never empty, so that a check can never pass having compared nothing; alpha a level in (0, 1)
+# never empty, so that a check can never pass having compared nothing; alpha a level in (0, 1);
+# the provenance every check prints (provenance_note)
+_PROVENANCE = {"created": "text", "git_commit": "text", "regenerate": "text"}
 CONTENTS: dict[str, dict[str, str]] = {
-    "exact": {"runs": "named entries", "files": "names", "environment": "mapping"},
-    "theory": {"files": "names", "environment": "mapping"},
+    "exact": {"runs": "named entries", "files": "names", "environment": "versions", **_PROVENANCE},
+    "theory": {"files": "names", "environment": "versions", **_PROVENANCE},
     "stat": {
         "groups": "named entries",
         "alpha": "number",
         "last": "count",
-        "environment": "mapping",
+        "test": "text",
+        "environment": "versions",
+        **_PROVENANCE,
     },
 }
 
@@ -128,21 +133,39 @@ ENTRY_FIELDS: dict[str, dict[str, type]] = {
 
 def _entry_problems(manifest: Mapping[str, Any]) -> list[str]:
     """``"<name> lacks 'args'"`` for each manifest entry lacking a field a check reads, or
-    holding it as the wrong kind."""
+    holding it as the wrong kind; a statistical group needs two check seeds and two recorded
+    scores at least, or its test compares nothing."""
     problems = []
     for key, fields in ENTRY_FIELDS.items():
         for entry in manifest.get(key) or ():
             wrong = [f for f, kind in fields.items() if not isinstance(entry.get(f), kind)]
+            if key == "groups" and not wrong:
+                wrong = [f for f in ("check_seeds", "scores") if not _two_of(entry[f])]
             if wrong:
                 problems.append(f"{entry['name']!r} lacks {', '.join(map(repr, wrong))}")
     return problems
 
 
+def _two_of(values: Any) -> bool:
+    """Whether ``values`` (a list of seeds, or scores by seed) holds two distinct seeds or two
+    finite scores at least."""
+    if isinstance(values, dict):
+        numbers = [v for v in values.values() if _number(v) and math.isfinite(v)]
+        return len(numbers) == len(values) >= 2
+    return all(_number(v) and isinstance(v, int) for v in values) and len(set(values)) >= 2
+
+
+def _number(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
 def _holds(value: Any, kind: str) -> bool:
-    if kind == "mapping":
-        return isinstance(value, dict)
+    if kind == "text":
+        return isinstance(value, str) and bool(value)
+    if kind == "versions":
+        return isinstance(value, dict) and isinstance(value.get("versions"), dict)
     if kind == "number":
-        return isinstance(value, int | float) and not isinstance(value, bool) and 0 < value < 1
+        return _number(value) and 0 < value < 1
     if kind == "count":
         return isinstance(value, int) and not isinstance(value, bool) and value > 0
     if not isinstance(value, list) or not value:
@@ -179,7 +202,7 @@ def read_manifest(reference: Path, tier: str, cpu: str | None = None) -> dict[st
     if damaged:
         raise TacbenchError(
             f"{path} is damaged: {', '.join(map(repr, damaged))} missing, empty or of the wrong "
-            f"kind, so nothing could be compared; restore it from git, or regenerate it with: "
+            f"kind; restore it from git, or regenerate it with: "
             f"{regenerate_command(tier, reference)}"
         )
     problems = _entry_problems(manifest)
