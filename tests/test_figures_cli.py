@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import errno
+import os
 import struct
 from pathlib import Path
 
@@ -10,6 +12,7 @@ import pytest
 from click.testing import CliRunner
 
 from tacbench.cli import cli
+from tacbench.theory import figures
 
 pytestmark = pytest.mark.smoke
 
@@ -61,3 +64,20 @@ def test_a_folder_where_a_figure_goes_is_refused_before_any_is_written(tmp_path:
     assert result.exit_code == 2 and "Traceback" not in result.output
     assert "holds q_max_bounds.png as a folder, where a figure's file goes" in result.output
     assert [p.name for p in tmp_path.iterdir()] == ["q_max_bounds.png"]
+
+
+def test_an_out_that_takes_no_file_is_refused_before_any_figure(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A read-only folder (root's /sys/kernel) gave a PermissionError traceback, at the first
+    figure's write."""
+
+    def read_only(**kwargs: object) -> None:
+        raise OSError(errno.EROFS, os.strerror(errno.EROFS), str(kwargs["dir"]))
+
+    monkeypatch.setattr(figures.tempfile, "TemporaryFile", read_only)
+    result = CliRunner().invoke(cli, ["figures", "--out", str(tmp_path / "figs")])
+    assert result.exit_code == 2 and "Traceback" not in result.output
+    assert "cannot create or write the output directory" in result.output
+    assert "Read-only file system; pick another --out" in result.output
+    assert list((tmp_path / "figs").iterdir()) == []

@@ -300,3 +300,6 @@ def test_bad_solver_arguments_raise() -> None:
         tbo_operator(mdp, np.zeros((4, 16)), 1.5, 0.1)
     with pytest.raises(TacbenchError, match=r"did not reach tol.*raise max_iter"):
         tsallis_value_iteration(mdp, 1.5, 0.1, max_iter=3)
+    for endless in (float("inf"), float("nan")):  # int() of them: OverflowError, ValueError
+        with pytest.raises(TacbenchError, match="max_iter must be a finite number of at least 1"):
+            tsallis_value_iteration(mdp, 1.5, 0.1, max_iter=endless)  # type: ignore[arg-type]

@@ -15,6 +15,7 @@ such a table, and :func:`write_figures` writes them all. Figures are built on
 
 from __future__ import annotations
 
+import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -298,10 +299,15 @@ def write_figures(out_dir: str | Path) -> list[Path]:
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise TacbenchError(f"--out {out} exists and is not a directory; pick a directory path.")
-    try:
+    try:  # a file written there, before any figure is: a read-only folder said nothing
         out.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=out):
+            pass
     except OSError as err:
-        raise TacbenchError(f"cannot create output directory {out}: {err.strerror}.") from None
+        raise TacbenchError(
+            f"cannot create or write the output directory {out}: {err.strerror}; pick another "
+            "--out."
+        ) from None
     paths = [out / f"{name}.{kind}" for name, _, _ in _FIGURES for kind in ("csv", "png")]
     blocked = [path.name for path in paths if path.exists() and not path.is_file()]
     if blocked:  # found before any figure is written, not after some

@@ -152,8 +152,8 @@ def _check_values(mdp: TabularMDP, values: ArrayLike) -> Array:
 def _check_stop(tol: float, max_iter: int) -> None:
     if not (np.isfinite(tol) and tol > 0):
         raise TacbenchError(f"tol must be a finite number > 0 (got {tol}).")
-    if int(max_iter) < 1:
-        raise TacbenchError(f"max_iter must be at least 1 (got {max_iter}).")
+    if not (np.isfinite(max_iter) and max_iter >= 1):  # int(inf) would raise OverflowError
+        raise TacbenchError(f"max_iter must be a finite number of at least 1 (got {max_iter}).")
 
 
 def _not_converged(method: str, max_iter: int, residual: float, tol: float) -> TacbenchError:
