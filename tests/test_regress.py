@@ -341,6 +341,17 @@ def test_regress_cli_exit_codes_on_theory_csvs(
     assert "REGRESSION (1 drift" in result.output
 
 
+def test_an_unknown_only_name_lists_each_known_name_once(tmp_path: Path) -> None:
+    """On a class without exact references, the names were listed once per recorded class."""
+    classes = mf.recorded_cpu_classes(REFERENCE)[:2]
+    for index, cpu in enumerate(classes):
+        shutil.copytree(REFERENCE / "exact" / cpu, tmp_path / "exact" / f"x86_64-other-{index}")
+    result = CliRunner().invoke(cli, ["regress", "--only", "nope", "--against", str(tmp_path)])
+    assert result.exit_code == 2 and "no reference named nope" in result.output
+    known = result.output.split("known: ")[1].split()
+    assert len(known) == len(set(known)) > 1
+
+
 def test_regress_cli_usage_errors_exit_two(tmp_path: Path) -> None:
     runner = CliRunner()
     result = runner.invoke(cli, ["regress", "--against", str(tmp_path / "nowhere")])

@@ -235,7 +235,7 @@ def require_files(paths: Sequence[Path], tier: str, reference: Path) -> None:
 
 def select(entries: list[dict[str, Any]], names: Sequence[str], reference: Path) -> list[Any]:
     """The manifest entries named in ``names`` (all of them when it is empty)."""
-    known = [e["name"] for e in entries]
+    known = list(dict.fromkeys(e["name"] for e in entries))  # each once: several CPU classes
     unknown = sorted(set(names) - set(known))
     if unknown:
         raise TacbenchError(
