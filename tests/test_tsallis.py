@@ -54,6 +54,13 @@ def test_exp_q_cuts_off_and_has_a_pole() -> None:
     assert log_q(0.0, 2.0) == -1.0 and log_q(0.0, 0.5) == -np.inf
 
 
+@pytest.mark.parametrize("q", [0.5, 1.0, 2.0])
+def test_exp_q_of_nan_is_nan(q: float) -> None:
+    """It was 0 at q > 1 and +inf at q < 1: a NaN from upstream read as a probability or a pole."""
+    assert np.isnan(exp_q(np.nan, q))
+    assert exp_q(np.array([np.nan, 0.0]), q)[1] == 1.0
+
+
 @pytest.mark.parametrize("q", Q_VALUES)
 def test_log_q_inverts_exp_q(q: float) -> None:
     # where both directions are well conditioned (for large q, ln_q(p) -> -1/(q-1) as p -> 0)

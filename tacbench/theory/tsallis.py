@@ -88,7 +88,7 @@ def exp_q(x: ArrayLike, q: float) -> Array:
         base = 1.0 + (q - 1.0) * x
         value = np.exp(np.log1p((q - 1.0) * x) / (q - 1.0))
         outside = 0.0 if q > 1.0 else np.inf
-        return np.where(base > 0, value, outside)
+        return np.where(base <= 0, outside, value)  # NaN in, NaN out (as np.exp at q = 1)
 
 
 def log_q(x: ArrayLike, q: float) -> Array:
