@@ -192,6 +192,16 @@ def test_the_runs_cpu_time_is_set_beside_the_price_where_every_run_records_it(
     (tmp_path / SMOKE_RUNS[0] / "eval.csv").write_text(header + "500,4,x,1,0,1\n")
     damaged = CliRunner().invoke(cli, ["study", "bills", str(tmp_path)])
     assert damaged.exit_code == 2 and "eval.csv cannot be read" in damaged.output
+    # cut short: its last row was an earlier step's CPU time, taken without a word
+    status = tmp_path / SMOKE_RUNS[0] / "status.json"
+    status.write_text(json.dumps({**json.loads(status.read_text()), "step": 1000}))
+    for cut, said in (
+        ("500,4,0.5,1,0,1\n", "ends at step 500, where the complete run reached 1000"),
+        ("500,4,0.5,1,0,1\n1000,9,1.", "its last line is torn"),
+    ):
+        (tmp_path / SMOKE_RUNS[0] / "eval.csv").write_text(header + cut)
+        damaged = CliRunner().invoke(cli, ["study", "bills", str(tmp_path)])
+        assert damaged.exit_code == 2 and said in damaged.output, damaged.output
 
 
 def test_runs_the_recorded_command_does_not_plan_are_not_compared(tmp_path: Path) -> None:
@@ -315,6 +325,25 @@ BILL = {
             "summary.json",
             {"command": SMOKE, "bill": BILL, "finished": "2026-12-05T01:00:00"},
             "a time without its UTC offset",
+        ),
+        (  # the same TypeError, from a run's record
+            "config.json",
+            {"command": SMOKE, "created": "2026-12-05T01:00:00"},
+            "'created' is '2026-12-05T01:00:00', a time without its UTC offset",
+        ),
+        (  # a ValueError traceback
+            "summary.json",
+            {
+                "command": SMOKE,
+                "bill": {**BILL, "load_average": "2.1"},
+                "finished": "2026-12-05T01:00Z",
+            },
+            "holds one of another type",
+        ),
+        (  # "--workers must be at least 1", which the user never gave
+            "summary.json",
+            {"command": SMOKE, "bill": {**BILL, "workers": 0}, "finished": "2026-12-05T01:00Z"},
+            "holds one of another type",
         ),
     ],
 )

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import csv
 import datetime
+import io
 import tempfile
 from collections import Counter, defaultdict
 from collections.abc import Mapping
@@ -99,9 +100,9 @@ def sweeps(*folders: Path) -> list[Took]:
         created[command].append(_time(config, "created", config_path))
         key = _key(config_path.parent)
         keys[command].add(key)
-        seconds = _cpu_seconds(config_path.with_name("eval.csv"))
-        cpu[command][key] = None if seconds is None else seconds / members_sharing(config)
         status = runs.read_json(status_path, ADVICE)
+        seconds = _cpu_seconds(config_path.with_name("eval.csv"), status)
+        cpu[command][key] = None if seconds is None else seconds / members_sharing(config)
         updated[command].append(_time(status, "updated", status_path))
         states[command][key] = str(status.get("state"))
     bills = {command: bill for folder in folders for command, bill in _bills(folder).items()}
@@ -133,16 +134,25 @@ def sweeps(*folders: Path) -> list[Took]:
     return took
 
 
-def _cpu_seconds(eval_csv: Path) -> float | None:
+def _cpu_seconds(eval_csv: Path, status: Mapping[str, Any]) -> float | None:
     """The run's CPU seconds at its last evaluation, or None: no eval.csv, no row, or a run
-    begun before eval.csv logged ``cpu_s``. A file that cannot be read is a TacbenchError."""
+    begun before eval.csv logged ``cpu_s``. A file that cannot be read, ends in a torn line, or
+    (of a complete run) ends before the step its ``status`` records is a TacbenchError: its last
+    row would be an earlier step's CPU time."""
     if not eval_csv.exists():
         return None
     try:
-        with eval_csv.open(newline="") as handle:
-            rows = list(csv.DictReader(handle))
+        text = eval_csv.read_text()
+        rows = list(csv.DictReader(io.StringIO(text, newline="")))
+        if text and not text.endswith("\n"):
+            raise ValueError("its last line is torn")
+        reached = status.get("step") if status.get("state") == "complete" else None
+        if rows and isinstance(reached, int) and int(rows[-1]["step"]) != reached:
+            raise ValueError(
+                f"it ends at step {rows[-1]['step']}, where the complete run reached {reached}"
+            )
         return float(rows[-1]["cpu_s"]) if rows and rows[-1].get("cpu_s") else None
-    except (OSError, csv.Error, ValueError) as err:
+    except (OSError, UnicodeDecodeError, csv.Error, ValueError, TypeError, KeyError) as err:
         raise TacbenchError(f"{eval_csv} cannot be read ({err}); {ADVICE}.") from None
 
 
@@ -150,11 +160,16 @@ def _time(record: Mapping[str, Any], name: str, path: Path) -> datetime.datetime
     """The ISO 8601 time ``record[name]`` read from ``path``; a TacbenchError if it is not one."""
     value = record.get(name)
     try:
-        return datetime.datetime.fromisoformat(value)  # type: ignore[arg-type]
+        time = datetime.datetime.fromisoformat(value)  # type: ignore[arg-type]
     except (TypeError, ValueError):
         raise TacbenchError(
             f"{path}: {name!r} is {value!r}, not an ISO 8601 time; {ADVICE}."
         ) from None
+    if time.tzinfo is None:  # compared with the other records' times, which have one
+        raise TacbenchError(
+            f"{path}: {name!r} is {value!r}, a time without its UTC offset; {ADVICE}."
+        )
+    return time
 
 
 def _created_every_run(bill: dict[str, Any], first_created: datetime.datetime) -> bool:
@@ -164,6 +179,10 @@ def _created_every_run(bill: dict[str, Any], first_created: datetime.datetime) -
         seconds=bill["wall_s"]
     )
     return bill["priced_wall_s"] > 0 and first_created >= started - CLOCK_SLACK
+
+
+def _not_a(value: Any, kind: type | tuple[type, ...]) -> bool:
+    return isinstance(value, bool) or not isinstance(value, kind)
 
 
 def _key(directory: Path) -> str:
@@ -191,21 +210,21 @@ def _bills(results: Path) -> dict[str, dict[str, Any]]:
             "priced_wall_s": number,
             "workers": int,
         }
-        if not isinstance(bill, dict) or any(
-            isinstance(bill.get(f), bool) or not isinstance(bill.get(f), kind)
-            for f, kind in kinds.items()
+        optional: dict[str, type | tuple[type, ...]] = {"load_average": number, "cores": int}
+        if (
+            not isinstance(bill, dict)
+            or any(_not_a(bill.get(f), kind) for f, kind in kinds.items())
+            or any(f in bill and _not_a(bill[f], kind) for f, kind in optional.items())
+            or bill["workers"] < 1
         ):
             raise TacbenchError(
                 f"{path}: its bill lacks one of {list(kinds)} or holds one of another type "
-                f"(seconds and workers as numbers, the class as text); {ADVICE}."
+                f"(seconds, load and at least one worker as numbers, the class as text); "
+                f"{ADVICE}."
             )
         if not isinstance(record.get("command"), str):
             raise TacbenchError(f"{path} records no sweep command; {ADVICE}.")
-        if _time(record, "finished", path).tzinfo is None:  # compared with the runs' times
-            raise TacbenchError(
-                f"{path}: 'finished' is {record['finished']!r}, a time without its UTC offset; "
-                f"{ADVICE}."
-            )
+        _time(record, "finished", path)  # checked: compared with the runs' times
         found[record["command"]] = {**bill, "finished": record["finished"]}
     return found
 
