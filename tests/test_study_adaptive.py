@@ -212,6 +212,7 @@ def test_unfinished_runs_are_left_out_and_every_gap_is_said(tmp_path: Path) -> N
         ("", "EmptyDataError"),
         ("step,loss_pi\n100,0.5\n", "ValueError"),
         ("step,q\n", "records no learned q in its last row"),
+        ("step,q\n100,1.4\n200,0.6", "ends in a torn line"),  # 0.6 of 0.62: taken as the q
     ],
 )
 def test_a_members_losses_csv_without_its_q_is_a_one_line_error(

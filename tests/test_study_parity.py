@@ -66,6 +66,18 @@ def test_final_return_is_the_mean_over_the_last_tenth_of_the_steps() -> None:
     assert len(finals) == 6
 
 
+@pytest.mark.parametrize("fraction", [0.45, 0.7, 0.8, 0.3])
+def test_a_fraction_keeps_the_evaluation_at_its_boundary_whatever_the_rounding(
+    fraction: float,
+) -> None:
+    """0.55 x 100,000 is 55,000.00000000001: the evaluation at 55,000 was left out at 0.45,
+    kept at 0.4500000001."""
+    finals = parity.final_returns(_frame(), fraction)
+    row = finals[(finals["method"] == "SAC (SB3)") & (finals["seed"] == 10)]
+    steps = range(round((1 - fraction) * 100), 101, 5)
+    assert row["return"].item() == pytest.approx(10 + sum(steps) / len(steps))
+
+
 def test_curves_and_summary() -> None:
     data = _frame()
     table = parity.curves(data)

@@ -183,6 +183,8 @@ def _last_q(losses: Path) -> float:
             f"cannot read the learned q from {losses} ({one_line(err)}); restore the run's "
             "losses.csv."
         ) from None
+    if not losses.read_bytes().endswith(b"\n"):  # a cut row's q reads as a number
+        raise TacbenchError(f"{losses} ends in a torn line; restore the run's losses.csv.")
     if q.empty or not np.isfinite(q.iloc[-1]):
         raise TacbenchError(
             f"{losses} records no learned q in its last row; restore the run's losses.csv."

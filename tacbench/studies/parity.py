@@ -156,7 +156,8 @@ def curves(data: pd.DataFrame) -> pd.DataFrame:
 def final_returns(data: pd.DataFrame, fraction: float = FRACTION) -> pd.DataFrame:
     """Per run: the mean evaluation return over its last ``fraction`` of steps."""
     last = data.groupby(["env", "method", "seed"])["step"].transform("max")
-    tail = data[data["step"] >= (1.0 - fraction) * last]
+    start = (1.0 - fraction) * last  # 0.55 x 100,000 is 55,000.00000000001: close is at it
+    tail = data[(data["step"] >= start) | np.isclose(data["step"], start, rtol=1e-12, atol=0)]
     return tail.groupby(["env", "method", "seed"])["return"].mean().reset_index()
 
 
