@@ -25,7 +25,7 @@ import numpy as np
 import pandas as pd
 
 from tacbench import comparator
-from tacbench.errors import TacbenchError
+from tacbench.errors import TacbenchError, listing
 
 DEFAULT_ALPHA = 0.05  # the usual 5% family-wise error rate; AdaStop's own default is 0.01
 DEFAULT_B = 10_000  # AdaStop's default number of random permutations
@@ -220,16 +220,19 @@ def run_sequential(
     return comparison.result()
 
 
-def study_scores(results: Path) -> pd.DataFrame:
+def study_scores(results: Path) -> tuple[pd.DataFrame, list[str]]:
     """One row per complete TAC run of a study folder: env, variant, q, seed and its final
-    return (the report's: the mean of its last 10 evaluations), in seed order."""
+    return (the report's: the mean of its last 10 evaluations), in seed order; and
+    ``"<run>: <reason>"`` for each run directory the report's loader left out."""
     from tacbench.report.load import load_runs
     from tacbench.report.tables import DEFAULT_LAST, run_scores
 
     runset = load_runs(results, "eval")
     table = runset.runs.join(run_scores(runset.data, DEFAULT_LAST), on="run")
     table = table[(table["algo"] == "tac") & ~table["partial"]]
-    return table[["env", "variant", "q", "seed", "final"]].sort_values(["env", "q", "seed"])
+    left_out = [f"{s.path}: {s.reason}" for s in runset.skipped]
+    columns = ["env", "variant", "q", "seed", "final"]
+    return table[columns].sort_values(["env", "q", "seed"]), left_out
 
 
 def replay_study(
@@ -239,7 +242,7 @@ def replay_study(
     :func:`run_sequential`, each q against ``control_q``. A TacbenchError where the folder
     holds no complete TAC run, or a task holds more than one setting of a q, or runs without a
     fixed q (q auto): their runs would be taken as one method's."""
-    table = study_scores(results)
+    table, left_out = study_scores(results)
     if table.empty:
         raise TacbenchError(
             f"no complete TAC run under {results}: nothing to replay; give --results a q-grid "
@@ -254,7 +257,8 @@ def replay_study(
             raise TacbenchError(
                 f"{env}: {', '.join(short)} {'has' if len(short) == 1 else 'have'} fewer than "
                 f"the {n * K} complete runs a replay of n = {n}, K = {K} needs; the replayed "
-                "study needs every q's runs on every task."
+                "study needs every q's runs on every task"
+                + (f" (left out: {listing(left_out, 3, '; ')})." if left_out else ".")
             )
         replays[str(env)] = run_sequential(by_q, n, K, alpha, control=f"q={control_q:g}")
     return replays

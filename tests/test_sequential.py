@@ -144,6 +144,20 @@ def test_a_replay_of_a_study_short_of_runs_names_the_task_and_the_q(tmp_path: Pa
             )
     with pytest.raises(TacbenchError, match="Hopper-v4: q=2 has fewer than the 5 complete runs"):
         sq.replay_study(tmp_path, 5, 1)
+    # a fifth run that the loader left out is named with its reason (the message hid it)
+    broken = write_run(
+        tmp_path,
+        algo="tac",
+        env="Hopper-v4",
+        variant="q2-a0.2",
+        seed=40,
+        steps=[1.0],
+        returns=[1.0],
+    )
+    (broken / "config.json").write_text("")
+    with pytest.raises(TacbenchError) as short:
+        sq.replay_study(tmp_path, 5, 1)
+    assert "(left out: tac/Hopper-v4/q2-a0.2/seed40: config.json unreadable" in str(short.value)
 
 
 def _write_tac_runs(root: Path, variant: str, q: float, **modes: str) -> None:
