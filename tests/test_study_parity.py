@@ -247,6 +247,12 @@ def test_the_commands_refuse_what_tacbench_run_would_refuse() -> None:
         assert result.exit_code == 2 and "is not in the range" in result.output
     result = runner.invoke(cli, ["study", "parity", "commands", "--env", "hopper"])
     assert result.exit_code == 0 and "--env Hopper-v4" in result.output
+    # a task or seed given twice: each once (tacbench run refused "--seed 0 --seed 0")
+    twice = ["--env", "hopper", "--env", "Hopper-v4", "--seed", "0", "--seed", "0"]
+    result = runner.invoke(cli, ["study", "parity", "commands", *twice])
+    alone = runner.invoke(cli, ["study", "parity", "commands", "--env", "hopper", "--seed", "0"])
+    assert result.exit_code == 0 and result.output == alone.output
+    assert "--seed 0 --seed 0" not in result.output
 
 
 def _hopper(

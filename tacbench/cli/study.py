@@ -127,8 +127,11 @@ def parity_commands(envs: tuple[str, ...], seeds: tuple[int, ...], steps: int, o
     """Print the study's tacbench run commands."""
     from tacbench.envs import resolve_env_id
 
-    tasks = [resolve_env_id(env) for env in envs] or parity_study.ENVS  # a bad name says so now
-    lines = parity_study.commands(tasks, seeds or parity_study.SEEDS, steps, str(out))
+    # each once (hopper and Hopper-v4 are one task; tacbench run refuses a seed given twice);
+    # a bad name says so now
+    tasks = list(dict.fromkeys(resolve_env_id(env) for env in envs)) or parity_study.ENVS
+    once = list(dict.fromkeys(seeds)) or parity_study.SEEDS
+    lines = parity_study.commands(tasks, once, steps, str(out))
     click.echo("\n".join(lines))
 
 
