@@ -133,7 +133,8 @@ class BenchOptions:
 
 def contestants(options: BenchOptions) -> list[Contestant]:
     """SB3's SAC, then TAC at K = 1 and K = ``members``: uncompiled (unless not ``eager``) and,
-    with ``compile``, compiled; with ``bf16``, each TAC row also with bfloat16 products."""
+    with ``compile``, compiled; with ``grid``, the q grid; with ``bf16``, each TAC row (the
+    grid's too) also with bfloat16 products."""
     rows = [Contestant("SB3 SAC", 1)] if options.sb3 else []
     paths = [("TAC", False)] if options.eager else []
     paths += [("TAC compiled", True)] if options.compile else []
@@ -145,6 +146,10 @@ def contestants(options: BenchOptions) -> list[Contestant]:
     if options.grid:  # the paper's q grid of one task in one process: 9 q x 10 seeds
         members = len(paper.Q_GRID) * len(paper.SEEDS)
         rows.append(Contestant("TAC q grid compiled", members, True, True, paper.Q_GRID))
+        if options.bf16:
+            rows.append(
+                Contestant("TAC q grid compiled bf16", members, True, True, paper.Q_GRID, True)
+            )
     return rows
 
 
@@ -159,7 +164,7 @@ def check_sizes(options: BenchOptions) -> None:
     # (building each of --members 100000 took 20 s before the refusal)
     (config,) = _tac_configs(options, Contestant("TAC", 1, tac=True))
     group = [replace(config, total_steps=rows)] * largest
-    flags = "--hidden-sizes or --members (or leave out --grid)"
+    flags = "--hidden-sizes or --members" + (" (or leave out --grid)" if options.grid else "")
     training.check_sizes(group, envs.env_info(options.env), flags)
 
 

@@ -45,6 +45,12 @@ def test_contestants_cover_both_paths_at_one_and_k_members() -> None:
         ("TAC compiled", 2, False),
         ("TAC compiled bf16", 2, True),
     ]
+    # the grid row is a TAC row too: --bf16 repeats it (it was left in float32 alone)
+    options = BenchOptions(members=1, sb3=False, eager=False, grid=True, bf16=True)
+    assert [(c.name, c.members, c.bf16) for c in contestants(options)] == [
+        ("TAC q grid compiled", 90, False),
+        ("TAC q grid compiled bf16", 90, True),
+    ]
 
 
 def test_table_reports_rates_member_rates_and_ratios_to_sb3() -> None:
@@ -138,10 +144,13 @@ def test_bench_command_refuses_bad_options(tmp_path: Path) -> None:
             "--grid, --threads.",
         ),
         (["--no-compile-profile"], "--no-compile-profile applies with --profile only"),
-        (["--bf16", "--no-eager"], "--no-eager without --compile leaves no TAC row"),
+        (["--bf16", "--no-eager"], "--no-eager without --compile or --grid leaves no TAC row"),
         (["--threads", "1000"], "--threads 1000 is more than this machine's"),
         (["--hidden-sizes", "100000,100000"], "this run would need about"),
-        (["--members", "100000", "--hidden-sizes", "3000"], "this run would need about"),
+        (  # advised leaving out a --grid that was not given
+            ["--members", "100000", "--hidden-sizes", "3000"],
+            "make --hidden-sizes or --members smaller",
+        ),
         (["--json", ""], "--json must name a file, not a folder (got '')"),
         (["--json", "newdir/"], "got 'newdir/'); for example --json newdir/bench.json."),
     ],
@@ -274,8 +283,11 @@ def test_the_size_check_counts_the_replay_rows_the_bench_fills(
 
     monkeypatch.setattr(memory, "machine_memory", lambda: 4 << 30)
     bench.check_sizes(BenchOptions(env="HalfCheetah-v4", grid=True, compile=True, eager=False))
-    with pytest.raises(TacbenchError, match=r"make --hidden-sizes or --members \(or leave out"):
+    with pytest.raises(TacbenchError, match=r"make --hidden-sizes or --members smaller"):
         bench.check_sizes(BenchOptions(env="HalfCheetah-v4", hidden_sizes=(20_000, 20_000)))
+    grid = BenchOptions(env="HalfCheetah-v4", hidden_sizes=(20_000, 20_000), grid=True)
+    with pytest.raises(TacbenchError, match=r"make --hidden-sizes or --members \(or leave out"):
+        bench.check_sizes(grid)
 
 
 def test_the_size_check_counts_every_member_of_the_largest_group(

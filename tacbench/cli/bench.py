@@ -172,10 +172,10 @@ def _check_combination(ctx: click.Context) -> None:
             "--no-sb3 and --no-eager leave nothing to measure; add --compile or --grid, or drop "
             "one of them."
         )
-    if p["bf16"] and p["no_eager"] and not p["compile_"]:
+    if p["bf16"] and p["no_eager"] and not (p["compile_"] or p["grid"]):
         raise TacbenchError(
             "--bf16 repeats each TAC row with bfloat16 products, and --no-eager without "
-            "--compile leaves no TAC row; add --compile or drop --no-eager."
+            "--compile or --grid leaves no TAC row; add --compile or drop --no-eager."
         )
 
 
