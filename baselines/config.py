@@ -110,6 +110,8 @@ def make_configs(
     starts = effective.get("learning_starts")
     if configs[0].off_policy and starts is not None:
         notes += never_updated(f"{algo}'s learning_starts", int(starts), total)
+    if configs[0].off_policy:
+        notes += _never_trained(algo, effective.get("train_freq"), total)
     rollout = int(effective.get("n_steps", SB3_N_STEPS))
     if not configs[0].off_policy and rollout > total:
         notes.append(
@@ -122,6 +124,21 @@ def make_configs(
 
 
 SB3_N_STEPS = 2048  # SB3's PPO and TRPO default rollout length, where a table leaves it out
+
+
+def _never_trained(algo: str, train_freq: Any, total: int) -> list[str]:
+    """A warning where an off-policy baseline's ``train_freq`` in steps is above ``--steps``:
+    SB3 trains after each ``train_freq`` steps collected, so never."""
+    in_steps = isinstance(train_freq, list) and train_freq[1] == "step"
+    steps = train_freq[0] if in_steps else train_freq
+    if not isinstance(steps, int) or steps <= total:
+        return []
+    return [
+        RunWarning(
+            f"WARNING: {algo}'s train_freq {steps:,} steps is above --steps {total:,}: the run "
+            "ends before its first training, and the networks are never updated"
+        )
+    ]
 
 
 def _check_combination(algo: str, effective: Mapping[str, Any]) -> None:
@@ -182,7 +199,7 @@ def flags_as_overrides(algo: str, given: Mapping[str, Any]) -> list[str]:
     if algo == "sac-sb3" and "alpha_mode" in given:
         start = given.get("alpha", "auto")
         if given.pop("alpha_mode") == "auto":
-            given["alpha"] = "auto" if start == "auto" else f"auto_{float(start):g}"
+            given["alpha"] = "auto" if start == "auto" else f"auto_{float(start)!r}"
         elif given.get("alpha") == "auto":
             raise TacbenchError(
                 "--alpha auto learns alpha; it does not mix with --alpha-mode fixed in one command."

@@ -24,6 +24,7 @@ from typing import Any
 import yaml
 
 from tacbench import paper
+from tacbench.config_checks import FLOAT32_TINY
 from tacbench.errors import TacbenchError
 
 ALGOS = ("ddpg", "td3", "sac-sb3", "ppo", "trpo")
@@ -56,7 +57,10 @@ class Spec:
         if self.kind == "train-freq":
             return 'an integer >= 1, or [n,"step"] / [n,"episode"]'
         if self.kind == "ent-coef":  # the bound is the constant's; a learned one starts above 0
-            return 'a number >= 0, "auto" or "auto_<initial value>" with an initial value > 0'
+            return (
+                'a number >= 0, "auto" or "auto_<initial value>" with an initial value of at '
+                "least float32's smallest normal number, 1.175e-38, written without _"
+            )
         text = {
             "float": "a number",
             "int": "an integer",
@@ -258,13 +262,19 @@ def coerce(algo: str, key: str, value: Any) -> Any:
         and value.startswith("auto")
     ):
         initial = kind == "ent-coef" and value.startswith("auto_")  # the learned value's start
-        start = _number(value[5:]) if initial else None
-        if value == "auto" or (start is not None and 0 < start < math.inf):
+        # SB3 reads the start as the text up to a second "_": auto_1_0 would start at 1, not 10
+        start = _number(value[5:]) if initial and "_" not in value[5:] else None
+        if value == "auto" or (start is not None and FLOAT32_TINY <= start < math.inf):
             return value
         raise bad
     number = _number(value)
     if number is None or not _in_range(number, rule):
         raise bad
+    if 0 < abs(number) < FLOAT32_TINY:  # flush-to-zero: trained as 0 (the runs set it)
+        raise TacbenchError(
+            f"--hp {key}={_text(value)}: below float32's smallest normal number, "
+            f"{FLOAT32_TINY:.4g}, which training reads as 0."
+        )
     if kind == "int":
         return _integer(value, rule.low, bad)
     return number

@@ -151,7 +151,14 @@ def test_a_bad_key_names_the_valid_keys() -> None:
         ("sac-sb3", "ent_coef=automatic", '"auto" or "auto_<initial value>"'),
         ("sac-sb3", "ent_coef=auto_inf", '"auto" or "auto_<initial value>"'),
         ("sac-sb3", "ent_coef=auto_nan", '"auto" or "auto_<initial value>"'),
-        ("sac-sb3", "ent_coef=auto_0", "with an initial value > 0"),  # it said ">= 0"
+        ("sac-sb3", "ent_coef=auto_0", "with an initial value of at least"),  # it said ">= 0"
+        # SB3 starts auto_1_0 at 1 (the text up to a second _); the check read 10
+        ("sac-sb3", "ent_coef=auto_1_0", "written without _"),
+        ("sac-sb3", "ent_coef=auto_1e-40", "with an initial value of at least"),
+        # flush-to-zero trained these as 0 (config.json said 1e-40)
+        ("sac-sb3", "ent_coef=1e-40", "below float32's smallest normal number, 1.175e-38"),
+        ("td3", "tau=1e-40", "below float32's smallest normal number"),
+        ("td3", "learning_rate=1e-300", "below float32's smallest normal number"),
         ("td3", "train_freq=[1, day]", 'an integer >= 1, or [n,"step"]'),
         # TRPO's line search steps by 2 target_kl: null (PPO's "no limit") crashed its update
         ("trpo", "target_kl=null", "target_kl for trpo must be a number > 0"),
@@ -214,6 +221,14 @@ def test_make_configs_applies_overrides_and_run_settings() -> None:
     assert not any(note.startswith("WARNING") for note in notes)  # one rollout: one update
     _, _, notes = make_configs("trpo", "Hopper-v4", "Hopper", [0], total_steps=2047)
     assert "WARNING: trpo's n_steps 2,048 is above --steps 2,047" in notes[-1]
+    # SB3 trains after each train_freq steps: one above --steps never trains (it was unsaid)
+    for freq in ("train_freq=2000", "train_freq=[2000, step]"):
+        _, _, notes = make_configs("ddpg", "Hopper-v4", "Hopper", [0], [freq], total_steps=1000)
+        assert "WARNING: ddpg's train_freq 2,000 steps is above --steps 1,000" in notes[-1]
+    _, _, notes = make_configs(
+        "ddpg", "Hopper-v4", "Hopper", [0], ["train_freq=1000"], total_steps=1000
+    )
+    assert not any(note.startswith("WARNING: ddpg's train_freq") for note in notes)
     with pytest.raises(TacbenchError, match="PPO normalises the advantages over each minibatch"):
         make_configs("ppo", "Hopper-v4", "Hopper", [0], ["batch_size=1"])
     make_configs("ppo", "Hopper-v4", "Hopper", [0], ["batch_size=1", "normalize_advantage=false"])
@@ -256,6 +271,8 @@ def test_tac_flags_map_to_hyperparameters_or_are_refused() -> None:
         )
     ]
     assert learned == [["ent_coef=auto"], ["ent_coef=auto"], ["ent_coef=auto_0.1"]]
+    started = flags_as_overrides("sac-sb3", {"alpha_mode": "auto", "alpha": 0.1234567})
+    assert started == ["ent_coef=auto_0.1234567"]  # it was rounded to auto_0.123457
     assert flags_as_overrides("sac-sb3", {"alpha_mode": "fixed", "alpha": 0.1}) == ["ent_coef=0.1"]
     assert flags_as_overrides("sac-sb3", {"alpha_mode": "fixed"}) == []  # the table's alpha
     with pytest.raises(TacbenchError, match="--alpha auto learns alpha; it does not mix with"):

@@ -202,6 +202,7 @@ def test_run_writer_files(tmp_path: Path) -> None:
     )
     assert config["command"] == "tacbench run --env Hopper-v4"
     assert set(config["versions"]) == {"python", *runs.VERSIONED_PACKAGES}
+    assert config["versions"]["sb3_contrib"]  # TRPO's library: a TRPO run did not record it
     assert {"git_commit", "host", "created"} <= set(config)
     assert (directory / "eval.csv").read_text().splitlines()[1] == "5000,1.0,0.75,2.0,1.0,15.0"
     assert (directory / "train.csv").read_text().splitlines()[1] == "17,0.5,12.5,17"

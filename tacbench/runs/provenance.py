@@ -13,7 +13,7 @@ from typing import Any, Protocol
 from tacbench.runs.clock import CPU_CLOCK
 from tacbench.runs.files import now_iso
 
-VERSIONED_PACKAGES = ("torch", "gymnasium", "mujoco", "stable_baselines3", "numpy")
+VERSIONED_PACKAGES = ("torch", "gymnasium", "mujoco", "stable_baselines3", "sb3_contrib", "numpy")
 
 
 def package_versions() -> dict[str, str | None]:
