@@ -195,11 +195,12 @@ def flags_as_overrides(algo: str, given: Mapping[str, Any]) -> list[str]:
     (``ent_coef=0.1`` for sac-sb3); a flag the baseline has no use for is refused. For sac-sb3
     ``--alpha-mode auto`` is ``--alpha auto``, learning from ``--alpha`` where one is given
     (SB3's ``ent_coef=auto_0.1``), as TAC's ``--alpha-mode auto --alpha 0.1`` does."""
-    given = dict(given)
+    given, shown = dict(given), {}  # shown: how an error names a flag, where not as given
     if algo == "sac-sb3" and "alpha_mode" in given:
         start = given.get("alpha", "auto")
         if given.pop("alpha_mode") == "auto":
             given["alpha"] = "auto" if start == "auto" else f"auto_{float(start)!r}"
+            shown["alpha"] = f"--alpha-mode auto --alpha {start}"
         elif given.get("alpha") == "auto":
             raise TacbenchError(
                 "--alpha auto learns alpha; it does not mix with --alpha-mode fixed in one command."
@@ -219,5 +220,6 @@ def flags_as_overrides(algo: str, given: Mapping[str, Any]) -> list[str]:
                 f"{algo} --hp KEY=VALUE, KEY one of "
                 f"{', '.join(sorted(hyperparams.ALGO_KEYS[algo]))}."
             )
+        hyperparams.coerce(algo, key, value, shown.get(name, f"{flag} {value}"))  # not as --hp
         items.append(f"{key}={value}")
     return items

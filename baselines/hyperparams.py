@@ -229,10 +229,12 @@ def _in_range(number: float, rule: Spec) -> bool:
     return rule.high is None or number <= rule.high
 
 
-def coerce(algo: str, key: str, value: Any) -> Any:
-    """Check ``value`` for ``key`` and return it in canonical form (JSON-ready)."""
+def coerce(algo: str, key: str, value: Any, given: str = "") -> Any:
+    """Check ``value`` for ``key`` and return it in canonical form (JSON-ready); an error names
+    it as ``given`` (a TAC flag, ``--learning-starts -5``), else as ``--hp key=value``."""
     rule = spec(algo, key)
-    bad = TacbenchError(f"--hp {key}={_text(value)}: {key} for {algo} must be {rule.describe()}.")
+    given = given or f"--hp {key}={_text(value)}"
+    bad = TacbenchError(f"{given}: {key} for {algo} must be {rule.describe()}.")
     kind = rule.kind
     if kind == "bool":
         if isinstance(value, bool):
@@ -272,7 +274,7 @@ def coerce(algo: str, key: str, value: Any) -> Any:
         raise bad
     if 0 < abs(number) < FLOAT32_TINY:  # flush-to-zero: trained as 0 (the runs set it)
         raise TacbenchError(
-            f"--hp {key}={_text(value)}: below float32's smallest normal number, "
+            f"{given}: below float32's smallest normal number, "
             f"{FLOAT32_TINY:.4g}, which training reads as 0."
         )
     if kind == "int":

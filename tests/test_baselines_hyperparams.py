@@ -273,6 +273,11 @@ def test_tac_flags_map_to_hyperparameters_or_are_refused() -> None:
     assert learned == [["ent_coef=auto"], ["ent_coef=auto"], ["ent_coef=auto_0.1"]]
     started = flags_as_overrides("sac-sb3", {"alpha_mode": "auto", "alpha": 0.1234567})
     assert started == ["ent_coef=auto_0.1234567"]  # it was rounded to auto_0.123457
+    # a bad value is named by the flag given, not as an --hp the user never typed
+    with pytest.raises(TacbenchError, match=r"^--learning-starts -5: learning_starts for ddpg"):
+        flags_as_overrides("ddpg", {"learning_starts": -5})
+    with pytest.raises(TacbenchError, match=r"^--alpha-mode auto --alpha 0: ent_coef for sac"):
+        flags_as_overrides("sac-sb3", {"alpha_mode": "auto", "alpha": 0})
     assert flags_as_overrides("sac-sb3", {"alpha_mode": "fixed", "alpha": 0.1}) == ["ent_coef=0.1"]
     assert flags_as_overrides("sac-sb3", {"alpha_mode": "fixed"}) == []  # the table's alpha
     with pytest.raises(TacbenchError, match="--alpha auto learns alpha; it does not mix with"):
