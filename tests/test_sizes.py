@@ -10,13 +10,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from click.testing import CliRunner
 
 from baselines.trainer import check_sizes
 from tacbench import envs, memory, trainers
+from tacbench.cli import cli
 from tacbench.errors import TacbenchError
 from tacbench.paper import paper_task
-from tacbench.report.build import ReportOptions
 from tests.helpers import TINY_HP, TINY_RUN, run_cli, tiny_configs, train
+from tests.report_fixtures import write_run
 
 pytestmark = pytest.mark.unit
 
@@ -116,9 +118,26 @@ def test_the_estimate_counts_parameters_and_activations() -> None:
     assert without_v["an update's activations"] == per_member * 3 // 4 * 4
 
 
-def test_too_many_bootstrap_replications_are_refused(tmp_path: Path) -> None:
-    with pytest.raises(TacbenchError, match="--reps or --grid-points smaller"):
-        ReportOptions(tmp_path, tmp_path / "report", reps=10**12)
+def test_too_many_bootstrap_replications_are_refused_before_anything_is_written(
+    tmp_path: Path,
+) -> None:
+    for seed in (0, 10):
+        write_run(
+            tmp_path,
+            algo="tac",
+            env="Hopper-v4",
+            variant="q1-a0.2",
+            seed=seed,
+            q=1.0,
+            alpha=0.2,
+            steps=[1000.0, 2000.0],
+            returns=[1.0, 2.0],
+        )
+    args = ["report", "--results", str(tmp_path), "--out", str(tmp_path / "r")]
+    refused = CliRunner().invoke(cli, [*args, "--reps", str(10**12)])
+    assert refused.exit_code == 2 and "Traceback" not in refused.output
+    assert "this report would need about" in refused.output
+    assert "make --reps smaller" in refused.output and not (tmp_path / "r").exists()
 
 
 def test_the_command_line_refuses_with_one_line_and_exit_2(tmp_path: Path) -> None:
