@@ -24,7 +24,7 @@ from typing import Any
 import yaml
 
 from tacbench import paper
-from tacbench.config_checks import FLOAT32_TINY
+from tacbench.config_checks import FLOAT32_TINY, check_normal
 from tacbench.errors import TacbenchError
 
 ALGOS = ("ddpg", "td3", "sac-sb3", "ppo", "trpo")
@@ -272,11 +272,7 @@ def coerce(algo: str, key: str, value: Any, given: str = "") -> Any:
     number = _number(value)
     if number is None or not _in_range(number, rule):
         raise bad
-    if 0 < abs(number) < FLOAT32_TINY:  # flush-to-zero: trained as 0 (the runs set it)
-        raise TacbenchError(
-            f"{given}: below float32's smallest normal number, "
-            f"{FLOAT32_TINY:.4g}, which training reads as 0."
-        )
+    check_normal(number, given)
     if kind == "int":
         return _integer(value, rule.low, bad)
     return number

@@ -15,6 +15,17 @@ from tacbench.settings import flag_of, settings_of
 
 FLOAT32_TINY = 2.0**-126  # float32's smallest normal number; below it the CPU may flush to 0
 
+
+def check_normal(value: float, named: str) -> None:
+    """Refuse a nonzero ``value`` (``named`` as the user gave it: ``--alpha 1e-40``) below
+    :data:`FLOAT32_TINY`: the runs flush such numbers to zero, so it would train as 0."""
+    if 0 < abs(value) < FLOAT32_TINY:
+        raise TacbenchError(
+            f"{named} is below float32's smallest normal number, {FLOAT32_TINY:.4g}, which "
+            "training reads as 0."
+        )
+
+
 if TYPE_CHECKING:
     from tacbench.config import RunConfig
 
@@ -54,11 +65,8 @@ def check_numbers(config: RunConfig) -> None:
             f"--learning-rate must be a finite number > 0 (got {config.learning_rate!r})."
         )
     for name in ("alpha", "gamma", "tau", "learning_rate"):  # > 0 above, or in RunConfig
-        if getattr(config, name) < FLOAT32_TINY:
-            raise TacbenchError(
-                f"{flag_of(type(config), name)} {getattr(config, name):g} is below float32's "
-                f"smallest normal number, {FLOAT32_TINY:.4g}, which the update reads as 0."
-            )
+        value = getattr(config, name)
+        check_normal(value, f"{flag_of(type(config), name)} {value:g}")
     bounds = (config.log_std_min, config.log_std_max)
     if not all(_float32(b) for b in bounds) or not bounds[0] < bounds[1]:
         raise TacbenchError(

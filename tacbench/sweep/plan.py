@@ -192,7 +192,7 @@ def read_status(out: Path, run: Run) -> Status:
             f"{directory} holds a run with another config ({'; '.join(differences)}). "
             "Use another --out, or delete that directory to retrain it with this sweep's config."
         )
-    state, step = status.get("state", "running"), status["step"]
+    state, step = status["state"], status["step"]  # read_status checked both
     if state == "failed":
         resumes_at = checkpoints.newest_step(directory / "checkpoint") or 0
         return Status(state, step, str(status.get("reason", "")), resumes_at)
