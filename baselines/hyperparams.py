@@ -252,9 +252,10 @@ def coerce(algo: str, key: str, value: Any, given: str = "") -> Any:
         ):
             return list(value)
         raise bad
-    if kind == "train-freq":
+    if kind == "train-freq":  # SB3 reads n as [n, "step"]: one spelling, one variant folder
         if isinstance(value, list) and len(value) == 2 and value[1] in ("step", "episode"):
-            return [_integer(value[0], 1, bad), value[1]]
+            count = _integer(value[0], 1, bad)
+            return count if value[1] == "step" else [count, "episode"]
         return _integer(value, 1, bad)
     if kind == "optional-float" and value is None:
         return None
@@ -266,8 +267,10 @@ def coerce(algo: str, key: str, value: Any, given: str = "") -> Any:
         initial = kind == "ent-coef" and value.startswith("auto_")  # the learned value's start
         # SB3 reads the start as the text up to a second "_": auto_1_0 would start at 1, not 10
         start = _number(value[5:]) if initial and "_" not in value[5:] else None
-        if value == "auto" or (start is not None and FLOAT32_TINY <= start < math.inf):
+        if value == "auto":
             return value
+        if start is not None and FLOAT32_TINY <= start < math.inf:  # SB3's "auto" starts at 1
+            return "auto" if start == 1 else f"auto_{start!r}"  # auto_1e-3 is auto_0.001
         raise bad
     number = _number(value)
     if number is None or not _in_range(number, rule):

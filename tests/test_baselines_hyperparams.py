@@ -179,6 +179,8 @@ def test_a_bad_value_says_what_is_expected(algo: str, item: str, expected: str) 
 
 def test_a_number_yaml_1_1_reads_as_octal_is_read_as_written() -> None:
     assert hyperparams.parse_overrides("ppo", ["n_steps=010"]) == {"n_steps": 10}  # it ran 8
+    with pytest.raises(TacbenchError, match=re.escape("a list of layer widths, e.g. [400,300]")):
+        hyperparams.parse_overrides("td3", ["net_arch=[010]"])  # not [8], as YAML 1.1 reads it
 
 
 def test_ppo_may_leave_target_kl_unlimited() -> None:
@@ -195,6 +197,30 @@ def test_variant_names_what_differs_and_hashes_it() -> None:
     assert re.fullmatch(r"learning_rate0\.0003-net_arch64x64-[0-9a-f]{8}", a)
     signed = hyperparams.variant(table, {**table, "learning_rate": 1e-5, "tau": -2.0})
     assert re.fullmatch(r"learning_rate1e-05-tau-2-[0-9a-f]{8}", signed)
+
+
+def test_spellings_sb3_reads_alike_share_one_value_and_one_variant_folder() -> None:
+    """train_freq=[1,step] is the table's 1 and auto_1e-3 is --alpha-mode auto --alpha 0.001:
+    each trained alike and got a folder of its own, so a resume with the other found nothing."""
+    same = [
+        ("td3", ["train_freq=[1, step]"], ["train_freq=1"]),
+        ("td3", ["train_freq=[4,step]"], ["train_freq=4"]),
+        (
+            "sac-sb3",
+            ["ent_coef=auto_1e-3"],
+            flags_as_overrides("sac-sb3", {"alpha_mode": "auto", "alpha": 0.001}),
+        ),
+        ("sac-sb3", ["ent_coef=auto_1"], ["ent_coef=auto"]),  # SB3's auto starts at 1
+    ]
+    for algo, one, other in same:
+        first = make_configs(algo, "Hopper-v4", "Hopper", [0], one)[0][0]
+        second = make_configs(algo, "Hopper-v4", "Hopper", [0], other)[0][0]
+        assert first.variant == second.variant and first.hyperparams == second.hyperparams
+    assert make_configs("td3", "Hopper-v4", "Hopper", [0], ["train_freq=[1,step]"])[1] == {}
+    parsed = hyperparams.parse_overrides("sac-sb3", ["ent_coef=auto_1e-3", "train_freq=[2,step]"])
+    assert parsed == {"ent_coef": "auto_0.001", "train_freq": 2}
+    episodes = hyperparams.parse_overrides("td3", ["train_freq=[1,episode]"])
+    assert episodes == {"train_freq": [1, "episode"]}  # not the step count 1
 
 
 def test_make_configs_applies_overrides_and_run_settings() -> None:
