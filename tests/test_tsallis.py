@@ -84,7 +84,8 @@ def test_entropy_special_cases() -> None:
     for q in Q_VALUES:
         uniform = np.full(5, 0.2)
         assert np.isclose(tsallis_entropy(uniform, q), -log_q(0.2, q))  # maximum (appendix A)
-        assert tsallis_entropy(np.array([0.0, 1.0, 0.0]), q) == 0.0
+        certain = tsallis_entropy(np.array([0.0, 1.0, 0.0]), q)
+        assert certain == 0.0 and not np.signbit(certain)  # 0, not -0 (the theory CSVs' "-0")
 
 
 def test_a_large_q_keeps_the_maximiser_normalised_and_the_bound() -> None:

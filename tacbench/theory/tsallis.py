@@ -140,7 +140,8 @@ def _sparsemax_threshold(y: Array) -> Array:
 def _entropy(p: Array, q: float) -> Array:
     """``-sum_a p_a ln_q(p_a)`` over the last axis with ``0 ln_q 0 = 0``; no input checks."""
     safe = np.where(p > 0, p, 1.0)
-    return -np.sum(np.where(p > 0, p * log_q(safe, q), 0.0), axis=-1, keepdims=True)
+    # 0 - sum, not -sum: a certain policy's entropy is 0, not -0 (the theory CSVs wrote "-0")
+    return 0.0 - np.sum(np.where(p > 0, p * log_q(safe, q), 0.0), axis=-1, keepdims=True)
 
 
 def _shifted_potential(y: Array, q: float) -> Array:
