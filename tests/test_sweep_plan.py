@@ -97,6 +97,19 @@ def test_counts_and_steps_left_match_a_hand_count(smoke_out: tuple[Path, list[pl
     assert "environment steps left: 5,900 of 8,000 (1,000 per run)" in text
 
 
+def test_a_retried_run_counts_as_done_only_up_to_where_it_resumes(
+    smoke_out: tuple[Path, list[plan.Run]],
+) -> None:
+    """The progress counted a failed run's 700 steps as done while its retry trained again from
+    its checkpoint at 600 (the count never goes down): steps done ran ahead of the bar's total."""
+    out, all_runs = smoke_out
+    work, history = driver.load_plan(SMOKE, out, driver.Options(), save=False)
+    sweep = driver._Driver(work, history, _DiedOfCtrlC({}), driver.Options(), stream=None)
+    assert sweep.step[all_runs[4].key] == 600  # its status.json says 700
+    assert sweep.step[all_runs[1].key] == 500 and sweep.step[all_runs[0].key] == 1000
+    assert sum(sweep.step.values()) == 8000 - work.steps_left()
+
+
 def test_a_run_failed_more_than_max_retries_is_given_up(
     smoke_out: tuple[Path, list[plan.Run]],
 ) -> None:

@@ -12,6 +12,7 @@ import pytest
 import torch
 from click.testing import CliRunner
 
+from tacbench import runs
 from tacbench.cli import cli
 from tacbench.errors import TacbenchError
 from tacbench.sweep import driver, dry_run, options, plan, presets, slurm
@@ -188,6 +189,24 @@ def test_a_job_gone_from_squeue_has_died_only_after_a_grace_period(
     clock[0] = 1100.0
     (stopped,) = executor.wait(1.0)
     assert stopped.unit == unit and "Slurm job 8 ended without a result" in stopped.died
+
+
+def test_a_retried_runs_failed_status_is_not_its_jobs_progress(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Until the retry's job resets it, status.json holds the failed attempt's step, past the
+    checkpoint the retry trains from: the progress took it as the new job's."""
+    _on_a_login_node(monkeypatch)
+    monkeypatch.setattr(slurm, "_queued", lambda ids: {})
+    executor, unit = _executor(tmp_path), _smoke_unit()
+    executor._jobs["7"] = slurm._Submitted(unit, SimpleNamespace())
+    status = tmp_path / unit.runs[0].key / "status.json"
+    status.parent.mkdir(parents=True)
+    assert executor.steps() == {}  # not started yet
+    runs.atomic_write_json(status, {"state": "failed", "step": 700, "reason": "non-finite"})
+    assert executor.steps() == {}
+    runs.atomic_write_json(status, {"state": "running", "step": 600})  # the job resumed
+    assert executor.steps() == {unit.key: 600}
 
 
 def test_squeue_is_asked_for_the_sweeps_own_jobs(monkeypatch: pytest.MonkeyPatch) -> None:

@@ -268,7 +268,7 @@ class _Driver:
     ) -> None:
         self.plan, self.history, self.executor, self.options = work, history, executor, options
         self.queue = deque(work.units)
-        self.step = {p.run.key: p.status.step for p in work.runs}
+        self.step = {p.run.key: p.start_step for p in work.runs}
         self.ended = {p.run.key for p in work.runs if p.action in ("skip", "give-up")}
         budgets = {p.run.key: (p.run.total_steps, p.run.config.learning_steps) for p in work.runs}
         self.progress = SweepProgress(budgets, self.step, self.ended, stream)

@@ -19,7 +19,6 @@ from multiprocessing.connection import wait as wait_for
 from pathlib import Path
 from typing import Any, Protocol
 
-from tacbench import runs
 from tacbench.errors import TacbenchError
 from tacbench.sweep import state, worker
 from tacbench.sweep.plan import Unit
@@ -98,7 +97,7 @@ class LocalExecutor:
         log = state.log_path(self.out, unit.key)
         job = worker.Job(unit, self.out, log, self.command, self.threads)
         receive, send = self._ctx.Pipe(duplex=False)
-        step = self._ctx.Value("q", max(0, _first_step(self.out, unit)), lock=False)
+        step = self._ctx.Value("q", 0, lock=False)  # until it reports: the plan's start step
         process = self._ctx.Process(
             target=worker.local_main,
             args=(job, send, step, self._stop, os.getpid()),
@@ -144,11 +143,6 @@ class LocalExecutor:
                 proc.process.join()
             proc.conn.close()
         self._procs.clear()
-
-
-def _first_step(out: Path, unit: Unit) -> int:
-    status = out / unit.runs[0].key / "status.json"
-    return int(runs.read_json(status).get("step", 0)) if status.exists() else 0
 
 
 def _exit_reason(code: int | None) -> str:

@@ -74,11 +74,15 @@ class PlannedRun:
     action: Action
 
     @property
+    def start_step(self) -> int:
+        """Where this sweep's training of it starts: where a retry resumes, else the step it
+        reached."""
+        return self.status.resumes_at if self.action == "retry" else self.status.step
+
+    @property
     def steps_left(self) -> int:
-        """The steps this sweep trains of it, if it trains it: from where a retry resumes, else
-        from the step it reached."""
-        start = self.status.resumes_at if self.action == "retry" else self.status.step
-        return self.run.total_steps - start
+        """The steps this sweep trains of it, if it trains it."""
+        return self.run.total_steps - self.start_step
 
 
 @dataclass(frozen=True)
