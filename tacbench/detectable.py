@@ -41,7 +41,8 @@ def detectable_difference(
     finds with probability ``power`` on ``samples`` samples of these sizes drawn from normal
     distributions with the runs' pooled standard deviation (``other``'s shifted by the
     difference tried). Bisection over the difference with common random numbers; ``inf`` when
-    the test cannot reach ``alpha`` at these sizes."""
+    the test cannot reach ``alpha`` at these sizes, NaN when each side's runs are all equal
+    (no spread to scale by)."""
     a, b = _two_groups(control, other)
     return _smallest_detectable([(len(a), len(b))], alpha, power, samples, seed) * _spread(a, b)
 
@@ -76,9 +77,9 @@ def _two_groups(control: Samples, other: Samples) -> tuple[np.ndarray, np.ndarra
 
 def _spread(a: np.ndarray, b: np.ndarray) -> float:
     """The runs' standard deviation pooled within the two groups, on n + m - 2 degrees of
-    freedom (1 where both are constant)."""
+    freedom; NaN where both are constant (it was 1, in the returns' units: an arbitrary size)."""
     residuals = np.concatenate([a - a.mean(), b - b.mean()])
-    return float(np.sqrt((residuals**2).sum() / (len(residuals) - 2))) or 1.0
+    return float(np.sqrt((residuals**2).sum() / (len(residuals) - 2))) or math.nan
 
 
 def _smallest_detectable(
