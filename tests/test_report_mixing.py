@@ -11,7 +11,7 @@ from click.testing import CliRunner
 
 from tacbench.cli import cli
 from tacbench.report import ReportOptions, analyse, write_report
-from tacbench.report.mixing import cautions, tac_setting, without_q
+from tacbench.report.mixing import cautions, eval_intervals, tac_setting, without_q
 from tests.report_fixtures import write_run
 
 pytestmark = pytest.mark.unit
@@ -132,3 +132,34 @@ def test_the_report_prints_and_shows_its_cautions(tmp_path: Path) -> None:
     assert result.exit_code == 0, result.output
     assert "caution: Hopper-v4: TAC runs of 2 settings" in result.output
     assert "Caution: Hopper-v4: TAC runs of 2 settings" in (out / "report.md").read_text()
+
+
+def test_runs_evaluated_at_several_intervals_on_a_task_are_cautioned(tmp_path: Path) -> None:
+    """q = 1 evaluated every 1,000 steps and q = 1.5 every 5,000, on one learning curve: the
+    last 10 evaluations averaged 90,000-100,000 against 55,000-100,000, and the test called q =
+    1.5 "smaller" (p = 0.002) without a word."""
+    for q, every in ((1.0, 1000), (1.5, 5000)):
+        for seed in (0, 10, 20):
+            steps = [float(s) for s in range(every, 100_001, every)]
+            write_run(
+                tmp_path,
+                algo="tac",
+                env="Hopper-v4",
+                variant=f"q{q:g}-a0.2",
+                seed=seed,
+                steps=steps,
+                returns=[s / 100 + seed for s in steps],
+                q=q,
+                alpha=0.2,
+            )
+    report = analyse(ReportOptions(results=tmp_path, out=tmp_path / "r", reps=100))
+    spacing = [c for c in report.cautions if "evaluated every" in c]
+    assert spacing == [
+        "Hopper-v4: runs evaluated every 1,000, 5,000 steps; their final returns (the last 10 "
+        "evaluations each) span 9,000, 45,000 steps of training, compared as if alike."
+    ]
+    assert eval_intervals(report.runset.data, 1) == []  # each run's final evaluation alike
+    train = analyse(ReportOptions(results=tmp_path, out=tmp_path / "r", reps=100, metric="train"))
+    assert not [c for c in train.cautions if "evaluated every" in c]  # episodes end anywhere
+    alike = report.runset.data[report.runset.data["q"] == 1.0]
+    assert eval_intervals(alike, 10) == []

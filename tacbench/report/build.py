@@ -28,7 +28,7 @@ from tacbench.report.methods import (
     assign_methods,
     method_sort_key,
 )
-from tacbench.report.mixing import cautions
+from tacbench.report.mixing import cautions, eval_intervals
 from tacbench.report.population import one_per_population, q_trajectories, unlogged_q
 from tacbench.report.ranges import q_range_table
 from tacbench.report.series import METRIC_SOURCES, Metric
@@ -118,9 +118,12 @@ class Report:
 
     @property
     def cautions(self) -> list[str]:
-        """What the comparisons take as alike (:func:`mixing.cautions`), and the populations'
-        members whose q was not logged (:func:`population.unlogged_q`)."""
-        return [*cautions(self.runset.runs, self.options.last), *unlogged_q(self.trajectories)]
+        """What the comparisons take as alike (:func:`mixing.cautions`, and for evaluation
+        returns :func:`mixing.eval_intervals`), and the populations' members whose q was not
+        logged (:func:`population.unlogged_q`)."""
+        runset, last = self.runset, self.options.last
+        spacing = eval_intervals(runset.data, last) if runset.metric == "eval" else []
+        return [*cautions(runset.runs, last), *spacing, *unlogged_q(self.trajectories)]
 
     @property
     def tac_methods(self) -> list[str]:

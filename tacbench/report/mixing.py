@@ -1,8 +1,9 @@
 """What a report's runs mix that its comparisons take as alike: several TAC settings on one task
 (compared with one q = 1 and pooled into the q ranges by q alone; float32 and bfloat16 products
-never are: each compares with its own q = 1, and bf16 runs stay out of the q ranges) and several
-budgets on one task (final returns of different lengths of training). The report says so; it
-does not refuse."""
+never are: each compares with its own q = 1, and bf16 runs stay out of the q ranges), several
+budgets on one task (final returns of different lengths of training) and several evaluation
+intervals on one task (final returns over different stretches of training). The report says so;
+it does not refuse."""
 
 from __future__ import annotations
 
@@ -78,4 +79,27 @@ def cautions(runs: pd.DataFrame, last: int) -> list[str]:
             "all), which are left out: a diverged evaluation or episode is in none of their "
             "scores."
         )
+    return found
+
+
+def eval_intervals(data: pd.DataFrame, last: int) -> list[str]:
+    """One sentence per task whose runs evaluated at several intervals (``--eval-every``, each
+    run's median step between evaluations): the final return, the mean of the last ``last``
+    evaluations, then averages a longer stretch of training for some runs than for others
+    (with ``last`` 1 it is each run's final evaluation alike)."""
+    if last <= 1:
+        return []
+    steps = data[["run", "env", "step"]].sort_values(["run", "step"], kind="stable")
+    gaps = steps.assign(gap=steps.groupby("run")["step"].diff()).dropna(subset=["gap"])
+    per_run = gaps.groupby("run").agg(env=("env", "first"), gap=("gap", "median"))
+    found = []
+    for env, group in per_run.groupby("env"):
+        intervals = sorted({int(g) for g in group["gap"]})
+        if len(intervals) > 1:
+            found.append(
+                f"{env}: runs evaluated every {', '.join(f'{i:,}' for i in intervals)} steps; "
+                f"their final returns (the last {last:,} evaluations each) span "
+                f"{', '.join(f'{(last - 1) * i:,}' for i in intervals)} steps of training, "
+                "compared as if alike."
+            )
     return found
