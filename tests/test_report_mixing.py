@@ -40,7 +40,8 @@ def test_a_variant_without_q_names_its_runs_across_q(variant: str, design: str) 
 
 def _runs(rows: list[tuple[str, str, str, float]], logged: int = 20) -> pd.DataFrame:
     frame = pd.DataFrame(rows, columns=["algo", "env", "variant", "total_steps"])
-    return frame.assign(rows=logged, dropped=0, path=[f"run{i}" for i in range(len(rows))])
+    paths = [f"run{i}" for i in range(len(rows))]
+    return frame.assign(rows=logged, dropped=0, partial=False, path=paths)
 
 
 def test_several_settings_or_budgets_on_a_task_are_cautioned() -> None:
@@ -163,3 +164,13 @@ def test_runs_evaluated_at_several_intervals_on_a_task_are_cautioned(tmp_path: P
     assert not [c for c in train.cautions if "evaluated every" in c]  # episodes end anywhere
     alike = report.runset.data[report.runset.data["q"] == 1.0]
     assert eval_intervals(alike, 10) == []
+
+
+def test_partial_runs_in_the_comparisons_are_cautioned() -> None:
+    """Runs stopped at 30,000 of 100,000 steps were tested against complete ones ("smaller", p =
+    0.008) with no word beside the verdicts."""
+    runs = _runs([("tac", "H", "q1-a0.2", 1e5), ("tac", "H", "q1.5-a0.2", 1e5)])
+    assert cautions(runs, 10) == []
+    runs.loc[1, "partial"] = True
+    [caution] = cautions(runs, 10)
+    assert caution.startswith("1 of 2 runs are partial (run1): their final returns are taken")

@@ -41,8 +41,9 @@ def tac_setting(variant: str) -> str:
 
 def cautions(runs: pd.DataFrame, last: int) -> list[str]:
     """One sentence per task whose TAC runs have several settings, and per task whose runs
-    were planned for several budgets; one when runs logged fewer returns than the ``last``
-    that their final return averages, and one when runs logged non-finite returns (left out)."""
+    were planned for several budgets; one when runs are partial, one when runs logged fewer
+    returns than the ``last`` that their final return averages, and one when runs logged
+    non-finite returns (left out)."""
     found = []
     tac = runs[runs["algo"] == "tac"]
     for env, group in tac.groupby("env"):
@@ -64,6 +65,14 @@ def cautions(runs: pd.DataFrame, last: int) -> list[str]:
                 f"({', '.join(f'{b:,}' for b in budgets)} steps); final returns after different "
                 "lengths of training are compared as if alike."
             )
+    partial = runs[runs["partial"]]
+    if len(partial):
+        found.append(
+            f"{len(partial)} of {len(runs)} runs are partial ({listing(list(partial['path']), 3)}):"
+            " their final returns are taken where they stopped, and the comparisons, verdicts "
+            "and best q count them as the complete runs beside them (the Runs section lists "
+            "them)."
+        )
     short = runs[runs["rows"] < last]
     if len(short):
         found.append(
