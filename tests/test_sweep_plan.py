@@ -22,7 +22,7 @@ from tacbench import hardware, runs
 from tacbench.cli import cli
 from tacbench.errors import TacbenchError
 from tacbench.members import resolve_compile
-from tacbench.runs import Outcome
+from tacbench.runs import Outcome, locks
 from tacbench.sweep import cost, driver, dry_run, plan, state, summary, worker
 from tacbench.sweep.presets import Narrowing, get_preset, narrow
 
@@ -108,6 +108,31 @@ def test_a_retried_run_counts_as_done_only_up_to_where_it_resumes(
     assert sweep.step[all_runs[4].key] == 600  # its status.json says 700
     assert sweep.step[all_runs[1].key] == 500 and sweep.step[all_runs[0].key] == 1000
     assert sum(sweep.step.values()) == 8000 - work.steps_left()
+
+
+def test_a_sweep_refuses_runs_another_process_writes_before_it_trains(
+    smoke_out: tuple[Path, list[plan.Run]],
+) -> None:
+    """Each attempt failed against the run's lock (a tacbench run into --out), counted as the
+    run's failure: within seconds the sweep gave it up for good (state.json)."""
+    out, all_runs = smoke_out
+    busy = out / all_runs[1].key  # partial: this sweep would resume it
+    assert locks.holder(busy) is None
+    with locks.writing([busy]):
+        assert locks.holder(busy) == f"PID {os.getpid()} on {socket.gethostname()}"
+        before = sorted(p for p in out.rglob("*") if p.is_file())
+        args = ["sweep", "--preset", "smoke", "--out", str(out)]
+        result = CliRunner().invoke(cli, args)
+        assert result.exit_code == 2, result.output
+        told = " ".join(result.output.split())
+        assert f"is being written by another tacbench process ({busy.relative_to(out)};" in told
+        assert told.startswith("Error: 1 run of this sweep")
+        assert not state.SweepState(out).failures(busy.relative_to(out).as_posix())
+        written = sorted(p for p in out.rglob("*") if p.is_file() and "sweep" not in p.parts)
+        assert written == [p for p in before if "sweep" not in p.parts]
+    assert locks.holder(busy) is None  # released: the sweep may go on
+    assert locks.holder(out / all_runs[2].key) is None  # a new run: no lock file, none made
+    assert not locks.lock_path(out / all_runs[2].key).exists()
 
 
 def test_a_run_failed_more_than_max_retries_is_given_up(

@@ -201,7 +201,7 @@ def sweep(ctx: click.Context, preset: str, **p: Any) -> None:
     times, 130/143/129 when interrupted (Ctrl-C/SIGTERM/SIGHUP; rerun to resume), 2 for a usage
     error.
     """
-    from tacbench.sweep import driver, dry_run  # torch only when this command runs
+    from tacbench.sweep import driver, dry_run, preflight  # torch only when this command runs
 
     grid, options = _grid_and_options(ctx, preset, p)
     if warning := options.oversubscribed():
@@ -233,7 +233,7 @@ def sweep(ctx: click.Context, preset: str, **p: Any) -> None:
 
         check_writable(p["out"])  # as the sweep itself would, though the dry run writes nothing
         work, _ = driver.load_plan(grid, p["out"], options, save=False)
-        driver.check_sizes(work, options)
+        preflight.check_sizes(work, options)
         if p["calibrate"] or p["recalibrate"]:
             from tacbench.sweep import calibration
 

@@ -65,6 +65,22 @@ def hold(path: Path, record: str) -> int:
     return descriptor
 
 
+def holder(directory: Path) -> str | None:
+    """Who holds run directory ``directory``'s lock now (its record; "holder unknown" if it
+    wrote none), or None where no process does; creates and writes nothing."""
+    try:
+        descriptor = os.open(lock_path(directory), os.O_RDONLY | os.O_NOFOLLOW)
+    except OSError:  # no lock file (no writer ever), or no file at all: hold() will say so
+        return None
+    try:
+        fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return os.pread(descriptor, 4096, 0).decode(errors="replace").strip() or "holder unknown"
+    finally:
+        os.close(descriptor)  # releases a lock taken here
+    return None
+
+
 @contextmanager
 def _hold(directory: Path, hint: str) -> Iterator[None]:
     path = lock_path(directory)

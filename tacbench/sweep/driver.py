@@ -23,11 +23,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
 
-from tacbench import envs, hardware, runs, trainers
-from tacbench.errors import TacbenchError, plural
+from tacbench import envs, hardware, runs
+from tacbench.errors import TacbenchError
 from tacbench.interrupts import exit_status, stop_signals
 from tacbench.runs.checkpoints import DiskError, disk_errors
-from tacbench.sweep import cost, dry_run, executors, plan, slurm, state, summary, worker
+from tacbench.sweep import cost, dry_run, executors, plan, preflight, slurm, state, summary, worker
 from tacbench.sweep.options import Options
 from tacbench.sweep.presets import Preset
 from tacbench.sweep.progress import SweepProgress
@@ -94,21 +94,6 @@ def load_plan(
     return built, history
 
 
-def check_sizes(work: plan.SweepPlan, options: Options) -> None:
-    """Refuse, before anything runs, a unit its trainer would refuse as too big for this
-    machine (every attempt would fail the same way); for the local executor, whose workers
-    run here (a cluster's nodes are checked where they train)."""
-    if options.executor == "local":
-        info_of = functools.cache(envs.env_info)  # builds the task's env: once per task
-        for unit in work.units:
-            try:
-                configs = [run.config for run in unit.runs]
-                trainers.check_sizes(configs, info_of(configs[0].env))
-            except TacbenchError as err:
-                runs_in = plural(len(unit.runs), "run")
-                raise TacbenchError(f"the unit {unit.key} ({runs_in}): {err}") from None
-
-
 def unit_size(options: Options) -> plan.UnitSize:
     """How many runs of a group one unit trains (:func:`cost.members_per_unit`): at most
     ``--members``, what fits this machine's memory with every worker busy, and few enough that
@@ -153,7 +138,8 @@ def run_sweep(
     with disk_errors("the sweep's files"), state.Lock(out):
         state.make_log_folder(out)
         work, history = load_plan(preset, out, options)
-        check_sizes(work, options)
+        preflight.check_sizes(work, options)
+        preflight.check_not_written(work)
         workers = options.worker_count()
         priced = dry_run.price(work, workers, training=True)
         started = time.monotonic()

@@ -34,7 +34,7 @@ from tacbench.sequential import (
     decision_text,
 )
 from tacbench.sequential_record import RECORD_FILE, read_record
-from tacbench.sweep import driver, dry_run, state, summary
+from tacbench.sweep import driver, dry_run, preflight, state, summary
 from tacbench.sweep.options import Options
 from tacbench.sweep.presets import Preset
 from tacbench.sweep.sequential_design import (
@@ -290,7 +290,7 @@ def describe_design(preset: Preset, out: Path, options: Options, design: Design)
         most += [(m, full if m.label in still else given.get(m.label, 0)) for m in methods]
     fixed = full * sum(len(methods) for methods in tasks.values())
     work, _ = driver.load_plan(_grid(preset, most), out, options, save=False)
-    driver.check_sizes(work, options)
+    preflight.check_sizes(work, options)
     lines.append(
         f"at most {len(work.runs)} runs (a fixed design of {design.n} x {design.K} seeds: "
         f"{fixed}); fewer as comparisons are decided. The most it can still cost:"
