@@ -61,8 +61,9 @@ def test_a_run_given_up_counts_whole_but_leaves_nothing_to_time(clock: Clock) ->
     display.update({"a": 1_000, "b": 1_000}, set())
     clock.now += 9.0
     display.update({"a": 4_000, "b": 1_000}, {"b"})  # b given up at its first update
-    # a line when a run ends; 3,000 learning steps in 9 s, only a's 6,000 left
-    expected = "sweep: runs 1/2 | steps 14,000/20,000 | 1,400 steps/s | ETA 0m18s\n"
+    # a line when a run ends; 3,000 learning steps in 9 s, only a's 6,000 left; 5,000 steps
+    # trained in 10 s (b's 9,000 steps credited when it was given up made it 1,400 steps/s)
+    expected = "sweep: runs 1/2 | steps 14,000/20,000 | 500 steps/s | ETA 0m18s\n"
     assert stream.getvalue() == expected
 
 

@@ -41,7 +41,8 @@ class SweepProgress(Display):
         self._runs = len(ended)
         self._steps, self._learning, self._learning_left = self._count(steps, ended)
         self._t0 = self._last_line = time.monotonic()
-        self._start_steps = self._steps
+        # steps/s counts the steps trained, not a run's whole credited when it is given up
+        self._trained = self._start_trained = sum(steps.values())
         # (time, learning steps) of the last update before this session's first learning step
         self._learning_origin = (self._t0, self._learning)
         if self.stream.isatty():
@@ -65,12 +66,12 @@ class SweepProgress(Display):
         return done, learning, left
 
     def _eta(self, now: float, rate: float) -> str:
-        """The ETA at ``now``; ``rate``: of all steps since the start, in steps per second."""
+        """The ETA at ``now``; ``rate``: of all steps trained since the start, per second."""
         if self._learning_left == 0:  # every run left is random throughout
             return duration((self.steps_total - self._steps) / rate if rate > 0 else math.inf)
         t_origin, learning_origin = self._learning_origin
         if self._learning == learning_origin or now <= t_origin:
-            return "- (warm-up)" if self._steps > self._start_steps else "-"
+            return "- (warm-up)" if self._trained > self._start_trained else "-"
         rate = (self._learning - learning_origin) / (now - t_origin)
         return duration(self._learning_left / rate)
 
@@ -78,7 +79,7 @@ class SweepProgress(Display):
         """``runs 3/8 | steps 2,000/8,000 | 350 steps/s | ETA 0m17s``."""
         now = time.monotonic()
         elapsed = now - self._t0
-        rate = (self._steps - self._start_steps) / elapsed if elapsed > 0 else 0.0
+        rate = (self._trained - self._start_trained) / elapsed if elapsed > 0 else 0.0
         return (
             f"runs {self._runs}/{self.runs_total} | steps {self._steps:,}/{self.steps_total:,} | "
             f"{rate:,.0f} steps/s | ETA {self._eta(now, rate)}"
@@ -88,6 +89,7 @@ class SweepProgress(Display):
         """Record the step each run has reached and the runs that ended; redraw the bar, or
         print a line when one is due."""
         self._steps, learning, self._learning_left = self._count(steps, ended)
+        self._trained = sum(steps.values())
         if learning == self._learning_origin[1]:
             self._learning_origin = (time.monotonic(), learning)
         self._learning, previous_runs, self._runs = learning, self._runs, len(ended)
