@@ -867,6 +867,11 @@ def test_a_file_where_the_sweeps_logs_go_stops_it_before_anything_trains(tmp_pat
         driver.run_sweep(SMOKE, tmp_path, driver.Options(workers=1))
     assert (tmp_path / "sweep" / "logs").read_text() == "mine"
     assert not (tmp_path / "runs").exists()
+    (tmp_path / "sweep" / "logs").unlink()
+    (tmp_path / "sweep" / "summary.json").mkdir()  # an IsADirectoryError once all had trained
+    with pytest.raises(TacbenchError, match="is a folder, where the sweep writes its summary"):
+        driver.run_sweep(SMOKE, tmp_path, driver.Options(workers=1))
+    assert not (tmp_path / "runs").exists()
 
 
 def test_a_run_given_up_counts_as_failed_whatever_its_status_says(tmp_path: Path) -> None:

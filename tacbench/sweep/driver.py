@@ -136,7 +136,7 @@ def run_sweep(
     if options.shares_local_gpu:
         _require_cuda()
     with disk_errors("the sweep's files"), state.Lock(out):
-        state.make_log_folder(out)
+        state.prepare_sweep_folder(out)
         work, history = load_plan(preset, out, options)
         preflight.check_sizes(work, options)
         preflight.check_not_written(work)

@@ -39,9 +39,10 @@ def log_path(out: Path, unit_key: str) -> Path:
     return sweep_dir(out) / "logs" / (unit_key.removeprefix("runs/").replace("/", "__") + ".log")
 
 
-def make_log_folder(out: Path) -> None:
+def prepare_sweep_folder(out: Path) -> None:
     """Create ``<out>/sweep/logs`` before any unit starts; a TacbenchError if it cannot be (a file
-    in its place), which would otherwise fail every unit, and give up every run, one by one."""
+    in its place), which would otherwise fail every unit, and give up every run, one by one, or
+    if a folder stands where the summary goes (a traceback once every run had trained)."""
     logs = sweep_dir(out) / "logs"
     try:
         logs.mkdir(parents=True, exist_ok=True)
@@ -50,6 +51,12 @@ def make_log_folder(out: Path) -> None:
             f"cannot create the sweep's log folder {logs}: a file stands in its place; nothing "
             "was trained. Move it away, then rerun the same command."
         ) from None
+    for name in ("summary.json", "summary.txt"):
+        if (sweep_dir(out) / name).is_dir():
+            raise TacbenchError(
+                f"{sweep_dir(out) / name} is a folder, where the sweep writes its summary; "
+                "nothing was trained. Move it away, then rerun the same command."
+            )
 
 
 @dataclass(frozen=True)
