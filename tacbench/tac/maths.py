@@ -154,7 +154,8 @@ def lnq_of_policy(
     code): ``sum_i ln_q(pi_i)``, each pi_i floored at ``exp(log_floor)``. ``joint-batch-max``
     (the authors' code of 2019-01-07, 3c5cf2b): ln_q of the joint density divided by the largest
     in the minibatch (each member's B rows; the maximum is differentiated too), floored alike.
-    All equal ``log pi`` at q = 1 but the last, which is ``log pi`` minus the batch's largest.
+    All equal ``log pi`` at q = 1 (the floored forms where no density is below the floor) but
+    the last, which is ``log pi`` minus the batch's largest.
     Each density is capped at ``exp(c.log_cap)`` (:func:`density_log_cap`) before the floor,
     so for q >= 2 each density's ``ln_q <= (10^8 - 1)/(q-1)`` (per-dim: A times that). A clamp
     passes the gradient only inside its bounds.

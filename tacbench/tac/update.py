@@ -37,7 +37,9 @@ def update(
     weights, Adam state, targets and generators left exactly as they are (their rows of
     ``minibatch`` are ignored).
 
-    Returns the detached metrics ``(K, len(METRICS))`` (zeros for members not trained). A member
+    Returns the detached metrics ``(K, len(METRICS))``; a member not trained has a row of
+    meaningless values (zeros where its whole chunk was skipped, else computed on its ignored
+    minibatch rows): callers mask by ``members``, as the training loop does. A member
     marked dead (``agent.alive`` False) contributes nothing to the step of the others.
     """
     # the minibatch, as float32 tensors on the agent's device
