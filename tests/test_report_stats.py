@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -61,7 +63,14 @@ def test_tasks_may_have_different_run_counts() -> None:
 
 
 def test_degenerate_and_separated_samples() -> None:
-    assert interval_estimates([np.array([4.0])], 100, seed=0)["iqm"] == (4.0, 4.0, 4.0)
+    # one run: the bootstrap draws it again and again; "4.0 [4.0, 4.0]" read as certain
+    point, low, high = interval_estimates([np.array([4.0])], 100, seed=0)["iqm"]
+    assert point == 4.0 and math.isnan(low) and math.isnan(high)
+    point, low, high = interval_estimates([np.array([4.0]), np.array([2.0])], 100, seed=0)["mean"]
+    assert point == 3.0 and math.isnan(low) and math.isnan(high)  # one run on each task
+    assert not math.isnan(interval_estimates([np.array([4.0, 5.0])], 100, seed=0)["iqm"][1])
+    p, low, high = probability_of_improvement([np.array([4.0])], [np.array([2.0])], 100, seed=0)
+    assert p == 1.0 and math.isnan(low) and math.isnan(high)
     same = [np.array([1.0, 2.0, 3.0])]
     assert probability_of_improvement(same, same, 100, seed=0)[0] == 0.5
     high = [np.array([10.0, 11.0])]

@@ -19,6 +19,7 @@ leaves every other interval unchanged.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from functools import partial
 
@@ -94,7 +95,8 @@ def _iqm_and_mean(*tasks: np.ndarray) -> np.ndarray:
 def interval_estimates(tasks: Sequence[np.ndarray], reps: int, seed: int) -> dict[str, Estimate]:
     """IQM and mean with stratified-bootstrap 95 % intervals; ``tasks`` holds one array per task.
 
-    With one run per task and one task the interval is the point itself.
+    With one run on every task the bootstrap can only draw those runs again: the interval is
+    NaN (the page's n/a), not the point repeated as if it were certain.
     """
     tasks = _sorted_scores(tasks)
     equal = len({len(scores) for scores in tasks}) == 1
@@ -103,8 +105,15 @@ def interval_estimates(tasks: Sequence[np.ndarray], reps: int, seed: int) -> dic
         "iqm": float(metrics.aggregate_iqm(matrix) if equal else iqm(*tasks)),
         "mean": float(metrics.aggregate_mean(matrix) if equal else mean_of_means(*tasks)),
     }
+    if _single_runs(tasks):
+        return {name: (point, math.nan, math.nan) for name, point in points.items()}
     _, low, high = interval(_iqm_and_mean, tasks, reps, strata_seed(seed, tasks))
     return {name: (points[name], float(low[i]), float(high[i])) for i, name in enumerate(points)}
+
+
+def _single_runs(strata: Sequence[np.ndarray]) -> bool:
+    """Whether every stratum holds one run: a bootstrap of them has no spread to show."""
+    return all(len(scores) < 2 for scores in strata)
 
 
 def pairwise_improvement(x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -122,7 +131,8 @@ def probability_of_improvement(
     """P(X > Y) averaged over tasks, with a 95 % interval; ``xs[i]`` and ``ys[i]`` share task i.
 
     The point estimate is ``rliable.metrics.probability_of_improvement`` when X and Y have the
-    same number of runs on every task; the pairwise count is the same quantity in general.
+    same number of runs on every task; the pairwise count is the same quantity in general. The
+    interval is NaN where X and Y have one run on every task (:func:`interval_estimates`).
     """
     xs, ys = _sorted_scores(xs), _sorted_scores(ys)
     if len(xs) != len(ys):
@@ -135,6 +145,8 @@ def probability_of_improvement(
     else:
         point = float(averaged(*xs, *ys))
     strata = [*xs, *ys]
+    if _single_runs(strata):
+        return point, math.nan, math.nan
     _, low, high = scalar_interval(averaged, strata, reps, strata_seed(seed, strata))
     return point, low, high
 
