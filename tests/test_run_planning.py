@@ -104,6 +104,12 @@ def test_a_resume_with_other_settings_quotes_the_runs_own_command(tmp_path: Path
         plan_runs([config], tmp_path, resume=True, force=False)
     here = f"tacbench run --env Hopper-v4 --q 1.5 --steps 30000 --out {tmp_path} --resume"
     assert f"repeat its own command: {here};" in str(refused.value)
+    # made by a sweep: the sweep resumes it, run again as it was (it has no --resume)
+    sweep = "tacbench sweep --preset smoke --steps 30000 --out /elsewhere"
+    runs.atomic_write_json(directory / "config.json", {"config": short.to_dict(), "command": sweep})
+    with pytest.raises(TacbenchError) as refused:
+        plan_runs([config], tmp_path, resume=True, force=False)
+    assert f"To continue it, run its sweep again: {sweep}; or pass --force" in str(refused.value)
     # a complete run has nothing to continue: no such advice
     runs.atomic_write_json(directory / "status.json", {"state": "complete", "step": 30_000})
     with pytest.raises(TacbenchError, match=r"1000000\)\. Pass --force to replace it"):

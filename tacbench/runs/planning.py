@@ -101,14 +101,13 @@ def plan_run(
         stored = as_read_now(stored, read_as)
     differences = differing_fields(stored, config, neutral)
     if differences:
-        command = metadata.get("command")
+        recorded = metadata.get("command")
+        command = recorded if isinstance(recorded, str) else ""
+        how = {"tacbench run": "repeat its own command", "tacbench sweep": "run its sweep again"}
+        made_by = how.get(" ".join(command.split()[:2]))
         again = (  # a setting left out of the resume, such as --steps
-            f"To continue it, repeat its own command: "
-            f"{resume_command(command, directory.parents[4])}; or pass "
-            if resume
-            and isinstance(command, str)
-            and command.startswith("tacbench run ")
-            and unfinished(directory)
+            f"To continue it, {made_by}: {resume_command(command, directory.parents[4])}; or pass "
+            if resume and made_by and unfinished(directory)
             else "Pass "
         )
         raise TacbenchError(
