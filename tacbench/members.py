@@ -103,7 +103,8 @@ def make_run_configs(
             )
         )
     if first.warmup_updates != "on":  # on: updates start at each member's first episode end
-        notes += never_updated("--learning-starts", first.learning_starts, first.total_steps)
+        starts, total = first.learning_starts, first.total_steps
+        notes += never_updated("--learning-starts", starts, total, first_update_at_start=True)
     notes.append(compile_note(resolve_compile(first), overrides.get("compile", "auto")))
     return configs, notes
 

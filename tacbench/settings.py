@@ -168,15 +168,22 @@ class RunWarning(str):
     the compile note's warning, which describes the machine that plans, is left out."""
 
 
-def never_updated(learning_starts: str, starts: int, total_steps: int) -> list[str]:
+def never_updated(
+    learning_starts: str, starts: int, total_steps: int, *, first_update_at_start: bool = False
+) -> list[str]:
     """A warning, for the notes a run prints, when random steps (``learning_starts``, as the
-    user set it) fill the whole run, so that its networks are never updated; else none."""
+    user set it) fill the whole run, so that its networks are never updated; else none.
+    ``first_update_at_start``: the first update follows step ``starts`` itself (TAC's loop;
+    SB3's follows the next one), so at ``starts == total_steps`` there is one, after the last
+    step."""
     if starts < total_steps:
         return []
+    once = first_update_at_start and starts == total_steps
     return [
         RunWarning(
             f"WARNING: {learning_starts} {starts:,} is not below --steps {total_steps:,}: every "
-            "step takes a random action and the networks are never updated"
+            "step takes a random action and the networks are "
+            + ("updated once, after the last step" if once else "never updated")
         )
     ]
 

@@ -104,6 +104,9 @@ def test_a_run_that_never_learns_is_warned_about(steps: int, settings: dict, war
     _, notes = make_run_configs("Hopper-v4", "Hopper", [0], total_steps=steps, **settings)
     warning = f"WARNING: --learning-starts 10,000 is not below --steps {steps:,}"
     assert any(note.startswith(warning) for note in notes) == warned, notes
+    if warned:  # the loop updates after step 10,000 itself: at --steps 10,000, once
+        last = "updated once, after the last step" if steps == 10_000 else "never updated"
+        assert any(note.endswith(f"the networks are {last}") for note in notes), notes
 
 
 def test_a_population_that_never_exploits_is_warned_about() -> None:
