@@ -122,7 +122,8 @@ def check_sizes(config: BaselineConfig, info: envs.EnvInfo) -> None:
         needs["the rollout"] = int(hp.get("n_steps", SB3_N_STEPS)) * (
             obs + act + 6 * memory.FLOAT32
         )
-    needs["an evaluation"] = memory.evaluation_bytes(config.eval_episodes)
+    if config.eval_every > 0:  # --eval-every 0 evaluates nothing
+        needs["an evaluation"] = memory.evaluation_bytes(config.eval_episodes)
     memory.check_fits(
         needs, "--hp net_arch, batch_size, buffer_size or n_steps, or --eval-episodes"
     )

@@ -64,7 +64,8 @@ class Progress(Display):
     ) -> None:
         super().__init__(stream)
         self.label, self.total, self.start_step = label, total, start
-        self.every = every if every > 0 else max(1, total // 20)
+        # a line per evaluation, or every 5 % where none falls before the end (every 0 or over)
+        self.every = every if 0 < every < total else max(1, total // 20)
         self.last_eval = "-"
         self._step = start
         if not quiet and self.stream.isatty():

@@ -225,6 +225,18 @@ def test_plain_progress_prints_a_line_per_interval() -> None:
     assert "steps/s | eval 42.5 | ETA" in lines[0]
 
 
+def test_plain_progress_without_an_evaluation_before_the_end_prints_every_5_percent() -> None:
+    """--eval-every above --steps: a long run printed nothing until it ended."""
+    for every in (0, 3000, 5000):
+        stream = io.StringIO()
+        progress = Progress("TAC", 3000, 0, every, quiet=True, stream=stream)
+        for step in range(1, 3001):
+            progress.update(step, None)
+        progress.close()
+        lines = stream.getvalue().splitlines()
+        assert len(lines) == 20 and lines[0].startswith("TAC: step 150/3000 | "), every
+
+
 class _Terminal(io.StringIO):
     def isatty(self) -> bool:
         return True

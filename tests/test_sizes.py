@@ -53,6 +53,20 @@ def test_a_run_too_big_for_the_machine_is_refused_before_anything_is_written(
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.parametrize("learner", ["tac", "td3"])
+def test_evaluation_episodes_count_only_where_the_run_evaluates(learner: str) -> None:
+    """--eval-every 0 builds no evaluation envs: its --eval-episodes was counted all the same
+    ("this run would need about 1,117.6 GiB (... an evaluation 1,117.6 GiB)")."""
+    settings = {"eval_episodes": 10**10, "eval_every": 0}
+    if learner == "tac":
+        configs = tiny_configs("tac", seeds=(0,), **settings)
+    else:
+        run = {**TINY_RUN, **settings}
+        hopper = paper_task("Hopper-v4")
+        configs, _ = trainers.make_configs("td3", "Hopper-v4", hopper, (0,), run, hp=TINY_HP["td3"])
+    trainers.check_sizes(configs, envs.env_info("Hopper-v4"))  # no error
+
+
 def test_a_baselines_buffer_is_counted_as_built_never_above_the_runs_steps() -> None:
     """SB3's buffer is built with at most the run's steps (as TAC's), so a huge buffer_size on
     a short run fits: it used to be refused for memory it would never take."""

@@ -159,7 +159,8 @@ def check_sizes(
     rows = min(config.buffer_size, config.total_steps)
     row_bytes = (info.obs_dim + info.act_dim + 2) * memory.FLOAT32 + 16  # + the (s, s') index
     needs["the replay buffer"] = len(configs) * rows * row_bytes
-    needs["an evaluation"] = memory.evaluation_bytes(config.eval_episodes, len(configs))
+    if config.eval_every > 0:  # --eval-every 0 builds no evaluation envs
+        needs["an evaluation"] = memory.evaluation_bytes(config.eval_episodes, len(configs))
     memory.check_fits(needs, flags)
 
 
