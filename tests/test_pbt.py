@@ -162,11 +162,13 @@ def test_a_copy_gets_exactly_the_sources_learner_and_keeps_its_generator() -> No
     assert not torch.equal(other["params"]["policy.weights.0"], copy["params"]["policy.weights.0"])
 
 
-def _population_configs(**settings: object) -> list[RunConfig]:
+def _population_configs(
+    seeds: tuple[int, ...] = (0, 1, 2, 3), **settings: object
+) -> list[RunConfig]:
     run = {**TINY_RUN, **TINY_TAC, "learning_starts": 500, "pbt_every": 250, "compile": "off"}
     run |= {"total_steps": 1250, "hidden_sizes": (32,)}  # rounds at 750 and 1,000; small nets
     configs, _ = make_run_configs(
-        "Hopper-v4", "Hopper", [0, 1, 2, 3], alphas=[0.2], q_mode="auto", **{**run, **settings}
+        "Hopper-v4", "Hopper", list(seeds), alphas=[0.2], q_mode="auto", **{**run, **settings}
     )
     return configs
 
@@ -193,7 +195,9 @@ def test_a_population_trains_audits_and_resumes_exactly(tmp_path: Path) -> None:
     for stop_at in (600, 900):  # in the warm-up's tail, and between rounds
         outcomes = train(out, _population_configs(), resume=True, stop=lambda s, a=stop_at: s >= a)
         assert {o.state for o in outcomes} == {"interrupted"}
-    resumed = train(out, _population_configs(), resume=True)
+    # the seeds in another order: each member keeps the q it started from (its place among the
+    # first command's seeds set it; the resume was refused, naming a q the user never gave)
+    resumed = train(out, _population_configs(seeds=(3, 2, 1, 0)), resume=True)
     for a, b in zip(runs, [o.directory for o in resumed], strict=True):
         assert_same_results(a, b)
         assert (a / "pbt.csv").read_text() == (b / "pbt.csv").read_text()
@@ -201,9 +205,8 @@ def test_a_population_trains_audits_and_resumes_exactly(tmp_path: Path) -> None:
 
 @pytest.mark.smoke
 def test_a_population_resumes_only_as_a_whole(tmp_path: Path) -> None:
-    """A population resumed without live members would rank without them. Seeds 0, 2, 4 and 6
-    of seven start at the q of a population of those four (every other one of seven log-spaced
-    values), so their run directories match the command."""
+    """A population resumed without live members would rank without them: the resume names
+    them (it named a q, where the members left out moved every other member's starting q)."""
     run = {**TINY_RUN, **TINY_TAC, "learning_starts": 500, "pbt_every": 250, "compile": "off"}
     run |= {"total_steps": 1250, "hidden_sizes": (16,), "eval_every": 0}
 
@@ -212,8 +215,8 @@ def test_a_population_resumes_only_as_a_whole(tmp_path: Path) -> None:
 
     stopped = train(tmp_path, population(list(range(7))), stop=lambda step: step >= 600)
     before = {p: p.read_bytes() for o in stopped for p in o.directory.rglob("*") if p.is_file()}
-    with pytest.raises(TacbenchError, match=r"resumes as a whole.*--seed 1, --seed 3, --seed 5"):
-        train(tmp_path, population([0, 2, 4, 6]), resume=True)
+    with pytest.raises(TacbenchError, match=r"resumes as a whole.*--seed 4, --seed 5, --seed 6"):
+        train(tmp_path, population([0, 1, 2, 3]), resume=True)
     after = {p: p.read_bytes() for o in stopped for p in o.directory.rglob("*") if p.is_file()}
     assert after == before
     (stopped[6].directory / "config.json").rename(tmp_path / "moved-away.json")

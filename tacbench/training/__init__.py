@@ -11,6 +11,7 @@ incrementally (only what was added since the previous checkpoint).
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
@@ -115,7 +116,9 @@ def _in_recorded_order(out: Path, configs: Sequence[RunConfig]) -> list[RunConfi
     """The members in the order their config.json records, where it lists these members: the
     order of a group's members is part of its rounding, so the same members given in another
     order resume as they trained (another group keeps the command's order, and its resume says
-    that the group changed)."""
+    that the group changed). A ``--q auto`` member resumes at the q it started from, which its
+    place among the first command's seeds set (another order, or a seed left out, gave each
+    member another q: a refusal naming a q the user never gave)."""
     for config in configs:
         path = runs.run_directory(out, config.algo, config.env, config.variant, config.seed)
         recorded = recorded_members(path)
@@ -123,6 +126,14 @@ def _in_recorded_order(out: Path, configs: Sequence[RunConfig]) -> list[RunConfi
             continue  # none yet, or unreadable: planning says what to do about the latter
         if not all(isinstance(m, dict) for m in recorded):
             return list(configs)
+        if configs[0].q_mode == "auto":  # a member starts at the q of its place among --seed
+            start = {m.get("seed"): m.get("q") for m in recorded}
+            configs = [
+                dataclasses.replace(c, q=float(start[c.seed]))
+                if isinstance(start.get(c.seed), int | float)
+                else c
+                for c in configs
+            ]
         order = [(m.get("q"), m.get("alpha"), m.get("seed")) for m in recorded]
         if len(order) != len(configs) or set(order) != {(c.q, c.alpha, c.seed) for c in configs}:
             return list(configs)
