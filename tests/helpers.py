@@ -211,7 +211,15 @@ def start_cli(
         text=True,
         env={**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})},
         start_new_session=session,
+        preexec_fn=_hangup_as_default,
     )
+
+
+def _hangup_as_default() -> None:
+    """In the child, before tacbench starts: SIGHUP's default action. Tests run under nohup
+    pass their ignored SIGHUP on, which tacbench then keeps ignored (as nohup asks), so the
+    hangup tests failed there."""
+    signal.signal(signal.SIGHUP, signal.SIG_DFL)
 
 
 def interrupt_cli(
