@@ -25,7 +25,7 @@ RUNS = {
     "paper-q-grid-100k-ant": 9 * 5,
     "paper-q-grid-100k-swimmer": 9 * 5,
     "paper-q-grid-100k-pusher": 9 * 5,
-    "paper-q-grid-100k-humanoid": 3 * 3,  # q = 1, 1.2, 2 x seeds 0, 10, 20
+    "paper-q-grid-100k-humanoid": 5 * 3,  # q = 0.5, 0.7, 1, 1.2, 2 x seeds 0, 10, 20
     # HalfCheetah, one folder per version of the authors' code: 5 q x 5 seeds
     "authors-versions-100k/authors-2019-01-07b": 5 * 5,
     "authors-versions-100k/authors-2019-01-11b": 5 * 5,
