@@ -53,16 +53,25 @@ def hold(path: Path, record: str) -> int:
             "away, or write somewhere else."
         ) from None
     try:
-        try:
-            fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            raise Held(os.pread(descriptor, 4096, 0).decode(errors="replace").strip()) from None
+        recorded = _held_by(descriptor)
+        if recorded is not None:
+            raise Held(recorded)
         os.ftruncate(descriptor, 0)
         os.pwrite(descriptor, record.encode(), 0)
     except BaseException:
         os.close(descriptor)
         raise
     return descriptor
+
+
+def _held_by(descriptor: int) -> str | None:
+    """Take the exclusive ``flock`` on the open lock file ``descriptor`` without waiting: None
+    once taken, else what the process holding it recorded in the file."""
+    try:
+        fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return os.pread(descriptor, 4096, 0).decode(errors="replace").strip()
+    return None
 
 
 def holder(directory: Path) -> str | None:
@@ -73,12 +82,10 @@ def holder(directory: Path) -> str | None:
     except OSError:  # no lock file (no writer ever), or no file at all: hold() will say so
         return None
     try:
-        fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except BlockingIOError:
-        return os.pread(descriptor, 4096, 0).decode(errors="replace").strip() or "holder unknown"
+        recorded = _held_by(descriptor)
     finally:
         os.close(descriptor)  # releases a lock taken here
-    return None
+    return None if recorded is None else recorded or "holder unknown"
 
 
 @contextmanager

@@ -330,8 +330,10 @@ class SlurmExecutor:
         latest: dict[str, int] = {}
         for entry in self._jobs.values():
             status = self.out / entry.unit.runs[0].key / "status.json"
-            recorded = runs.read_json(status) if status.exists() else {"state": "new"}
-            if recorded.get("state") not in ("new", "failed"):  # failed: the retry's last attempt's
+            if not status.exists():
+                continue
+            recorded = runs.read_json(status)
+            if recorded.get("state") != "failed":  # failed: the retry's last attempt's
                 latest[entry.unit.key] = int(recorded.get("step", 0))
         return latest
 

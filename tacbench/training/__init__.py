@@ -126,18 +126,19 @@ def _in_recorded_order(out: Path, configs: Sequence[RunConfig]) -> list[RunConfi
             continue  # none yet, or unreadable: planning says what to do about the latter
         if not all(isinstance(m, dict) for m in recorded):
             return list(configs)
-        if configs[0].q_mode == "auto":  # a member starts at the q of its place among --seed
+        members = list(configs)
+        if members[0].q_mode == "auto":  # a member starts at the q of its place among --seed
             start = {m.get("seed"): m.get("q") for m in recorded}
-            configs = [
+            members = [
                 dataclasses.replace(c, q=float(start[c.seed]))
                 if isinstance(start.get(c.seed), int | float)
                 else c
-                for c in configs
+                for c in members
             ]
         order = [(m.get("q"), m.get("alpha"), m.get("seed")) for m in recorded]
-        if len(order) != len(configs) or set(order) != {(c.q, c.alpha, c.seed) for c in configs}:
-            return list(configs)
-        return sorted(configs, key=lambda c: order.index((c.q, c.alpha, c.seed)))
+        if len(order) != len(members) or set(order) != {(c.q, c.alpha, c.seed) for c in members}:
+            return members
+        return sorted(members, key=lambda c: order.index((c.q, c.alpha, c.seed)))
     return list(configs)
 
 
