@@ -4,6 +4,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from functools import cache
 
@@ -32,12 +33,22 @@ def comparator_class() -> type:
     where the observed statistic is strictly above the boundary, but computes it from means and
     the permuted values from blockwise sums, so the observed labelling's own value could fall a
     rounding error below it and a tie read as a rejection (docs/sequential.md).
+
+    From the second interim on, where the first interim's labellings outnumber ``B`` (from
+    n = 8 runs a side: C(16, 8) = 12,870 > 10,000), the package pairs each of the first
+    interim's ``B`` random labellings with one of the new runs, but counts them as
+    C(2n, n) ** 0 = 1: its boundary became the largest permuted value, which the observed
+    labelling's own value cannot pass, and no comparison could be decided after the first
+    interim. The count is ``B``, as at the first interim.
     """
     from adastop import MultipleAgentsComparator
 
     class TwoSidedComparator(MultipleAgentsComparator):
         def compute_mean_diffs(self, k: int, Z: list[np.ndarray]) -> dict[str, np.ndarray]:
             signed = super().compute_mean_diffs(k, Z)
+            pair = self.current_comparisons[0]
+            if k > 0 and math.comb(self.n[pair[0]] + self.n[pair[1]], self.n[pair[0]]) > self.B:
+                self.normalization = self.B
             return {
                 key: np.abs(np.asarray(values)) * (1 + TIE_TOLERANCE)
                 for key, values in signed.items()

@@ -88,6 +88,28 @@ def test_an_early_decision_stops_spending_runs() -> None:
     assert len(result.interims) == 1
 
 
+def test_a_difference_from_the_second_interim_is_decided_where_labellings_outnumber_b() -> None:
+    """With more labellings of an interim's runs than B (C(10, 5) = 252 > 200 here; at the
+    default B = 10,000 from n = 8), the package counted the second interim's B paired
+    labellings as 1, and nothing could be decided after the first interim."""
+    rng = np.random.default_rng(3)
+    first = rng.normal(0.0, 1.0, 10)
+    scores = {"a": np.r_[first[:5], rng.normal(0.0, 1.0, 10)], "b": np.r_[first[5:], 20 + first]}
+    result = sq.run_sequential(scores, n=5, K=3, alpha=0.05, control="a", B=200)
+    assert result.decisions[("b", "a")] == "larger" and result.decided_at(("b", "a")) == 2
+
+
+def test_with_labellings_sampled_the_later_interims_keep_the_error_rate() -> None:
+    alpha, repeats = 0.1, 200
+    rng = np.random.default_rng(4)
+    rejected = 0
+    for repeat in range(repeats):
+        scores = {m: rng.normal(0.0, 1.0, 15) for m in ("a", "b")}
+        result = sq.run_sequential(scores, n=5, K=3, alpha=alpha, control="a", B=200, seed=repeat)
+        rejected += result.decisions[("b", "a")] in ("larger", "smaller")
+    assert rejected / repeats <= alpha + 3 * math.sqrt(alpha * (1 - alpha) / repeats)
+
+
 def test_the_replay_of_the_committed_study_is_deterministic_and_honest() -> None:
     first = sq.decision_table(sq.replay_study(STUDY, n=5, K=1))
     again = sq.decision_table(sq.replay_study(STUDY, n=5, K=1))
