@@ -121,6 +121,16 @@ def test_best_q_table_ranks_and_compares_with_the_paper(flat_report: Report) -> 
     assert row["p_best_over_q1"] == pytest.approx(6.5 / 9)
 
 
+def test_a_ranking_of_unequal_seed_counts_gives_each_q_its_count(tmp_path: Path) -> None:
+    """A q on one seed could top the ranking on that seed's luck, unmarked: where the counts
+    differ, each q carries its own."""
+    _flat_runs(tmp_path, "Hopper-v4", "tac", 1.0, [100.0, 200.0, 300.0])
+    _flat_runs(tmp_path, "Hopper-v4", "tac", 2.0, [900.0])
+    report = analyse(ReportOptions(results=tmp_path, out=tmp_path / "out", reps=100, last=2))
+    [row] = report.best_q.to_dict("records")
+    assert row["best_q"] == 2.0 and row["ranking"] == "2 (n=1) > 1 (n=3)"
+
+
 def test_best_q_table_ranks_each_setting_of_a_task_apart(tmp_path: Path) -> None:
     """The adaptive study's HalfCheetah ranked its fixed- and learned-alpha runs together
     ("1 > 1.5 > 1 > 1.5", best q = 1 of the learned alpha, P of the learned-alpha pair): a task

@@ -161,7 +161,8 @@ def best_q_table(summary: pd.DataFrame, improvement: pd.DataFrame) -> pd.DataFra
     A *setting* is a TAC variant without its q (``a0.2``; ``aauto0.2`` for a learned alpha;
     ``a0.2-bs32``): a task with runs of several gets a row for each, which ranks that setting's
     q values alone (ranked together, one q's fixed and learned alpha runs would stand side by
-    side unnamed). Ranking is by mean final return over seeds (all q, q = 1 included).
+    side unnamed). Ranking is by mean final return over seeds (all q, q = 1 included); where
+    the q values have different seed counts, the ranking gives each its count.
     ``p_best_over_q1`` is P(best q != 1 > q = 1) on that task with its 95 % interval (from
     ``improvement``); it is optimistic because the best q was picked on the same runs.
     """
@@ -194,7 +195,7 @@ def best_q_table(summary: pd.DataFrame, improvement: pd.DataFrame) -> pd.DataFra
             "best_final": top["final_mean"],
             "best_final_std": top["final_std"],
             "best_q_not_1": others.iloc[0]["q"] if len(others) else math.nan,
-            "ranking": " > ".join(f"{q:g}" for q in ranked["q"]) + _all_failed(failed_qs),
+            "ranking": _ranking(ranked) + _all_failed(failed_qs),
             "paper_q": "task not in the paper" if paper is None else paper.best_q_label,
             "paper_q_rank": rank,
             "agrees": agrees,
@@ -207,6 +208,14 @@ def best_q_table(summary: pd.DataFrame, improvement: pd.DataFrame) -> pd.DataFra
         row.update(_improvement_of_best(improvement, str(env), best_method))
         rows.append(row)
     return pd.DataFrame(rows, columns=list(BEST_Q_COLUMNS))
+
+
+def _ranking(ranked: pd.DataFrame) -> str:
+    """The q values best first; each with its seed count where the counts differ, so that a q
+    ranked on fewer seeds (one, say, whose mean is that seed's luck) reads as such."""
+    if ranked["seeds"].nunique() == 1:
+        return " > ".join(f"{q:g}" for q in ranked["q"])
+    return " > ".join(f"{q:g} (n={n})" for q, n in zip(ranked["q"], ranked["seeds"], strict=True))
 
 
 def _all_failed(qs: list[float]) -> str:
