@@ -273,6 +273,8 @@ def test_vectorised_over_leading_axes() -> None:
         # was the uniform policy with q-max 0.5, below max f = 1 (thm:bound)
         (lambda: q_max([0.0, 1.0], 1e300, alpha=1e10), r"alpha \* q = 1e\+10 \* 1e\+300 overflows"),
         (lambda: q_softmax([0.0, 1.0], 1e308, alpha=2.0), "overflows float64"),
+        # was [nan, 0]: 0 / 0 at the best arm
+        (lambda: q_softmax([1.0, 0.0], 1e-200, alpha=1e-200), "underflows float64 to 0"),
     ],
 )
 def test_bad_input_raises_the_project_error(call: object, message: str) -> None:

@@ -30,6 +30,7 @@ from tacbench.errors import TacbenchError
 from tacbench.theory.mdp import (
     GRID_ACTIONS,
     GRID_ALPHA,
+    GRID_GAMMA,
     GRID_MAP,
     GRID_QS,
     error_bounds,
@@ -274,7 +275,7 @@ def plot_error_bounds(table: pd.DataFrame) -> Figure:
     ax.set(
         xlabel="entropic index q (log scale)",
         ylabel="expected discounted reward J from S",
-        title=rf"Performance error bounds ($\gamma$ = 0.7, $\alpha$ = {GRID_ALPHA:g})",
+        title=rf"Performance error bounds ($\gamma$ = {GRID_GAMMA:g}, $\alpha$ = {GRID_ALPHA:g})",
     )
     ax.set_xscale("log")
     ax.set_xticks(table["q"], [f"{q:g}" for q in table["q"]])

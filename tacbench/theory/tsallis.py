@@ -254,6 +254,11 @@ def _solve(f: ArrayLike, q: float, alpha: float, what: str) -> _Solution:
             f"{what}: alpha * q = {alpha:g} * {q:g} overflows float64; use a smaller q or alpha "
             "(q -> infinity is the plain maximum)."
         )
+    if alpha * q == 0.0:  # y would be 0 / 0 at the best arm: a NaN policy
+        raise TacbenchError(
+            f"{what}: alpha * q = {alpha:g} * {q:g} underflows float64 to 0; use a larger q or "
+            "alpha (alpha -> 0 is the plain maximum)."
+        )
     values = _as_values(f, what)
     f_max = np.max(values, axis=-1, keepdims=True)
     with np.errstate(over="ignore", invalid="ignore"):  # inputs near +-1e308: a gap may lie
