@@ -9,8 +9,8 @@ the commands; ``tacbench study adaptive analyse --results DIR`` the tables.
 A run's final return is the report's: the mean of its last 10 evaluations. A population is one
 unit (its members copy each other): it is compared with the mean of the fixed runs of its own
 eight seeds, so each task gives two paired differences. The learned-alpha runs are compared with
-the fixed-alpha runs of the same seeds, seed by seed, with rliable's bootstrap interval of the
-mean difference.
+the fixed-alpha runs of the same seeds, unpaired: rliable's bootstrap interval of the difference
+of the two means, each group resampled on its own.
 """
 
 from __future__ import annotations
