@@ -67,6 +67,11 @@ def check_numbers(config: RunConfig) -> None:
     for name in ("alpha", "gamma", "tau", "learning_rate"):  # > 0 above, or in RunConfig
         value = getattr(config, name)
         check_normal(value, f"{flag_of(type(config), name)} {value:g}")
+        if not _float32(value):  # float32's inf: a non-finite loss at the first update
+            raise TacbenchError(
+                f"{flag_of(type(config), name)} {value:g} is above float32's largest number, "
+                f"{FLOAT32_MAX:.4g}, which the update's tensors hold."
+            )
     bounds = (config.log_std_min, config.log_std_max)
     if not all(_float32(b) for b in bounds) or not bounds[0] < bounds[1]:
         raise TacbenchError(

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import errno
 import json
 import shlex
 import subprocess
@@ -71,6 +72,29 @@ def test_other_exceptions_are_not_swallowed() -> None:
     result = CliRunner().invoke(group, ["bug"])
     assert result.exit_code == 1
     assert isinstance(result.exception, RuntimeError)
+
+
+def test_a_full_disk_is_a_user_error_and_other_os_errors_stay_bugs() -> None:
+    @click.group(cls=Group)
+    def group() -> None:
+        pass
+
+    @group.command()
+    def full() -> None:
+        raise OSError(errno.ENOSPC, "No space left on device", "/out/bounds.png")
+
+    @group.command()
+    def missing() -> None:
+        raise FileNotFoundError(errno.ENOENT, "No such file or directory", "/in/eval.csv")
+
+    result = CliRunner().invoke(group, ["full"])
+    assert result.exit_code == 2 and "Traceback" not in result.output
+    assert result.output == (
+        "Error: cannot write /out/bounds.png: the disk is full; free some space, then run the "
+        "command again.\n"
+    )
+    result = CliRunner().invoke(group, ["missing"])
+    assert result.exit_code == 1 and isinstance(result.exception, FileNotFoundError)
 
 
 def test_version() -> None:
@@ -287,3 +311,15 @@ def test_a_message_that_runs_share_is_said_once_after_them(tmp_path: Path) -> No
         f"2 runs: {stop}",
     ]
     assert result.exit_code == 130
+
+
+def test_a_sweep_into_another_results_folders_runs_is_refused(tmp_path: Path) -> None:
+    run = tmp_path / "runs/tac/Hopper-v4/q1-a0.2/seed0"
+    run.mkdir(parents=True)
+    (run / "config.json").write_text("{}")
+    (run / "status.json").write_text("{}")
+    args = ["sweep", "--preset", "smoke", "--algo", "tac", "--seed", "0", "--q", "1"]
+    result = CliRunner().invoke(cli, [*args, "--out", str(tmp_path / "runs")])
+    assert result.exit_code == 2, result.output
+    assert f"is the runs/ folder of the results folder {tmp_path}; give --out" in result.output
+    assert sorted(p.name for p in (tmp_path / "runs").iterdir()) == ["tac"]

@@ -165,6 +165,9 @@ def test_the_density_cap_is_mentioned_where_its_rule_applies() -> None:
         ("tau", 1e-40, "--tau 1e-40 is below float32's smallest normal number"),  # target fixed
         ("gamma", 1e-39, "--gamma 1e-39 is below float32's smallest normal number"),
         ("learning_rate", 1e-300, "--learning-rate 1e-300 is below float32's smallest normal"),
+        # both were accepted and ended the run with a non-finite loss at its first update
+        ("alpha", 1e40, r"--alpha 1e\+40 is above float32's largest number, 3.403e\+38"),
+        ("learning_rate", 1e40, r"--learning-rate 1e\+40 is above float32's largest number"),
         ("jacobian_clip", 1.0, "--jacobian-clip must lie in"),
         ("gaussian_eps", -1e-8, "--gaussian-eps must lie in"),
         ("compile", True, "--compile must be one of auto, on, off"),

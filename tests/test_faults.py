@@ -333,3 +333,35 @@ def test_a_full_disk_stops_the_sweep_with_one_clear_line(
     assert again.returncode == 0, again.stdout + again.stderr
     assert "2 runs: 2 complete, 0 failed" in again.stdout
     shutil.rmtree(runs)  # the tmpfs goes with the test
+
+
+def test_a_full_disk_under_a_command_without_runs_is_one_clear_line(
+    tmpfs: Callable[..., Path],
+) -> None:
+    """`figures` (like `report` or `bench --json`) was a traceback with exit status 1."""
+    disk = tmpfs("size=256k")
+    _fill(disk)
+    done = subprocess.run(
+        [sys.executable, "-m", "tacbench", "figures", "--out", str(disk / "figures")],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert done.returncode == 2, done.stdout + done.stderr
+    line = _error_line(done.stdout + done.stderr)
+    assert line.startswith("Error: cannot write "), line  # matplotlib's errors name no file
+    assert line.endswith("the disk is full; free some space, then run the command again."), line
+
+
+def test_a_full_disk_under_a_sweeps_files_names_the_sweeps_way_to_resume(
+    tmpfs: Callable[..., Path],
+) -> None:
+    """It said "rerun with --resume", an option `sweep` does not have."""
+    disk = tmpfs("size=256k")
+    _fill(disk)
+    args = ["sweep", "--preset", "smoke", "--algo", "tac", "--seed", "0", "--q", "1"]
+    result = CliRunner().invoke(cli, [*args, "--steps", "300", "--out", str(disk / "sweep")])
+    assert result.exit_code == 2, result.output
+    line = _error_line(result.output)
+    assert "the disk is full; free some space, then rerun the same command" in line, line
+    assert "--resume" not in line

@@ -200,3 +200,35 @@ def test_a_refused_member_leaves_the_others_forced_runs_in_place(tmp_path: Path)
     with pytest.raises(TacbenchError, match="nothing was changed"):
         plan_runs([kept, refused], tmp_path, resume=False, force=True)
     assert runs.read_json(directory / "status.json")["state"] == "complete"
+
+
+@pytest.mark.parametrize(
+    ("where", "says"),
+    [
+        ("runs/tac/Hopper-v4/q1.5-a0.2/seed0", "is the run directory"),
+        ("runs/tac/Hopper-v4/q1.5-a0.2/seed0/more", "is inside the run directory"),
+        ("runs", "is the runs/ folder of the results folder"),
+        ("runs/tac/Hopper-v4", "is inside the runs/ folder of the results folder"),
+    ],
+)
+def test_an_out_in_another_results_folders_runs_is_refused_and_nothing_written(
+    tmp_path: Path, where: str, says: str
+) -> None:
+    """The new runs nested there (`<run>/runs/tac/...`, `runs/runs/tac/...`): a report of the
+    folder above missed them, or loaded them and set the runs beside them aside as duplicates."""
+    [config] = _configs(0)
+    _store(tmp_path / "runs/tac/Hopper-v4/q1.5-a0.2/seed0", config, "complete", 100)
+    before = sorted(tmp_path.rglob("*"))
+    planned = runs.planned_runs(_configs(1), tmp_path / where, resume=False, force=False)
+    with pytest.raises(TacbenchError, match=f"{says}.*give"), planned:
+        pass
+    assert sorted(tmp_path.rglob("*")) == before
+
+
+def test_a_folder_named_runs_without_runs_in_it_is_a_results_folder_like_any(
+    tmp_path: Path,
+) -> None:
+    with runs.planned_runs(_configs(0), tmp_path / "runs", resume=False, force=False) as planned:
+        assert [directory for _, directory in planned[1]] == [
+            tmp_path / "runs/runs/tac/Hopper-v4/q1.5-a0.2/seed0"
+        ]

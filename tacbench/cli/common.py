@@ -12,6 +12,7 @@ import click
 
 from tacbench.errors import TacbenchError
 from tacbench.interrupts import SecondSignal, exit_status
+from tacbench.runs.checkpoints import FULL_ERRNOS
 
 if TYPE_CHECKING:
     from tacbench.runs import Outcome
@@ -25,13 +26,23 @@ class UserError(click.ClickException):
 
 class Group(click.Group):
     """A click group that turns :class:`TacbenchError` into a clean message and exit status 2,
-    and a Ctrl-C that no command handles (while one starts, say) into exit status 130."""
+    as it does a full disk under a command that has no words of its own for it (``figures``,
+    ``report``, ``bench --json``: ``run`` and ``sweep`` say how to resume), and a Ctrl-C that
+    no command handles (while one starts, say) into exit status 130."""
 
     def invoke(self, ctx: click.Context) -> Any:
         try:
             return super().invoke(ctx)
         except TacbenchError as err:
             raise UserError(str(err)) from None
+        except OSError as err:
+            if err.errno not in FULL_ERRNOS:
+                raise
+            what = err.filename or "the command's files"  # matplotlib's errors name none
+            raise UserError(
+                f"cannot write {what}: the disk is full; free some space, then run the command "
+                "again."
+            ) from None
         except SecondSignal as stopped:
             resume = stopped.resume or "the same command (with --resume for tacbench run)"
             click.echo(

@@ -298,10 +298,17 @@ def recorded_members(directory: Path) -> list[Any] | None:
     return members if isinstance(members, list) and members else None
 
 
+RESUME_RUN = "rerun with --resume: what was written up to the last checkpoint is intact"
+"""What to do once a full disk has space again, in ``tacbench run``."""
+
+
 @contextmanager
-def disk_errors(what: str) -> Iterator[None]:
+def disk_errors(
+    what: str, again: str = RESUME_RUN, elsewhere: str = "choose a folder you can write with --out"
+) -> Iterator[None]:
     """Turn an OS error that means the folder cannot take our files (full, read-only, not
-    writable) into a :class:`DiskError` that names the file and says what to do."""
+    writable) into a :class:`DiskError` that names the file and says what to do: free some
+    space, then ``again``; or ``elsewhere``."""
     try:
         yield
     except OSError as err:
@@ -310,10 +317,5 @@ def disk_errors(what: str) -> Iterator[None]:
         full = err.errno in FULL_ERRNOS
         reason = "the disk is full" if full else os.strerror(err.errno or 0).lower()
         where = f" ({err.filename})" if err.filename else ""
-        advice = (
-            "free some space, then rerun with --resume: what was written up to the last "
-            "checkpoint is intact"
-            if full
-            else "choose a folder you can write with --out"
-        )
+        advice = f"free some space, then {again}" if full else elsewhere
         raise DiskError(f"cannot write {what}{where}: {reason}; {advice}.", full=full) from None

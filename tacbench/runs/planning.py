@@ -4,6 +4,7 @@ command starts, resumes, skips or must refuse it, while it holds the directories
 from __future__ import annotations
 
 import dataclasses
+import os
 import shutil
 from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
@@ -24,6 +25,26 @@ from tacbench.runs.resume_checks import START_OVER
 def run_directory(out: Path, algo: str, env: str, variant: str, seed: int) -> Path:
     """``<out>/runs/<algo>/<env>/<variant>/seed<seed>``."""
     return Path(out) / "runs" / algo / env / variant / f"seed{seed}"
+
+
+def check_results_folder(out: Path) -> None:
+    """Refuse an ``--out`` at or inside a run directory, or inside a results folder's ``runs/``
+    tree (``runs/`` itself, an algorithm's or task's folder): the new runs would nest there,
+    where a report of the folder above misses them, or loads them and sets the runs beside
+    them aside as duplicates."""
+    path = Path(os.path.abspath(out))
+    for folder in (path, *path.parents):
+        if (folder / "config.json").is_file() and (folder / "status.json").is_file():
+            raise TacbenchError(
+                f"--out {out} is {'' if folder == path else 'inside '}the run directory "
+                f"{folder}; give the results folder that holds its runs/ folder instead."
+            )
+        if folder.name == "runs" and next(folder.glob("*/*/*/seed*/config.json"), None):
+            raise TacbenchError(
+                f"--out {out} is {'' if folder == path else 'inside '}the runs/ folder of the "
+                f"results folder {folder.parent}; give --out {folder.parent} (its runs go to "
+                f"{folder}/<algo>/<env>/<variant>/seed<k>)."
+            )
 
 
 def differing_fields(
@@ -289,6 +310,7 @@ def planned_runs(
     """:func:`plan_runs`, holding the lock of every run directory (:func:`locks.writing`) from
     before the plan to the end of the block, so that no other process writes them meanwhile."""
     check_resume_or_force(resume, force)
+    check_results_folder(out)
     ensure_writable(Path(out))
     directories = [run_directory(out, c.algo, c.env, c.variant, c.seed) for c in configs]
     with writing(directories):

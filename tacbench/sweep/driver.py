@@ -132,10 +132,12 @@ def run_sweep(
     A full disk stops the sweep (every unit checkpoints and returns) with a DiskError. The
     plan's warnings are printed but for those in ``told`` (printed already by the command:
     ``--until-decided``'s earlier interims)."""
+    runs.check_results_folder(out)
     runs.ensure_writable(out)
     if options.shares_local_gpu:
         _require_cuda()
-    with disk_errors("the sweep's files"), state.Lock(out):
+    again = "rerun the same command: every run resumes from its last checkpoint"
+    with disk_errors("the sweep's files", again), state.Lock(out):
         state.prepare_sweep_folder(out)
         work, history = load_plan(preset, out, options)
         preflight.check_sizes(work, options)
