@@ -232,3 +232,10 @@ def test_a_folder_named_runs_without_runs_in_it_is_a_results_folder_like_any(
         assert [directory for _, directory in planned[1]] == [
             tmp_path / "runs/runs/tac/Hopper-v4/q1.5-a0.2/seed0"
         ]
+
+
+def test_a_project_folder_with_a_config_json_is_no_run_directory(tmp_path: Path) -> None:
+    """Only a run directory (``seed<k>``) holding a config.json refuses an --out inside it."""
+    (tmp_path / "config.json").write_text("{}")
+    (tmp_path / "status.json").write_text("{}")
+    runs.check_results_folder(tmp_path / "results")

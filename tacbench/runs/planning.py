@@ -34,7 +34,7 @@ def check_results_folder(out: Path) -> None:
     them aside as duplicates."""
     path = Path(os.path.abspath(out))
     for folder in (path, *path.parents):
-        if (folder / "config.json").is_file() and (folder / "status.json").is_file():
+        if folder.name.startswith("seed") and (folder / "config.json").is_file():
             raise TacbenchError(
                 f"--out {out} is {'' if folder == path else 'inside '}the run directory "
                 f"{folder}; give the results folder that holds its runs/ folder instead."
