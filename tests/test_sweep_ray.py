@@ -119,11 +119,13 @@ def test_a_task_killed_on_its_node_is_recorded_with_its_node_and_host(tmp_path: 
         started = lambda: any(scratch.glob("*/runs/tac/*/*/seed0/status.json"))  # noqa: E731
         wait_for(started, timeout=180, proc=driver, poll=0.1, what="the task to start training")
         (task,) = _task_processes(os.getsid(driver.pid))
+        niceness = os.getpriority(os.PRIO_PROCESS, task)
         os.kill(task, signal.SIGKILL)
         output, _ = driver.communicate(timeout=180)
     finally:  # the driver and its Ray's processes, should the test fail half-way
         with contextlib.suppress(ProcessLookupError):
             os.killpg(driver.pid, signal.SIGKILL)
+    assert niceness == 0  # Ray's default, 15, would let any busy process starve the training
     assert driver.returncode == 1, output
     assert "Ray task failed" in output
     (entry,) = json.loads((out / "sweep" / "state.json").read_text())["runs"].values()

@@ -198,6 +198,10 @@ class RayExecutor:
                 log_to_driver=False,
                 logging_level=logging.WARNING,
                 num_cpus=workers if address is None else None,
+                # a local Ray's tasks train at this machine's usual priority, as the local
+                # executor's workers do: at Ray's default (15) any other busy process starves
+                # them, and the dry run prices whole cores. A cluster keeps its own setting.
+                _system_config={"worker_niceness": 0} if address is None else None,
             )
         except (ConnectionError, RuntimeError, ValueError) as err:
             raise TacbenchError(
