@@ -57,7 +57,9 @@ TINY_RUN = {
 TINY_TAC = {"learning_starts": 1000, "batch_size": 32}
 TINY_HP = {
     "ddpg": ("learning_starts=1000", "batch_size=32"),
-    "td3": ("learning_starts=1000", "batch_size=32"),
+    # TD3's table networks, (400, 300), made its tiny runs the suite's slowest; the exact
+    # regression tier and tests/test_baselines_models.py train and check the table's size
+    "td3": ("learning_starts=1000", "batch_size=32", "net_arch=[64, 64]"),
     "sac-sb3": ("learning_starts=1000", "batch_size=32"),
     # ent_coef: with the table's 0 (RL Zoo's MuJoCo default since 2026-12-04) a PPO run stopped
     # at 1,234 steps and resumed logs its second policy_gradient_loss 1 float32 ulp away from
