@@ -70,7 +70,7 @@ def _baseline_cell(env: str, baseline: str) -> str:
 
 def _state_of_the_art_cell(env: str) -> str:
     """Ahead of every baseline: contradicted by any baseline ahead of TAC, confirmed only when
-    all five ran and TAC is ahead of each."""
+    all five ran and TAC is ahead of each, too few runs where a comparison has too few."""
     rows = _baseline_rows(env)
     names = {label: name for name, label in BASELINES.items()}
     ahead_of_tac = rows[rows["verdict"] == "smaller"]["baseline"]
@@ -80,6 +80,8 @@ def _state_of_the_art_cell(env: str) -> str:
         return NOT_RUN + f" ({len(rows)} of {len(BASELINES)} baselines)"
     if (rows["verdict"] == "larger").all():
         return "**confirmed**"
+    if (rows["verdict"] == "too few runs").any():
+        return "**too few runs**"
     return "**not distinguishable**"
 
 

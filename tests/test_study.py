@@ -48,7 +48,7 @@ RUNS = {
     # and TRPO x 5 seeds, and TAC at q = 1 and the best q from the task's q-grid study; DDPG,
     # TD3 and SB3's SAC on Swimmer, Pusher and Ant x 5 seeds; Humanoid: PPO, TRPO, DDPG, SB3's
     # SAC and TAC at q = 1 and 1.2 x 3 seeds
-    "comparison-100k": 2 * 7 * 5 + 3 * 4 * 5 + 3 * 5 + 3 * 5 + 3 * 5 + 6 * 3,
+    "comparison-100k": 2 * 7 * 5 + 3 * 4 * 5 + 3 * 5 + 3 * 5 + 3 * 5 + 7 * 3,
     # Hopper and HalfCheetah: two `--q auto` populations of 8, fixed q = 1 and the paper's best q
     # x 16 seeds, and `--alpha auto` at both q x 5 seeds (docs/adaptive.md)
     "adaptive-q-100k": 2 * (2 * 8 + 2 * 16 + 2 * 5),
